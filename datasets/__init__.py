@@ -1,0 +1,1 @@
+"""Dataset readers and writers, calibration files and the synthetic infant capture."""

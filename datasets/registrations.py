@@ -1,0 +1,19 @@
+"""Registers the built-in capture-format readers (through the ``mmcsplat`` entry points)."""
+
+from __future__ import annotations
+
+from mmcsplat import Registration, hookimpl
+
+
+@hookimpl
+def mmcsplat_readers() -> list[Registration]:
+    return [
+        Registration("videos", "mmcsplat.datasets.videos:VideoReader",
+                     "a folder of per-camera videos plus an anipose/Pose2Sim calibration.toml"),
+        Registration("images", "mmcsplat.datasets.images:ImageSequenceReader",
+                     "per-camera folders of images plus a calibration.toml"),
+        Registration("d3dgs", "mmcsplat.datasets.d3dgs:D3DGSReader",
+                     "Dynamic3DGaussians / CMU Panoptic (train_meta.json, ims/, seg/)"),
+        Registration("dnerf", "mmcsplat.datasets.dnerf:DNeRFReader",
+                     "D-NeRF / Blender (transforms_*.json, RGBA images; monocular)"),
+    ]

@@ -1,0 +1,1 @@
+"""The built-in synthetic infant capture: an analytic ray-cast scene with ground truth."""

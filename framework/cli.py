@@ -1,0 +1,55 @@
+"""The ``mmcsplat`` console script: one sub-command per module in :mod:`mmcsplat.commands`."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from . import __version__
+
+#: Sub-command name → module in mmcsplat.commands defining ``add_arguments(parser)`` and ``run(args) -> int``.
+COMMANDS = {
+    "plugins": "plugins",
+}
+
+
+class CommandError(Exception):
+    """A user-facing failure: printed as one line, exit status 2."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="mmcsplat", description=__doc__.split("\n")[0] if __doc__ else None)
+    parser.add_argument("--version", action="version", version=f"mmcsplat {__version__}")
+    commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name, module_name in COMMANDS.items():
+        module = importlib.import_module(f"{__package__}.commands.{module_name}")
+        summary = (module.__doc__ or "").strip().split("\n")[0]
+        sub = commands.add_parser(name, help=summary, description=(module.__doc__ or "").strip())
+        module.add_arguments(sub)
+        sub.set_defaults(_run=module.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point; returns the process exit status."""
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args._run(args) or 0)
+    except KeyboardInterrupt:
+        print("mmcsplat: interrupted", file=sys.stderr)
+        return 130
+    except CommandError as error:
+        print(f"mmcsplat {args.command}: error: {error}", file=sys.stderr)
+        return 2
+    except Exception as error:  # plugin, input and store errors carry clear messages of their own
+        from .registry import PluginError
+
+        if isinstance(error, (PluginError, ValueError, FileNotFoundError, FileExistsError, NotADirectoryError)):
+            print(f"mmcsplat {args.command}: error: {error}", file=sys.stderr)
+            return 2
+        raise
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""Sub-commands of the mmcsplat console script."""

@@ -1,0 +1,185 @@
+"""The interface of each plugin kind. A plugin's factory (see :mod:`mmcsplat.hookspecs`) returns an object
+implementing one of these; docs/plugins.md explains how to write, register and test each.
+
+The core depends on these abstractions only, never on a concrete plugin.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import attrs
+import numpy as np
+
+from .camera import Camera
+
+if TYPE_CHECKING:  # heavy imports only for type checkers
+    import torch
+
+    from .rendering import Gaussians, RenderCameras, RenderOutput
+    from .store import SessionReader
+
+
+# ----------------------------------------------------------------------------------------------- readers
+
+
+@attrs.frozen(eq=False)
+class RecordedFrame:
+    """One image of a capture as a reader yields it: ``rgb`` [H, W, 3] uint8, an optional subject ``mask``
+    [H, W] bool (formats that ship masks), and its frame index ``t``."""
+
+    t: int
+    rgb: np.ndarray
+    mask: np.ndarray | None = None
+
+
+class Recording(ABC):
+    """An opened capture: calibrated cameras (possibly distorted) and their frames, decoded on demand."""
+
+    #: Cameras as calibrated; ingest undistorts frames and stores zero-distortion cameras.
+    cameras: Sequence[Camera]
+    #: Frames per second, and the number of frame indices (the union over cameras).
+    fps: float
+    num_frames: int
+    #: Cameras the format itself marks as held out for evaluation (e.g. d3dgs test cameras).
+    heldout: Sequence[str] = ()
+    #: Whether frames come with subject masks.
+    has_masks: bool = False
+
+    @abstractmethod
+    def frames(self, camera: str, indices: range) -> Iterator[RecordedFrame]:
+        """Yield the frames of ``camera`` whose index is in ``indices``, in order, skipping absent ones."""
+
+    def present(self, camera: str) -> np.ndarray:
+        """[num_frames] bool: which frame indices exist for ``camera`` (all, unless the format is sparse,
+        like D-NeRF's one camera per time step)."""
+        return np.ones(self.num_frames, dtype=bool)
+
+    def frame_times(self) -> np.ndarray:
+        """[num_frames] seconds of each frame index."""
+        return np.arange(self.num_frames, dtype=np.float64) / self.fps
+
+    def describe(self) -> dict[str, Any]:
+        """Provenance stored in the session's attributes."""
+        return {}
+
+    def close(self) -> None:
+        """Release decoders and files."""
+
+
+class Reader(ABC):
+    """A capture format: recognises a source folder and opens it as a :class:`Recording`."""
+
+    @abstractmethod
+    def detect(self, source: Path) -> bool:
+        """Whether ``source`` looks like this format (cheap: file names, not decoding)."""
+
+    @abstractmethod
+    def open(self, source: Path, calibration: Path | None = None, units: str = "m") -> Recording:
+        """Open ``source``; ``calibration`` overrides the format's own, ``units`` is the calibration's
+        length unit ("m" or "mm"). Errors name the file or camera at fault."""
+
+
+# --------------------------------------------------------------------------------------------- renderers
+
+
+class Renderer(ABC):
+    """A differentiable Gaussian rasterizer honouring the contract of :mod:`mmcsplat.rendering`."""
+
+    @abstractmethod
+    def render(
+        self, gaussians: Gaussians, cameras: RenderCameras, background: torch.Tensor | None = None
+    ) -> RenderOutput:
+        """Render every camera; differentiable with respect to all Gaussian parameters."""
+
+
+# -------------------------------------------------------------------------------------------- segmenters
+
+
+class Segmenter(ABC):
+    """Produces subject masks (and optional semantic labels) for the frames of a session."""
+
+    @abstractmethod
+    def segment(self, session: SessionReader, camera: str) -> Iterator[tuple[int, np.ndarray, np.ndarray | None]]:
+        """Yield (t, mask [H, W] bool, labels [H, W] uint16 or None) for every frame of ``camera``."""
+
+
+# ------------------------------------------------------------------------------------------ initializers
+
+
+@attrs.frozen(eq=False)
+class SceneContext:
+    """What an initializer may look at: the training cameras, the first frame's session data, and the
+    scene's centre and scale (metres) derived from the calibration."""
+
+    session: SessionReader
+    cameras: Sequence[Camera]
+    frame: int
+    center: np.ndarray
+    scale: float
+
+
+class Initializer(ABC):
+    """Places the first Gaussians and may shape the first-frame fit. Initializers compose: each hook has a
+    neutral default, so one initializer can add only pruning or only a loss term."""
+
+    def initial_gaussians(self, scene: SceneContext, generator: torch.Generator) -> Gaussians | None:
+        """Initial Gaussians, or ``None`` to leave placement to another initializer in the composition."""
+        return None
+
+    def extra_loss(self, step: int, render: RenderOutput, camera: Camera, scene: SceneContext) -> torch.Tensor | None:
+        """An extra loss term for this step, or ``None``."""
+        return None
+
+    def prune_mask(self, step: int, gaussians: Gaussians, scene: SceneContext) -> torch.Tensor | None:
+        """[N] bool of Gaussians to remove after this step, or ``None``."""
+        return None
+
+
+# -------------------------------------------------------------------------------------------- densifiers
+
+
+class Densifier(ABC):
+    """A densification strategy with explicit hooks around the optimiser step (as gsplat's strategies)."""
+
+    @abstractmethod
+    def initialize_state(self, scene_scale: float) -> dict[str, Any]:
+        """Fresh running state (gradient accumulators, counters)."""
+
+    def step_pre_backward(self, params: dict[str, Any], state: dict[str, Any], step: int, render: RenderOutput) -> None:
+        """Before ``loss.backward()``: e.g. retain the 2D-mean gradient."""
+
+    @abstractmethod
+    def step_post_backward(
+        self, params: dict[str, Any], optimizers: dict[str, Any], state: dict[str, Any], step: int, render: RenderOutput
+    ) -> None:
+        """After the optimiser step: accumulate statistics and clone, split, prune or relocate Gaussians in
+        ``params`` (updating ``optimizers``' state to match)."""
+
+
+# ---------------------------------------------------------------------------------------------- dynamics
+
+
+class Dynamics(ABC):
+    """Carries the first-frame Gaussians through the sequence."""
+
+    @abstractmethod
+    def track(self, session: SessionReader, first_frame: Gaussians, out: Path, config: dict[str, Any]) -> None:
+        """Fit every frame of ``session`` from ``first_frame``, streaming frames, and write per-frame
+        Gaussian states to the run's ``tracks`` group at ``out``."""
+
+
+# ----------------------------------------------------------------------------------------------- metrics
+
+
+class Metric(ABC):
+    """An image-quality metric between a rendered and a ground-truth image."""
+
+    higher_is_better: bool = True
+
+    @abstractmethod
+    def __call__(self, prediction: np.ndarray, target: np.ndarray, mask: np.ndarray | None = None) -> float:
+        """Compare two [H, W, 3] float images in [0, 1], optionally only inside ``mask`` [H, W] bool."""

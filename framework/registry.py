@@ -1,0 +1,210 @@
+"""The plugin registry: discovers plugin modules through the ``mmcsplat`` entry-point group and resolves
+implementations by kind and name.
+
+Built-in implementations register exactly as a third-party package does, through entry points in the
+distribution's metadata. One plugin that fails to import, or whose hook raises, is recorded as broken and
+reported; it never hides the others.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+from collections.abc import Callable, Iterable
+from functools import cache
+from importlib.metadata import EntryPoint, entry_points
+from typing import Any
+
+import attrs
+import pluggy
+
+ENTRY_POINT_GROUP = "mmcsplat"
+KINDS = ("renderer", "segmenter", "initializer", "densifier", "dynamics", "reader", "metric")
+
+
+class PluginError(Exception):
+    """Base class of every registry error; the message names the plugin and its distribution."""
+
+
+class UnknownPluginError(PluginError, KeyError):
+    def __str__(self) -> str:  # KeyError would quote the message
+        return str(self.args[0])
+
+
+class DuplicatePluginError(PluginError):
+    pass
+
+
+class BrokenPluginError(PluginError):
+    pass
+
+
+class PluginUnavailableError(PluginError):
+    pass
+
+
+def needs_modules(*modules: str) -> Callable[[], str | None]:
+    """An availability check: the reason the implementation cannot run when a module is missing."""
+
+    def check() -> str | None:
+        missing = [module for module in modules if importlib.util.find_spec(module) is None]
+        return f"needs {', '.join(missing)} (not installed)" if missing else None
+
+    return check
+
+
+@attrs.frozen
+class Registration:
+    """What a plugin hook returns for one implementation.
+
+    ``factory`` is ``"module:attribute"``; the attribute is called with the configuration's parameters to
+    build an instance. ``unavailable`` returns ``None`` when the implementation can run here, otherwise the
+    reason it cannot (e.g. "no CUDA device").
+    """
+
+    name: str
+    factory: str
+    summary: str = ""
+    unavailable: Callable[[], str | None] | None = None
+
+    def __attrs_post_init__(self) -> None:
+        if ":" not in self.factory:
+            raise ValueError(f"registration {self.name!r}: factory must be 'module:attribute', got {self.factory!r}")
+
+
+@attrs.frozen
+class PluginEntry:
+    """One registered implementation, with the distribution and entry point it came from."""
+
+    kind: str
+    name: str
+    distribution: str
+    entry_point: str
+    registration: Registration
+
+    @property
+    def origin(self) -> str:
+        return f"entry point {self.entry_point!r} of distribution {self.distribution!r}"
+
+    def unavailable_reason(self) -> str | None:
+        """``None`` when usable here, otherwise why not."""
+        check = self.registration.unavailable
+        if check is None:
+            return None
+        try:
+            return check()
+        except Exception as error:  # a faulty check must not break the listing
+            return f"availability check failed: {error!r}"
+
+    def load(self) -> Callable[..., Any]:
+        """Import the factory."""
+        module_name, _, attribute = self.registration.factory.partition(":")
+        try:
+            target: Any = importlib.import_module(module_name)
+            for part in attribute.split("."):
+                target = getattr(target, part)
+        except Exception as error:
+            raise BrokenPluginError(
+                f"{self.kind} {self.name!r} from {self.origin} failed to load {self.registration.factory!r}: {error!r}"
+            ) from error
+        return target
+
+
+@attrs.frozen
+class BrokenPlugin:
+    """A plugin module that could not be imported or whose hook raised."""
+
+    entry_point: str
+    distribution: str
+    error: str
+
+
+def _distribution_of(entry_point: EntryPoint) -> str:
+    dist = getattr(entry_point, "dist", None)
+    return dist.name if dist is not None else "<unknown distribution>"
+
+
+class Registry:
+    """Every implementation registered through the ``mmcsplat`` entry points (or passed in directly)."""
+
+    def __init__(self, plugin_modules: Iterable[tuple[str, str, object]] | None = None) -> None:
+        """Discover entry points; ``plugin_modules`` adds (entry-point name, distribution, module) triples,
+        for tests and for applications that embed mmcsplat."""
+        from . import hookspecs
+
+        self._manager = pluggy.PluginManager(hookspecs.PROJECT)
+        self._manager.add_hookspecs(hookspecs)
+        self.broken: list[BrokenPlugin] = []
+        origins: dict[str, tuple[str, str]] = {}
+        for ep_name, distribution, module in self._discover(plugin_modules):
+            key = f"{distribution}:{ep_name}"
+            try:
+                self._manager.register(module, name=key)
+            except Exception as error:
+                self.broken.append(BrokenPlugin(ep_name, distribution, f"invalid plugin module: {error}"))
+                continue
+            origins[key] = (ep_name, distribution)
+        self.entries: list[PluginEntry] = []
+        for kind, hook_name in hookspecs.HOOK_OF_KIND.items():
+            for impl in getattr(self._manager.hook, hook_name).get_hookimpls():
+                ep_name, distribution = origins[impl.plugin_name]
+                try:
+                    registrations = list(impl.function() or [])
+                except Exception as error:
+                    self.broken.append(BrokenPlugin(ep_name, distribution, f"hook {hook_name} raised {error!r}"))
+                    continue
+                for registration in registrations:
+                    self.entries.append(PluginEntry(kind, registration.name, distribution, ep_name, registration))
+        self.entries.sort(key=lambda entry: (KINDS.index(entry.kind), entry.name, entry.distribution))
+
+    def _discover(self, extra: Iterable[tuple[str, str, object]] | None) -> Iterable[tuple[str, str, object]]:
+        for entry_point in entry_points(group=ENTRY_POINT_GROUP):
+            distribution = _distribution_of(entry_point)
+            try:
+                module = entry_point.load()
+            except Exception as error:
+                self.broken.append(BrokenPlugin(entry_point.name, distribution, f"import failed: {error!r}"))
+                continue
+            yield entry_point.name, distribution, module
+        yield from extra or ()
+
+    def names(self, kind: str) -> list[str]:
+        """The registered names of one kind, sorted."""
+        _check_kind(kind)
+        return sorted({entry.name for entry in self.entries if entry.kind == kind})
+
+    def get(self, kind: str, name: str) -> PluginEntry:
+        """The entry registered as ``name``; a clear error when unknown or registered twice."""
+        _check_kind(kind)
+        matches = [entry for entry in self.entries if entry.kind == kind and entry.name == name]
+        if not matches:
+            known = ", ".join(self.names(kind)) or "none"
+            hint = "".join(f"\n  broken plugin {b.entry_point!r} ({b.distribution}): {b.error}" for b in self.broken)
+            raise UnknownPluginError(f"unknown {kind} {name!r}; registered {kind}s: {known}{hint}")
+        if len(matches) > 1:
+            origins = "; ".join(entry.origin for entry in matches)
+            raise DuplicatePluginError(f"{kind} {name!r} is registered more than once: {origins}")
+        return matches[0]
+
+    def create(self, kind: str, name: str, **params: Any) -> Any:
+        """Build the implementation ``name`` of ``kind`` with the configuration's parameters."""
+        entry = self.get(kind, name)
+        reason = entry.unavailable_reason()
+        if reason:
+            raise PluginUnavailableError(f"{kind} {name!r} from {entry.origin} is not usable here: {reason}")
+        factory = entry.load()
+        try:
+            return factory(**params)
+        except TypeError as error:
+            raise PluginError(f"{kind} {name!r} from {entry.origin} rejected its parameters {sorted(params)}: {error}") from error
+
+
+def _check_kind(kind: str) -> None:
+    if kind not in KINDS:
+        raise PluginError(f"unknown plugin kind {kind!r}; kinds are {', '.join(KINDS)}")
+
+
+@cache
+def default_registry() -> Registry:
+    """The process-wide registry, discovered once."""
+    return Registry()

@@ -1,0 +1,1 @@
+"""Built-in plugins: segmenters, initializers, densifiers, dynamics and metrics."""
