@@ -29,11 +29,13 @@ if TYPE_CHECKING:  # heavy imports only for type checkers
 @attrs.frozen(eq=False)
 class RecordedFrame:
     """One image of a capture as a reader yields it: ``rgb`` [H, W, 3] uint8, an optional subject ``mask``
-    [H, W] bool (formats that ship masks), and its frame index ``t``."""
+    [H, W] bool and ``depth`` [H, W] float metres (formats that ship them, such as the synthetic capture's
+    ground truth; 0 where there is no surface), and its frame index ``t``."""
 
     t: int
     rgb: np.ndarray
     mask: np.ndarray | None = None
+    depth: np.ndarray | None = None
 
 
 class Recording(ABC):
@@ -46,8 +48,9 @@ class Recording(ABC):
     num_frames: int
     #: Cameras the format itself marks as held out for evaluation (e.g. d3dgs test cameras).
     heldout: Sequence[str] = ()
-    #: Whether frames come with subject masks.
+    #: Whether frames come with subject masks and depth maps.
     has_masks: bool = False
+    has_depth: bool = False
 
     @abstractmethod
     def frames(self, camera: str, indices: range) -> Iterator[RecordedFrame]:
