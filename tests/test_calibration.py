@@ -1,0 +1,175 @@
+"""Calibration I/O: the real anipose and Pose2Sim samples, section order, round trips, malformed files."""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import tomli_w
+
+from mmcsplat.camera import Camera
+from mmcsplat.datasets.calibration import read_calibration, write_calibration
+
+SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+ANIPOSE = SHARED / "aniposelib_calibrations"
+POSE2SIM = SHARED / "pose2sim_demo"
+needs_shared = pytest.mark.skipif(not SHARED.is_dir(), reason=f"shared real data not found at {SHARED}")
+
+REAL_SAMPLES = [
+    ("allen_mouse_12cam.toml", 12, 5),
+    ("allen_mouse_7cam.toml", 7, 5),
+    ("motobs_7cam.toml", 7, 5),
+    ("mouse_outdoor_adjusted.toml", 12, 5),
+    ("Calib_qualisys.toml", 4, 4),
+    ("Calib_scene.toml", 4, 4),
+]
+
+
+def _sample(name: str) -> Path:
+    return (POSE2SIM if name.startswith("Calib_") else ANIPOSE) / name
+
+
+@needs_shared
+@pytest.mark.parametrize("name, count, ndist", REAL_SAMPLES)
+def test_reads_real_samples(name: str, count: int, ndist: int) -> None:
+    path = _sample(name)
+    raw = tomllib.loads(path.read_text())
+    cameras = read_calibration(path, units="mm" if path.parent == ANIPOSE else "m")
+    assert len(cameras) == count
+    for camera in cameras:
+        table = next(t for k, t in raw.items() if k != "metadata" and t["name"] == camera.name)
+        assert camera.distortion.size == ndist
+        assert (camera.width, camera.height) == tuple(int(v) for v in table["size"])
+        np.testing.assert_allclose(camera.K, table["matrix"])
+        # Compare matrices: a Rodrigues vector longer than π has an equivalent shorter twin.
+        np.testing.assert_allclose(camera.R, cv2.Rodrigues(np.array(table["rotation"]))[0], atol=1e-12)
+        scale = 1e-3 if path.parent == ANIPOSE else 1.0
+        np.testing.assert_allclose(camera.t, np.array(table["translation"]) * scale)
+
+
+@needs_shared
+def test_pose2sim_sample_projects_in_front_of_cameras() -> None:
+    cameras = read_calibration(POSE2SIM / "Calib_qualisys.toml")
+    assert [c.name for c in cameras] == ["cam_01", "cam_02", "cam_03", "cam_04"]
+    assert (cameras[0].width, cameras[0].height) == (1088, 1920)
+    # The subject stands near the world origin: in front of every camera, within a few metres.
+    for camera in cameras:
+        depth = (camera.R @ np.zeros(3) + camera.t)[2]
+        assert 1.0 < depth < 6.0, camera.name
+
+
+@needs_shared
+def test_anipose_sections_ordered_by_number(tmp_path: Path) -> None:
+    source = ANIPOSE / "allen_mouse_12cam.toml"
+    raw = tomllib.loads(source.read_text())
+    expected = [raw[f"cam_{i}"]["name"] for i in range(12)]
+    assert [c.name for c in read_calibration(source)] == expected
+    # The same tables written in text order (cam_0, cam_1, cam_10, cam_11, cam_2, …) read back by number.
+    shuffled = {key: raw[key] for key in sorted(raw)}
+    assert list(shuffled)[:4] == ["cam_0", "cam_1", "cam_10", "cam_11"]
+    path = tmp_path / "calibration.toml"
+    path.write_text(tomli_w.dumps(shuffled))
+    assert [c.name for c in read_calibration(path)] == expected
+
+
+def _cameras() -> list[Camera]:
+    rng = np.random.default_rng(0)
+    cameras = []
+    for i, distortion in enumerate(([-0.2, 0.05, 1e-3, -2e-3, 0.01], [-0.1, 0.02, 0.0, 0.0], [])):
+        K = [[800.0 + i, 0, 320.5], [0, 805.0, 240.25], [0, 0, 1]]
+        cameras.append(Camera(f"cam{i}", 640, 480, K, rng.normal(size=3), rng.normal(size=3), distortion))
+    return cameras
+
+
+@pytest.mark.parametrize("units", ["m", "mm"])
+def test_write_read_round_trip(tmp_path: Path, units: str) -> None:
+    cameras = _cameras()
+    path = tmp_path / "calibration.toml"
+    write_calibration(path, cameras, units=units, metadata={"source": "test"})
+    raw = tomllib.loads(path.read_text())
+    assert list(raw) == ["cam_0", "cam_1", "cam_2", "metadata"]
+    assert raw["metadata"] == {"source": "test"}
+    factor = 1000.0 if units == "mm" else 1.0
+    np.testing.assert_allclose(raw["cam_0"]["translation"], cameras[0].t * factor)
+    back = read_calibration(path, units=units)
+    assert [c.name for c in back] == [c.name for c in cameras]
+    for original, read in zip(cameras, back):
+        assert (read.width, read.height) == (original.width, original.height)
+        np.testing.assert_allclose(read.K, original.K)
+        np.testing.assert_allclose(read.R, original.R, atol=1e-12)
+        np.testing.assert_allclose(read.t, original.t, rtol=1e-12)
+        padded = np.zeros(5)
+        padded[: original.distortion.size] = original.distortion
+        np.testing.assert_allclose(read.distortion, padded)
+    assert not list(tmp_path.glob(".*.tmp")), "temporary file left behind"
+
+
+def test_units_mismatch_scales_translations(tmp_path: Path) -> None:
+    path = tmp_path / "calibration.toml"
+    write_calibration(path, _cameras(), units="mm")
+    in_metres = read_calibration(path, units="m")
+    np.testing.assert_allclose(in_metres[0].t, _cameras()[0].t * 1000.0)
+    with pytest.raises(ValueError, match="units 'cm'"):
+        read_calibration(path, units="cm")
+
+
+GOOD = {
+    "name": "a",
+    "size": [640, 480],
+    "matrix": [[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]],
+    "distortions": [0.0, 0.0, 0.0, 0.0, 0.0],
+    "rotation": [0.0, 0.0, 0.0],
+    "translation": [0.0, 0.0, 1.0],
+}
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"matrix": None}, r"\[cam_0\]: missing matrix"),
+        ({"matrix": [[1.0, 0.0], [0.0, 1.0]]}, r"\[cam_0\]: matrix must have shape \[3, 3\]"),
+        ({"distortions": [0.1, 0.2, 0.3]}, r"\[cam_0\]: distortions must hold 4"),
+        ({"fisheye": True}, r"\[cam_0\]: fisheye calibrations are not supported"),
+        ({"size": [640.5, 480]}, r"\[cam_0\]: size must be two positive whole numbers"),
+        ({"rotation": ["x", 0, 0]}, r"\[cam_0\]: rotation must be numbers"),
+        ({"translation": [0.0, 1.0]}, r"\[cam_0\]: translation must have shape \[3\]"),
+    ],
+)
+def test_malformed_tables_name_file_and_section(tmp_path: Path, change: dict, message: str) -> None:
+    table = {key: value for key, value in {**GOOD, **change}.items() if value is not None}
+    path = tmp_path / "broken.toml"
+    path.write_text(tomli_w.dumps({"cam_0": table, "metadata": {}}))
+    with pytest.raises(ValueError, match=message) as error:
+        read_calibration(path)
+    assert str(path) in str(error.value)
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("[cam_0\nname = 1", "not valid TOML"),
+        ("[metadata]\nerror = 0.1\n", "no camera tables"),
+        ("stray = 1\n", "unexpected top-level key 'stray'"),
+    ],
+)
+def test_malformed_documents(tmp_path: Path, text: str, message: str) -> None:
+    path = tmp_path / "broken.toml"
+    path.write_text(text)
+    with pytest.raises(ValueError, match=message) as error:
+        read_calibration(path)
+    assert str(path) in str(error.value)
+
+
+def test_duplicate_camera_names(tmp_path: Path) -> None:
+    path = tmp_path / "calibration.toml"
+    path.write_text(tomli_w.dumps({"cam_0": GOOD, "cam_1": GOOD}))
+    with pytest.raises(ValueError, match=r"\['a'\] appear more than once"):
+        read_calibration(path)
+
+
+def test_missing_file() -> None:
+    with pytest.raises(FileNotFoundError):
+        read_calibration(Path("/nonexistent/calibration.toml"))
