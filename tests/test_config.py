@@ -1,0 +1,52 @@
+"""Configurations: loading, plugin selection, overrides, clear errors."""
+
+from __future__ import annotations
+
+import pytest
+
+from mmcsplat.config import ConfigError, apply_override, load_config
+
+
+def write(tmp_path, text: str):
+    path = tmp_path / "run.toml"
+    path.write_text(text)
+    return path
+
+
+def test_plugin_choices_and_params(tmp_path):
+    config = load_config(write(tmp_path, '[renderer]\nname = "torch-reference"\n[[initializer]]\nname = "a"\nn = 3\n[[initializer]]\nname = "b"\n'))
+    assert config.plugin("renderer").name == "torch-reference"
+    assert [(c.name, dict(c.params)) for c in config.plugins("initializer")] == [("a", {"n": 3}), ("b", {})]
+    assert config.plugins("dynamics") == []
+    with pytest.raises(ConfigError, match="exactly one"):
+        config.plugin("initializer")
+
+
+def test_selected_plugin_builds_through_registry(tmp_path):
+    metric = load_config(write(tmp_path, '[metric]\nname = "psnr"\n')).plugin("metric").build()
+    import numpy as np
+
+    assert metric(np.zeros((2, 2, 3)), np.full((2, 2, 3), 0.1)) == pytest.approx(20.0)
+
+
+def test_overrides_parse_values(tmp_path):
+    config = load_config(write(tmp_path, "[train]\niterations = 10\n"), ["train.iterations=20", "train.name=fast", "train.lr=[1, 2]"])
+    assert config.get("train.iterations") == 20
+    assert config.get("train.name") == "fast"
+    assert config.get("train.lr") == [1, 2]
+    assert config.get("train.missing", "d") == "d"
+    with pytest.raises(ConfigError, match="key.path=value"):
+        apply_override({}, "no-equals-sign")
+    with pytest.raises(ConfigError, match="not a table"):
+        apply_override({"train": 1}, "train.x=1")
+
+
+def test_errors_name_the_source(tmp_path):
+    with pytest.raises(ConfigError, match="invalid TOML"):
+        load_config(write(tmp_path, "[renderer\n"))
+    with pytest.raises(ConfigError, match="does not exist"):
+        load_config(tmp_path / "missing.toml")
+    with pytest.raises(ConfigError, match="unknown configuration 'no-such-config'"):
+        load_config("no-such-config")
+    with pytest.raises(ConfigError, match=r"\[renderer\] must be a table"):
+        load_config(write(tmp_path, "[renderer]\nnot_name = 1\n")).plugins("renderer")
