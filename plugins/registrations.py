@@ -9,4 +9,5 @@ from mmcsplat import Registration, hookimpl
 def mmcsplat_metrics() -> list[Registration]:
     return [
         Registration("psnr", "mmcsplat.plugins.metrics:PSNR", "peak signal-to-noise ratio (dB), optionally inside a mask"),
+        Registration("ssim", "mmcsplat.plugins.metrics:SSIM", "structural similarity, optionally inside a mask"),
     ]
