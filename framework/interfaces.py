@@ -19,6 +19,7 @@ from .camera import Camera
 if TYPE_CHECKING:  # heavy imports only for type checkers
     import torch
 
+    from .model import GaussianModel
     from .rendering import Gaussians, RenderCameras, RenderOutput
     from .store import SessionReader
 
@@ -133,6 +134,10 @@ class Initializer(ABC):
         """Initial Gaussians, or ``None`` to leave placement to another initializer in the composition."""
         return None
 
+    def prepare_target(self, image: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
+        """The training target for one [H, W, 3] image given its subject mask (masking zeroes the outside)."""
+        return image
+
     def extra_loss(self, step: int, render: RenderOutput, camera: Camera, scene: SceneContext) -> torch.Tensor | None:
         """An extra loss term for this step, or ``None``."""
         return None
@@ -146,21 +151,22 @@ class Initializer(ABC):
 
 
 class Densifier(ABC):
-    """A densification strategy with explicit hooks around the optimiser step (as gsplat's strategies)."""
+    """A densification strategy with explicit hooks around the optimiser step (as gsplat's strategies).
+
+    ``model`` is the trainer's :class:`~mmcsplat.model.GaussianModel`; a densifier edits it only through
+    ``model.replace`` so parameters and optimiser state stay in step."""
 
     @abstractmethod
     def initialize_state(self, scene_scale: float) -> dict[str, Any]:
-        """Fresh running state (gradient accumulators, counters)."""
+        """Fresh running state (gradient accumulators, counters); saved in checkpoints."""
 
-    def step_pre_backward(self, params: dict[str, Any], state: dict[str, Any], step: int, render: RenderOutput) -> None:
-        """Before ``loss.backward()``: e.g. retain the 2D-mean gradient."""
+    def step_pre_backward(self, model: GaussianModel, state: dict[str, Any], step: int, render: RenderOutput) -> None:
+        """Before ``loss.backward()``."""
 
     @abstractmethod
-    def step_post_backward(
-        self, params: dict[str, Any], optimizers: dict[str, Any], state: dict[str, Any], step: int, render: RenderOutput
-    ) -> None:
-        """After the optimiser step: accumulate statistics and clone, split, prune or relocate Gaussians in
-        ``params`` (updating ``optimizers``' state to match)."""
+    def step_post_backward(self, model: GaussianModel, state: dict[str, Any], step: int, render: RenderOutput) -> None:
+        """After the optimiser step: accumulate statistics (``render.means2d.grad``, ``render.radii``) and
+        clone, split, prune or relocate Gaussians."""
 
 
 # ---------------------------------------------------------------------------------------------- dynamics

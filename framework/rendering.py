@@ -6,8 +6,13 @@ Every renderer backend consumes and produces these classes; docs/rendering.md st
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import attrs
+import numpy as np
 import torch
+
+from .camera import Camera
 
 #: Rasterizer constants shared by every backend (the 3DGS conventions, docs/rendering.md).
 TILE_SIZE = 16
@@ -70,6 +75,25 @@ class RenderCameras:
     @property
     def count(self) -> int:
         return int(self.K.shape[0])
+
+    def select(self, indices: Sequence[int]) -> RenderCameras:
+        """The cameras at ``indices``, as a new batch."""
+        index = torch.as_tensor(list(indices), dtype=torch.long)
+        return RenderCameras(self.K[index], self.viewmats[index], self.width, self.height)
+
+    @classmethod
+    def from_cameras(cls, cameras: Sequence[Camera], dtype: torch.dtype = torch.float32) -> RenderCameras:
+        """Stack calibrated (undistorted) cameras of one image size; the renderers are pinhole-only."""
+        sizes = {(camera.width, camera.height) for camera in cameras}
+        if len(sizes) != 1:
+            raise RenderInputError(f"cameras must share one image size to render together, got {sorted(sizes)}")
+        distorted = [camera.name for camera in cameras if camera.is_distorted]
+        if distorted:
+            raise RenderInputError(f"cameras {distorted} have lens distortion; ingest undistorts frames first")
+        ((width, height),) = sizes
+        K = torch.as_tensor(np.stack([camera.K for camera in cameras]), dtype=dtype)
+        viewmats = torch.as_tensor(np.stack([camera.world_to_camera for camera in cameras]), dtype=dtype)
+        return cls(K, viewmats, width, height)
 
 
 @attrs.frozen(eq=False)
