@@ -158,3 +158,25 @@ def test_wrong_image_size_names_the_file(tmp_path):
     recording = D3DGSReader().open(root)
     with pytest.raises(ValueError, match=r"ims/0/000001\.jpg is 18×12.*16×12"):
         list(recording.frames("cam_00", range(T)))
+
+
+def test_ingest_auto_detects_and_stores_everything(tmp_path):
+    from mmcsplat.ingest import ingest
+
+    root = make_d3dgs(tmp_path / "src")
+    session = ingest(root, tmp_path / "session.zarr", progress=False)
+    recording = D3DGSReader().open(root)
+    assert session.provenance["format"] == "d3dgs" and session.heldout == ("cam_02",)
+    assert session.camera_names == ("cam_00", "cam_01", "cam_02", "cam_03") and session.num_frames == T
+    for expected in recording.cameras:
+        stored = session.camera(expected.name)
+        np.testing.assert_allclose(stored.K, expected.K)
+        np.testing.assert_allclose(stored.world_to_camera, expected.world_to_camera)
+        assert session.has("mask", expected.name) == (expected.name != "cam_02")
+        for frame in recording.frames(expected.name, range(T)):
+            stored_frame = session.frame(frame.t, expected.name)
+            np.testing.assert_array_equal(stored_frame.rgb, frame.rgb)
+            if frame.mask is None:
+                assert stored_frame.mask is None
+            else:
+                np.testing.assert_array_equal(stored_frame.mask, _mask(frame.t, int(expected.name[4:])))

@@ -157,3 +157,25 @@ def test_missing_image_and_calibration_are_refused_clearly(tmp_path):
         DNeRFReader().open(root)
     with pytest.raises(ValueError, match="--calibration is not supported"):
         DNeRFReader().open(make_dnerf(tmp_path / "ok"), calibration=tmp_path / "calibration.toml")
+
+
+def test_ingest_stores_the_sparse_monocular_capture(tmp_path):
+    from mmcsplat.ingest import ingest
+    from mmcsplat.store import AbsentFrameError
+
+    root = make_dnerf(tmp_path / "src")
+    session = ingest(root, tmp_path / "session.zarr", progress=False)
+    recording = DNeRFReader().open(root)
+    assert session.provenance["format"] == "dnerf" and session.heldout == ("val_000", "test_000")
+    assert session.num_frames == 5 and session.fps == pytest.approx(4.0)
+    np.testing.assert_allclose(session.frame_times, TIMES)
+    for expected in recording.cameras:
+        np.testing.assert_array_equal(session.present(expected.name), recording.present(expected.name))
+        stored = session.camera(expected.name)
+        np.testing.assert_allclose(stored.K, expected.K)
+        np.testing.assert_allclose(stored.world_to_camera, expected.world_to_camera, atol=1e-12)
+        (frame,) = recording.frames(expected.name, range(5))
+        np.testing.assert_array_equal(session.frame(frame.t, expected.name).rgb, frame.rgb)
+        np.testing.assert_array_equal(session.frame(frame.t, expected.name).mask, frame.mask)
+    with pytest.raises(AbsentFrameError):
+        session.frame(0, "test_000")
