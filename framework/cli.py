@@ -11,6 +11,7 @@ from . import __version__
 #: Sub-command name → module in mmcsplat.commands defining ``add_arguments(parser)`` and ``run(args) -> int``.
 COMMANDS = {
     "plugins": "plugins",
+    "ingest": "ingest",
 }
 
 

@@ -1,0 +1,215 @@
+"""What the readers of real-rig layouts (``videos``, ``images``) share: finding the calibration, matching
+files to calibrated cameras by name, reconciling decoded image sizes and frame counts, and the optional
+``ground_truth.zarr`` the synthetic capture writes next to its videos.
+
+Name matching: a file (or folder) belongs to a calibrated camera when its stem equals the camera's name,
+or else when both have the same *name key*: the lower-cased runs of letters and of digits, with digit runs
+compared as numbers and every other character ignored (so ``cam_01`` ↔ ``cam01.mp4`` ↔ ``Cam-1.avi``).
+Two files with the same key are ambiguous and an error.
+"""
+
+from __future__ import annotations
+
+import re
+import warnings
+from abc import abstractmethod
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from pathlib import Path
+
+import attrs
+import numpy as np
+
+from mmcsplat.camera import Camera
+from mmcsplat.interfaces import RecordedFrame, Recording
+
+
+#: How a decoded size that differs from the calibration's is reconciled (see :func:`fit_camera`).
+SIZE_MISMATCH_POLICIES = ("scale", "crop", "error")
+#: Above this relative difference between the horizontal and vertical factors, scaling K makes no sense.
+MAX_ANISOTROPY = 0.05
+GROUND_TRUTH = "ground_truth.zarr"
+
+
+def natural_key(text: str) -> tuple:
+    """A sort key that orders digit runs as numbers (``frame2`` before ``frame10``)."""
+    return tuple((0, int(part), "") if part.isdigit() else (1, 0, part) for part in re.findall(r"\d+|\D+", text.lower()))
+
+
+def name_key(name: str) -> tuple:
+    """The fuzzy identity of a camera name: letter runs and digit runs (as numbers), separators ignored."""
+    return tuple(int(part) if part.isdigit() else part for part in re.findall(r"[a-z]+|\d+", name.lower()))
+
+
+def find_calibration(source: Path, calibration: Path | None) -> Path:
+    """``calibration`` when given, else ``source/calibration.toml``, else the single ``*.toml`` in ``source``."""
+    if calibration is not None:
+        calibration = Path(calibration)
+        if not calibration.is_file():
+            raise FileNotFoundError(f"calibration file {calibration} does not exist")
+        return calibration
+    default = source / "calibration.toml"
+    if default.is_file():
+        return default
+    candidates = sorted(source.glob("*.toml"))
+    if len(candidates) == 1:
+        return candidates[0]
+    if not candidates:
+        raise FileNotFoundError(f"{source}: no calibration.toml (or other *.toml) found; pass --calibration")
+    names = ", ".join(path.name for path in candidates)
+    raise ValueError(f"{source}: several calibration files ({names}); choose one with --calibration")
+
+
+def match_cameras(cameras: Sequence[Camera], paths: Iterable[Path], what: str, where: Path) -> dict[str, Path]:
+    """Camera name → its file, by the module's name rule; an error naming any camera without one.
+
+    Files that match no camera are ignored with a warning.
+    """
+    by_stem: dict[str, Path] = {}
+    by_key: dict[tuple, list[Path]] = {}
+    for path in paths:
+        label = path.stem if path.is_file() else path.name
+        by_stem[label] = path
+        by_key.setdefault(name_key(label), []).append(path)
+    matched: dict[str, Path] = {}
+    for camera in cameras:
+        if camera.name in by_stem:
+            matched[camera.name] = by_stem[camera.name]
+            continue
+        candidates = by_key.get(name_key(camera.name), [])
+        if len(candidates) > 1:
+            names = ", ".join(sorted(path.name for path in candidates))
+            raise ValueError(f"{where}: camera {camera.name!r} matches several {what}s ({names}); rename them")
+        if not candidates:
+            available = ", ".join(sorted(by_stem, key=natural_key)) or "none"
+            raise FileNotFoundError(f"{where}: no {what} for calibrated camera {camera.name!r} (found: {available})")
+        matched[camera.name] = candidates[0]
+    unused = sorted(set(by_stem.values()) - set(matched.values()))
+    if unused:
+        warnings.warn(f"{where}: ignoring {what}s of no calibrated camera: {', '.join(p.name for p in unused)}", stacklevel=3)
+    return matched
+
+
+def check_size_mismatch(policy: str) -> str:
+    """``policy`` if it is one of :data:`SIZE_MISMATCH_POLICIES`, else a clear error."""
+    if policy not in SIZE_MISMATCH_POLICIES:
+        raise ValueError(f"unknown size_mismatch policy {policy!r}; choose one of {', '.join(SIZE_MISMATCH_POLICIES)}")
+    return policy
+
+
+def fit_camera(camera: Camera, width: int, height: int, policy: str, what: str) -> Camera:
+    """``camera`` made consistent with images decoded at ``width``×``height``, with a warning if it changed.
+
+    ``"scale"`` scales K by the size ratios (the images were resampled; an error when the two ratios differ
+    by more than ``MAX_ANISOTROPY``, e.g. a rotated video); ``"crop"`` keeps K and takes the images as the
+    top-left part of the calibrated frame; ``"error"`` refuses.
+    """
+    check_size_mismatch(policy)
+    if (width, height) == (camera.width, camera.height):
+        return camera
+    mismatch = f"{what} decodes at {width}×{height} but camera {camera.name!r} is calibrated at {camera.width}×{camera.height}"
+    if policy == "error":
+        raise ValueError(f"{mismatch} (size_mismatch='error')")
+    if policy == "crop":
+        if width > camera.width or height > camera.height:
+            raise ValueError(f"{mismatch}: larger than calibrated, so it cannot be a crop")
+        warnings.warn(f"{mismatch}; keeping K and treating the images as the top-left crop (size_mismatch='crop')", stacklevel=3)
+        return attrs.evolve(camera, width=width, height=height)
+    sx, sy = width / camera.width, height / camera.height
+    if abs(sx / sy - 1.0) > MAX_ANISOTROPY:
+        raise ValueError(f"{mismatch}: the aspect ratio differs too much to rescale K (rotated or wrong file?)")
+    warnings.warn(f"{mismatch}; scaling K by ({sx:.5f}, {sy:.5f}) to match (size_mismatch='scale')", stacklevel=3)
+    return camera.scaled(sx, sy)
+
+
+def common_length(counts: Mapping[str, int], what: str, where: Path) -> int:
+    """The shortest of the cameras' frame counts, with a warning when they differ."""
+    shortest = min(counts.values())
+    if shortest <= 0:
+        empty = ", ".join(name for name, count in counts.items() if count <= 0)
+        raise ValueError(f"{where}: no frames in the {what}s of {empty}")
+    if max(counts.values()) != shortest:
+        detail = ", ".join(f"{name}: {count}" for name, count in counts.items())
+        warnings.warn(f"{where}: {what}s differ in length ({detail}); truncating every camera to {shortest} frames", stacklevel=3)
+    return shortest
+
+
+@attrs.frozen(eq=False)
+class GroundTruth:
+    """Per-camera masks [T, H, W] uint8 and depth [T, H, W] metres of a ``ground_truth.zarr`` group, read
+    one frame at a time."""
+
+    path: Path
+    masks: Mapping[str, object]
+    depth: Mapping[str, object]
+
+    @classmethod
+    def open(cls, source: Path, cameras: Sequence[Camera], num_frames: int) -> GroundTruth | None:
+        """The ground truth beside the capture, or ``None`` when there is none; errors name what is wrong."""
+        path = source / GROUND_TRUTH
+        if not path.exists():
+            return None
+        import zarr
+
+        try:
+            group = zarr.open_group(str(path), mode="r")
+        except Exception as error:
+            raise ValueError(f"{path}: not a readable zarr group: {error}") from error
+        fields: dict[str, dict[str, object]] = {}
+        for field in ("masks", "depth"):
+            if field not in group:
+                fields[field] = {}
+                continue
+            arrays = {}
+            for camera in cameras:
+                if camera.name not in group[field]:
+                    raise ValueError(f"{path}: {field} has no array for camera {camera.name!r}")
+                array = group[field][camera.name]
+                if tuple(array.shape[1:]) != (camera.height, camera.width) or array.shape[0] < num_frames:
+                    raise ValueError(
+                        f"{path}: {field}/{camera.name} has shape {tuple(array.shape)}, expected at least "
+                        f"({num_frames}, {camera.height}, {camera.width}) to match the frames"
+                    )
+                arrays[camera.name] = array
+            fields[field] = arrays
+        return cls(path, fields["masks"], fields["depth"])
+
+    def attach(self, camera: str, frame: RecordedFrame) -> RecordedFrame:
+        """``frame`` with its mask and depth."""
+        mask = np.asarray(self.masks[camera][frame.t]) > 0 if self.masks else None
+        depth = np.asarray(self.depth[camera][frame.t], dtype=np.float32) if self.depth else None
+        return attrs.evolve(frame, mask=mask, depth=depth)
+
+
+class RigRecording(Recording):
+    """A capture of calibrated cameras whose frames a subclass decodes; adds the ground truth if any."""
+
+    def __init__(self, source: Path, cameras: Sequence[Camera], fps: float, num_frames: int, provenance: dict) -> None:
+        self.cameras = tuple(cameras)
+        self.fps = fps
+        self.num_frames = num_frames
+        self._provenance = provenance
+        self._ground_truth = GroundTruth.open(source, self.cameras, num_frames)
+        self.has_masks = bool(self._ground_truth and self._ground_truth.masks)
+        self.has_depth = bool(self._ground_truth and self._ground_truth.depth)
+
+    @abstractmethod
+    def _decode(self, camera: str, indices: range) -> Iterator[RecordedFrame]:
+        """Yield the decoded rgb frames of ``camera`` at ``indices``."""
+
+    def frames(self, camera: str, indices: range) -> Iterator[RecordedFrame]:
+        """Decoded frames of ``camera`` at ``indices``, checked against its size, with the ground truth."""
+        expected = next((c for c in self.cameras if c.name == camera), None)
+        if expected is None:
+            raise KeyError(f"no camera {camera!r} in this recording")
+        if indices and (min(indices) < 0 or max(indices) >= self.num_frames):
+            raise IndexError(f"frames {indices.start}:{indices.stop}:{indices.step} exceed the recording's {self.num_frames}")
+        for frame in self._decode(camera, indices):
+            if frame.rgb.shape != (expected.height, expected.width, 3):
+                raise ValueError(
+                    f"camera {camera!r} frame {frame.t}: decoded shape {frame.rgb.shape}, expected "
+                    f"({expected.height}, {expected.width}, 3) like its first frame"
+                )
+            yield self._ground_truth.attach(camera, frame) if self._ground_truth else frame
+
+    def describe(self) -> dict:
+        return dict(self._provenance)

@@ -1,0 +1,145 @@
+"""The ``videos`` format: one video per calibrated camera plus an anipose or Pose2Sim calibration.
+
+Layout: ``SOURCE/*.{mp4,avi,mov,mkv}`` or ``SOURCE/videos/*.{…}`` (the sub-folder wins when it has
+videos), matched to the calibration's cameras by name (see :mod:`mmcsplat.datasets.rig`). The calibration
+is the ``calibration`` argument, else ``SOURCE/calibration.toml``, else the single ``SOURCE/*.toml``. A
+``SOURCE/ground_truth.zarr`` (written by ``mmcsplat synth``) adds per-frame masks and depth.
+
+Frames are decoded lazily with OpenCV, one camera's decoder open at a time.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Iterable, Iterator, Sequence
+from pathlib import Path
+
+import attrs
+import numpy as np
+
+from mmcsplat.camera import Camera
+from mmcsplat.interfaces import RecordedFrame, Reader, Recording
+
+from .calibration import read_calibration
+from .rig import RigRecording, check_size_mismatch, common_length, find_calibration, fit_camera, match_cameras
+
+VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv")
+#: Frame rate assumed for a video whose container states none.
+DEFAULT_FPS = 30.0
+
+
+def video_files(source: Path) -> list[Path]:
+    """The videos of ``source``: those in ``source/videos`` if any, else those directly in ``source``."""
+    for folder in (source / "videos", source):
+        if folder.is_dir():
+            found = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in VIDEO_SUFFIXES)
+            if found:
+                return found
+    return []
+
+
+@attrs.frozen
+class VideoInfo:
+    """What probing a video found: its frame count, frame rate and decoded size."""
+
+    path: Path
+    frames: int
+    fps: float
+    width: int
+    height: int
+
+
+def probe(path: Path) -> VideoInfo:
+    """Open ``path`` and decode its first frame; an error naming the file when that fails."""
+    import cv2
+
+    capture = cv2.VideoCapture(str(path))
+    try:
+        if not capture.isOpened():
+            raise ValueError(f"video {path}: cannot be opened (not a video, or an unsupported codec)")
+        ok, image = capture.read()
+        if not ok or image is None:
+            raise ValueError(f"video {path}: cannot decode its first frame")
+        frames = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
+        if frames <= 0:  # some containers do not state it: count by decoding
+            frames = 1
+            while capture.grab():
+                frames += 1
+        return VideoInfo(path, frames, float(capture.get(cv2.CAP_PROP_FPS)), image.shape[1], image.shape[0])
+    finally:
+        capture.release()
+
+
+class VideoReader(Reader):
+    """Reads a folder of per-camera videos; ``size_mismatch`` is how a decoded size that differs from the
+    calibration's is handled: ``"scale"`` K (default), ``"crop"`` or ``"error"`` (see
+    :func:`mmcsplat.datasets.rig.fit_camera`)."""
+
+    def __init__(self, size_mismatch: str = "scale") -> None:
+        self.size_mismatch = check_size_mismatch(size_mismatch)
+
+    def detect(self, source: Path) -> bool:
+        return Path(source).is_dir() and bool(video_files(Path(source)))
+
+    def open(self, source: Path, calibration: Path | None = None, units: str = "m") -> Recording:
+        source = Path(source)
+        if not source.is_dir():
+            raise NotADirectoryError(f"videos source {source} is not a folder")
+        calibration = find_calibration(source, calibration)
+        calibrated = read_calibration(calibration, units)
+        paths = match_cameras(calibrated, video_files(source), "video", source)
+        infos = {camera.name: probe(paths[camera.name]) for camera in calibrated}
+        cameras = [fit_camera(c, infos[c.name].width, infos[c.name].height, self.size_mismatch, f"video {paths[c.name]}") for c in calibrated]
+        num_frames = common_length({name: info.frames for name, info in infos.items()}, "video", source)
+        provenance = {
+            "calibration": str(calibration),
+            "units": units,
+            "videos": {name: str(path) for name, path in paths.items()},
+            "size_mismatch": self.size_mismatch,
+        }
+        return VideoRecording(source, cameras, _frame_rate(infos.values(), source), num_frames, provenance, paths)
+
+
+def _frame_rate(infos: Iterable[VideoInfo], source: Path) -> float:
+    """The videos' common frame rate, with a warning when they disagree or state none."""
+    rates = {info.path.name: info.fps for info in infos}
+    valid = [fps for fps in rates.values() if fps > 0 and np.isfinite(fps)]
+    if not valid:
+        warnings.warn(f"{source}: the videos state no frame rate; assuming {DEFAULT_FPS} fps", stacklevel=3)
+        return DEFAULT_FPS
+    if max(valid) - min(valid) > 1e-3 * max(valid) or len(valid) < len(rates):
+        detail = ", ".join(f"{name}: {fps:g}" for name, fps in rates.items())
+        warnings.warn(f"{source}: the videos' frame rates differ ({detail}); using {valid[0]:g} fps", stacklevel=3)
+    return valid[0]
+
+
+class VideoRecording(RigRecording):
+    """Per-camera videos, decoded on demand."""
+
+    def __init__(self, source: Path, cameras: Sequence[Camera], fps: float, num_frames: int, provenance: dict, paths: dict[str, Path]) -> None:
+        super().__init__(source, cameras, fps, num_frames, provenance)
+        self._paths = paths
+
+    def _decode(self, camera: str, indices: range) -> Iterator[RecordedFrame]:
+        import cv2
+
+        if not indices:
+            return
+        path = self._paths[camera]
+        capture = cv2.VideoCapture(str(path))
+        try:
+            if indices.start > 0:
+                capture.set(cv2.CAP_PROP_POS_FRAMES, indices.start)
+            position = indices.start
+            for t in indices:
+                while position < t:  # skip frames between steps without converting them
+                    if not capture.grab():
+                        raise ValueError(f"video {path}: ends before frame {t}")
+                    position += 1
+                ok, image = capture.read()
+                position += 1
+                if not ok or image is None:
+                    raise ValueError(f"video {path}: cannot decode frame {t}")
+                yield RecordedFrame(t=t, rgb=cv2.cvtColor(image, cv2.COLOR_BGR2RGB))
+        finally:
+            capture.release()

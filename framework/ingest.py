@@ -1,0 +1,223 @@
+"""Ingest: turn a capture in any registered format into a session (see :mod:`mmcsplat.store`).
+
+The format's reader is found through the registry (named, or auto-detected with ``Reader.detect``).
+Frames, masks and depth are undistorted with OpenCV — ``getOptimalNewCameraMatrix`` with ``alpha=0``
+(only valid pixels, no black border) and ``initUndistortRectifyMap`` + ``remap``, linear for colour and
+nearest for masks and depth — so the stored cameras have zero distortion and the new K; ``scale`` then
+resizes the images (area averaging when shrinking) with K scaled to match (:meth:`Camera.scaled`).
+Everything is written through :class:`~mmcsplat.store.SessionWriter`, which commits atomically: a failed
+or interrupted ingest leaves nothing that reads as a session.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import attrs
+import numpy as np
+
+from .camera import Camera
+from .registry import PluginError, Registry, default_registry
+
+if TYPE_CHECKING:
+    from .store import SessionReader
+
+
+def parse_frames(text: str) -> slice:
+    """``"START:STOP[:STEP]"`` (each part optional, e.g. ``"10:"`` or ``"::2"``) as a slice of frame indices."""
+    parts = text.split(":")
+    if len(parts) not in (2, 3):
+        raise ValueError(f"frames {text!r}: expected START:STOP[:STEP], e.g. 0:100 or 0:100:2")
+    try:
+        start, stop, step = (int(part) if part.strip() else None for part in (parts + [""])[:3])
+    except ValueError:
+        raise ValueError(f"frames {text!r}: START, STOP and STEP must be whole numbers") from None
+    if (start is not None and start < 0) or (stop is not None and stop < 0):
+        raise ValueError(f"frames {text!r}: START and STOP must not be negative")
+    if step is not None and step <= 0:
+        raise ValueError(f"frames {text!r}: STEP must be positive")
+    return slice(start, stop, step)
+
+
+def detect_format(source: Path, registry: Registry | None = None) -> str:
+    """The one registered reader that recognises ``source``; a clear error when none or several do."""
+    registry = registry or default_registry()
+    matches, failures = [], []
+    for name in registry.names("reader"):
+        try:
+            if registry.create("reader", name).detect(Path(source)):
+                matches.append(name)
+        except Exception as error:  # one broken reader must not hide the others
+            failures.append(f"{name} ({error})")
+    if len(matches) == 1:
+        return matches[0]
+    if matches:
+        raise ValueError(f"{source}: several formats match ({', '.join(matches)}); choose one with --format")
+    tried = ", ".join(registry.names("reader")) or "none registered"
+    broken = f"; readers that failed: {'; '.join(failures)}" if failures else ""
+    raise ValueError(f"{source}: no reader recognises this folder (tried {tried}){broken}; is it empty or the wrong path?")
+
+
+@attrs.frozen(eq=False)
+class Undistorter:
+    """Maps one camera's images into the stored (undistorted, rescaled) image space."""
+
+    #: The stored camera: zero distortion, the new K, rescaled.
+    camera: Camera
+    #: ``initUndistortRectifyMap``'s (map_x, map_y) at the original size, or None for an ideal pinhole.
+    maps: tuple[np.ndarray, np.ndarray] | None
+
+    @classmethod
+    def for_camera(cls, camera: Camera, scale: float = 1.0) -> Undistorter:
+        """The undistortion of ``camera`` followed by a resize by ``scale``."""
+        import cv2
+
+        size = (camera.width, camera.height)
+        maps = None
+        undistorted = camera
+        if camera.is_distorted:
+            new_K, _ = cv2.getOptimalNewCameraMatrix(camera.K, camera.distortion, size, 0.0, size)
+            maps = cv2.initUndistortRectifyMap(camera.K, camera.distortion, None, new_K, size, cv2.CV_32FC1)
+            undistorted = attrs.evolve(camera, K=new_K)
+        undistorted = attrs.evolve(undistorted, distortion=[])
+        width, height = round(camera.width * scale), round(camera.height * scale)
+        if width < 1 or height < 1:
+            raise ValueError(f"camera {camera.name!r}: scale {scale} leaves no pixels of its {camera.width}×{camera.height} images")
+        if (width, height) != size:
+            undistorted = undistorted.scaled(width / camera.width, height / camera.height)
+        return cls(undistorted, maps)
+
+    def _apply(self, image: np.ndarray, interpolation: int, shrink: int) -> np.ndarray:
+        import cv2
+
+        if self.maps is not None:
+            image = cv2.remap(image, *self.maps, interpolation, borderMode=cv2.BORDER_REPLICATE)
+        size = (self.camera.width, self.camera.height)
+        if (image.shape[1], image.shape[0]) != size:
+            smaller = size[0] < image.shape[1]
+            image = cv2.resize(image, size, interpolation=shrink if smaller else interpolation)
+        return image
+
+    def rgb(self, image: np.ndarray) -> np.ndarray:
+        """[H, W, 3] uint8 in the stored image space (linear sampling, area averaging when shrinking)."""
+        import cv2
+
+        return self._apply(image, cv2.INTER_LINEAR, cv2.INTER_AREA)
+
+    def mask(self, mask: np.ndarray) -> np.ndarray:
+        """[H, W] bool in the stored image space (nearest sampling)."""
+        import cv2
+
+        return self._apply(mask.astype(np.uint8), cv2.INTER_NEAREST, cv2.INTER_NEAREST) > 0
+
+    def depth(self, depth: np.ndarray) -> np.ndarray:
+        """[H, W] float32 metres in the stored image space (nearest: depth is never blended across edges)."""
+        import cv2
+
+        return self._apply(depth.astype(np.float32), cv2.INTER_NEAREST, cv2.INTER_NEAREST)
+
+
+def _select(cameras: Sequence[Camera], names: Sequence[str] | None, what: str) -> list[str]:
+    """``names`` checked against ``cameras`` (all of them when ``names`` is None)."""
+    known = [camera.name for camera in cameras]
+    if names is None:
+        return known
+    unknown = [name for name in names if name not in known]
+    if unknown:
+        raise ValueError(f"{what}: no camera named {', '.join(map(repr, unknown))}; cameras are {', '.join(known)}")
+    return list(dict.fromkeys(names))
+
+
+def ingest(
+    source: Path,
+    out: str | os.PathLike,
+    *,
+    format: str | None = None,
+    calibration: Path | None = None,
+    units: str = "m",
+    frames: slice | None = None,
+    scale: float = 1.0,
+    cameras: Sequence[str] | None = None,
+    holdout: Sequence[str] = (),
+    overwrite: bool = False,
+    progress: bool = True,
+    reader_options: dict | None = None,
+) -> SessionReader:
+    """Read ``source`` (``format`` or auto-detected), undistort and rescale its frames, and write the
+    session at ``out``; returns it opened for reading.
+
+    ``frames`` selects frame indices, ``cameras`` a subset of cameras (in that order), ``holdout`` cameras
+    kept for evaluation (added to those the format itself holds out), ``reader_options`` parameters of
+    the reader (e.g. ``{"size_mismatch": "crop"}`` for ``videos``).
+    """
+    from tqdm import tqdm
+
+    from .store import SessionReader, SessionWriter
+
+    source = Path(source)
+    if not source.exists():
+        raise FileNotFoundError(f"source {source} does not exist")
+    if not scale > 0:
+        raise ValueError(f"scale must be positive, got {scale}")
+    registry = default_registry()
+    name = format or detect_format(source, registry)
+    try:
+        reader = registry.create("reader", name, **(reader_options or {}))
+    except PluginError as error:
+        raise ValueError(str(error)) from error
+    recording = reader.open(source, calibration, units)
+    try:
+        selected = _select(recording.cameras, cameras, "--cameras")
+        heldout = _select(recording.cameras, holdout, "--holdout")
+        outside = [c for c in heldout if c not in selected]
+        if outside:
+            raise ValueError(f"--holdout: {', '.join(outside)} not among the selected cameras {', '.join(selected)}")
+        heldout += [c for c in recording.heldout if c in selected and c not in heldout]
+        if len(heldout) == len(selected):
+            raise ValueError(f"every selected camera ({', '.join(selected)}) is held out: nothing is left to train on")
+        indices = range(*(frames or slice(None)).indices(recording.num_frames))
+        if not indices:
+            raise ValueError(f"the frames asked for select none of the {recording.num_frames} frames of {source}")
+        by_name = {camera.name: camera for camera in recording.cameras}
+        undistorters = {camera: Undistorter.for_camera(by_name[camera], scale) for camera in selected}
+        expected = {camera: int(recording.present(camera)[indices.start : indices.stop : indices.step].sum()) for camera in selected}
+        provenance = {
+            "format": name,
+            "reader": recording.describe(),
+            "units": units,
+            "frames": [indices.start, indices.stop, indices.step],
+            "scale": scale,
+            "undistortion": "cv2.getOptimalNewCameraMatrix(alpha=0) + remap",
+        }
+        with SessionWriter(
+            out,
+            cameras=[undistorters[camera].camera for camera in selected],
+            num_frames=len(indices),
+            fps=recording.fps / indices.step,
+            frame_times=recording.frame_times()[indices.start : indices.stop : indices.step],
+            heldout=heldout,
+            source=str(source),
+            provenance=provenance,
+            overwrite=overwrite,
+        ) as writer, tqdm(total=sum(expected.values()), unit="frame", desc=f"ingest {source.name}", disable=not progress) as bar:
+            for camera in selected:
+                undistort, written = undistorters[camera], 0
+                for frame in recording.frames(camera, indices):
+                    writer.write_frame(
+                        camera,
+                        (frame.t - indices.start) // indices.step,
+                        undistort.rgb(frame.rgb),
+                        mask=None if frame.mask is None else undistort.mask(frame.mask),
+                        depth=None if frame.depth is None else undistort.depth(frame.depth),
+                    )
+                    written += 1
+                    bar.update()
+                if written != expected[camera]:
+                    raise ValueError(f"camera {camera!r}: the {name} reader yielded {written} of {expected[camera]} frames of {source}")
+            writer.commit()
+    finally:
+        recording.close()
+    return SessionReader(out)

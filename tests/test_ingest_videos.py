@@ -1,0 +1,270 @@
+"""Ingest of the ``videos`` format: small videos made here, bad inputs, atomicity, and the real Pose2Sim demo."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import warnings
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import tomli_w
+
+import rig_fixtures as rig
+from mmcsplat.cli import main
+from mmcsplat.datasets.calibration import read_calibration, write_calibration
+from mmcsplat.datasets.videos import VideoReader
+from mmcsplat.ingest import Undistorter, detect_format, ingest, parse_frames
+from mmcsplat.store import SessionReader
+
+POSE2SIM = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "pose2sim_demo"
+
+
+def _ingest(source: Path, out: Path, **options) -> SessionReader:
+    return ingest(source, out, progress=False, **options)
+
+
+def test_parse_frames() -> None:
+    assert parse_frames("0:5") == slice(0, 5, None)
+    assert parse_frames("2:10:3") == slice(2, 10, 3)
+    assert parse_frames("10:") == slice(10, None, None)
+    for bad in ("5", "a:b", "0:5:0", "-1:4", "1:2:3:4"):
+        with pytest.raises(ValueError, match="frames"):
+            parse_frames(bad)
+
+
+def test_ingest_undistorts_and_keeps_frame_order(tmp_path: Path) -> None:
+    calibrated = rig.make_capture(tmp_path / "capture", frames=4)
+    assert detect_format(tmp_path / "capture") == "videos"
+    session = _ingest(tmp_path / "capture", tmp_path / "out.zarr")
+    assert session.camera_names == ("cam_a", "cam_b")
+    assert (session.num_frames, session.fps) == (4, 30.0)
+    assert session.provenance["format"] == "videos"
+    for camera in calibrated:
+        stored = session.camera(camera.name)
+        assert not stored.is_distorted and (stored.width, stored.height) == (camera.width, camera.height)
+        new_K, _ = cv2.getOptimalNewCameraMatrix(camera.K, camera.distortion, (camera.width, camera.height), 0)
+        np.testing.assert_allclose(stored.K, new_K)
+        np.testing.assert_allclose(stored.R, camera.R, atol=1e-12)
+        for t in range(4):
+            rgb = session.frame(t, camera.name).rgb
+            assert abs(float(np.median(rgb)) - rig.background_level(t)) < 10, (camera.name, t)
+            # Markers sit where the undistorted pinhole camera projects them (mp4v is lossy: 0.5 px).
+            assert rig.marker_offsets(rgb, stored).max() < 0.5
+        # Without undistortion they would be pixels away: the check above can fail.
+        assert rig.marker_offsets(rig.frame_image(camera, 0), stored).max() > 2.0
+
+
+def test_frames_scale_subset_and_holdout(tmp_path: Path) -> None:
+    rig.make_capture(tmp_path / "capture", names=("c1", "c2", "c3"), frames=6)
+    session = _ingest(tmp_path / "capture", tmp_path / "out.zarr", frames=slice(1, 6, 2), scale=0.5, cameras=["c3", "c1"], holdout=["c1"])
+    assert session.camera_names == ("c3", "c1")
+    assert session.heldout == ("c1",) and session.train_cameras == ("c3",)
+    assert session.num_frames == 3 and session.fps == 15.0
+    np.testing.assert_allclose(session.frame_times, [1 / 30, 3 / 30, 5 / 30])
+    full = Undistorter.for_camera(read_calibration(tmp_path / "capture" / "calibration.toml")[2]).camera
+    stored = session.camera("c3")
+    assert (stored.width, stored.height) == (64, 48)
+    np.testing.assert_allclose(stored.K, full.scaled(0.5).K)
+    for index, t in enumerate((1, 3, 5)):
+        rgb = session.frame(index, "c3").rgb
+        assert rgb.shape == (48, 64, 3)
+        assert abs(float(np.median(rgb)) - rig.background_level(t)) < 10
+
+
+def test_fuzzy_names_videos_folder_and_truncation(tmp_path: Path) -> None:
+    source = tmp_path / "capture"
+    cameras = rig.ring_cameras(["cam_01", "cam_02"])
+    source.mkdir()
+    write_calibration(source / "calibration.toml", cameras)
+    rig.write_videos(source / "videos", cameras, [5, 3], stems=["cam01", "Cam-2"])
+    with pytest.warns(UserWarning, match=r"differ in length \(cam_01: 5, cam_02: 3\); truncating every camera to 3"):
+        session = _ingest(source, tmp_path / "out.zarr")
+    assert session.num_frames == 3
+    assert session.provenance["reader"]["videos"]["cam_02"].endswith("Cam-2.mp4")
+
+
+def test_size_mismatch_scales_K_with_a_warning(tmp_path: Path) -> None:
+    source = tmp_path / "capture"
+    cameras = rig.ring_cameras(["a", "b"])
+    source.mkdir()
+    rig.write_videos(source, cameras, 2)
+    # The calibration claims twice the decoded size: a resampled video.
+    write_calibration(source / "calibration.toml", [c.scaled(2.0) for c in cameras])
+    with pytest.warns(UserWarning, match=r"decodes at 128×96 but camera '[ab]' is calibrated at 256×192; scaling K by \(0\.50000, 0\.50000\)"):
+        recording = VideoReader().open(source)
+    np.testing.assert_allclose(recording.cameras[0].K, cameras[0].K, atol=1e-9)
+    with pytest.raises(ValueError, match=r"calibrated at 256×192 \(size_mismatch='error'\)"):
+        VideoReader(size_mismatch="error").open(source)
+    with pytest.warns(UserWarning, match=r"keeping K and treating the images as the top-left crop"):
+        cropped = VideoReader(size_mismatch="crop").open(source).cameras[0]
+    np.testing.assert_allclose(cropped.K, cameras[0].scaled(2.0).K)
+    assert (cropped.width, cropped.height) == (128, 96)
+    # A crop cannot be larger than the calibrated frame.
+    write_calibration(source / "calibration.toml", [c.scaled(0.5) for c in cameras])
+    with pytest.raises(ValueError, match="larger than calibrated, so it cannot be a crop"):
+        VideoReader(size_mismatch="crop").open(source)
+
+
+def test_size_mismatch_that_cannot_be_a_rescale_is_an_error(tmp_path: Path) -> None:
+    source = tmp_path / "capture"
+    cameras = rig.ring_cameras(["a"])
+    source.mkdir()
+    rig.write_videos(source, cameras, 2)
+    rotated = [c.scaled(96 / 128, 128 / 96) for c in cameras]  # portrait calibration of a landscape video
+    write_calibration(source / "calibration.toml", rotated)
+    with pytest.raises(ValueError, match="aspect ratio differs too much"):
+        _ingest(source, tmp_path / "out.zarr")
+    assert rig.no_session_left(tmp_path / "out.zarr")
+
+
+def test_ground_truth_masks_and_depth_are_undistorted_with_the_frames(tmp_path: Path) -> None:
+    import zarr
+
+    source = tmp_path / "capture"
+    cameras = rig.make_capture(source, frames=3)
+    group = zarr.open_group(str(source / "ground_truth.zarr"), mode="w")
+    for camera in cameras:
+        mask = np.zeros((3, camera.height, camera.width), np.uint8)
+        mask[:, 20:70, 30:100] = 1
+        group.create_array(f"masks/{camera.name}", data=mask)
+        group.create_array(f"depth/{camera.name}", data=(mask * 1.5).astype(np.float16))
+    session = _ingest(source, tmp_path / "out.zarr", scale=0.5)
+    assert session.has("mask") and session.has("depth")
+    frame = session.frame(2, "cam_b")
+    assert frame.mask.dtype == bool and frame.mask.shape == (48, 64)
+    assert set(np.unique(frame.depth)) == {0.0, 1.5}  # nearest sampling: no blended depth
+    np.testing.assert_array_equal(frame.depth > 0, frame.mask)
+    assert 0.15 < frame.mask.mean() < 0.5
+
+
+@pytest.mark.parametrize(
+    "breakage, message",
+    [
+        ("missing_video", r"no video for calibrated camera 'cam_b'"),
+        ("garbage_video", r"video .*cam_b\.mp4: cannot"),
+        ("malformed_calibration", r"calibration .*calibration\.toml, \[cam_1\]: missing matrix"),
+        ("no_calibration", r"no calibration\.toml"),
+        ("empty", r"no reader recognises this folder"),
+    ],
+)
+def test_bad_inputs_fail_clearly_and_leave_no_session(tmp_path: Path, breakage: str, message: str) -> None:
+    source = tmp_path / "capture"
+    rig.make_capture(source)
+    if breakage == "missing_video":
+        (source / "cam_b.mp4").unlink()
+    elif breakage == "garbage_video":
+        (source / "cam_b.mp4").write_bytes(np.random.default_rng(0).bytes(4096))
+    elif breakage == "malformed_calibration":
+        document = {f"cam_{i}": {"name": c.name, "size": [c.width, c.height], "distortions": [0.0] * 5, "rotation": [0.0] * 3,
+                                 "translation": [0.0] * 3} | ({"matrix": c.K.tolist()} if i == 0 else {})
+                    for i, c in enumerate(rig.ring_cameras(["cam_a", "cam_b"]))}
+        (source / "calibration.toml").write_text(tomli_w.dumps(document))
+    elif breakage == "no_calibration":
+        (source / "calibration.toml").unlink()
+    elif breakage == "empty":
+        shutil.rmtree(source)
+        source.mkdir()
+    out = tmp_path / "out.zarr"
+    with pytest.raises((ValueError, FileNotFoundError), match=message):
+        _ingest(source, out)
+    assert rig.no_session_left(out)
+
+
+def test_cli_reports_bad_input_and_succeeds_on_good(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    source = tmp_path / "capture"
+    rig.make_capture(source, names=("x", "y"), frames=2)
+    assert main(["ingest", str(source), str(tmp_path / "out.zarr"), "--cameras", "x,z"]) == 2
+    assert "--cameras: no camera named 'z'; cameras are x, y" in capsys.readouterr().err
+    assert main(["ingest", str(source), str(tmp_path / "out.zarr"), "--holdout", "x,y"]) == 2
+    assert "nothing is left to train on" in capsys.readouterr().err
+    assert rig.no_session_left(tmp_path / "out.zarr")
+    assert main(["ingest", str(source), str(tmp_path / "out.zarr"), "--format", "videos", "--holdout", "y"]) == 0
+    assert "wrote" in capsys.readouterr().out
+    assert SessionReader(tmp_path / "out.zarr").heldout == ("y",)
+    assert main(["ingest", str(source), str(tmp_path / "out.zarr")]) == 2  # exists: needs --overwrite
+    assert "already exists" in capsys.readouterr().err
+    assert main(["ingest", str(source), str(tmp_path / "out.zarr"), "--overwrite", "--frames", "1:2"]) == 0
+    assert SessionReader(tmp_path / "out.zarr").num_frames == 1
+
+
+def test_interrupted_ingest_leaves_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    rig.make_capture(tmp_path / "capture", frames=3)
+    calls = []
+    original = Undistorter.rgb
+
+    def interrupt_on_fourth(self, image):
+        calls.append(1)
+        if len(calls) == 4:
+            raise KeyboardInterrupt
+        return original(self, image)
+
+    monkeypatch.setattr(Undistorter, "rgb", interrupt_on_fourth)
+    with pytest.raises(KeyboardInterrupt):
+        _ingest(tmp_path / "capture", tmp_path / "out.zarr")
+    assert len(calls) == 4 and rig.no_session_left(tmp_path / "out.zarr")
+
+
+def test_several_matching_formats_is_an_error(tmp_path: Path) -> None:
+    source = tmp_path / "capture"
+    cameras = rig.make_capture(source, frames=1)
+    rig.write_image_folders(source, cameras, 1)
+    with pytest.raises(ValueError, match=r"several formats match \(images, videos\); choose one with --format"):
+        _ingest(source, tmp_path / "out.zarr")
+    assert _ingest(source, tmp_path / "out.zarr", format="images").num_frames == 1
+
+
+# ------------------------------------------------------------------------------- the real Pose2Sim demo
+
+
+def _trc_joints(path: Path) -> np.ndarray:
+    """[T, J, 3] joints of a Pose2Sim .trc in the calibration's world frame: (trc Z, trc X, trc Y)."""
+    rows = [line.split("\t") for line in path.read_text().splitlines()[5:] if line.strip()]
+    values = np.array([[float(v) for v in row[2:] if v.strip()] for row in rows])
+    return values.reshape(len(rows), -1, 3)[..., [2, 0, 1]]
+
+
+def _keypoints(path: Path, min_confidence: float = 0.3) -> np.ndarray:
+    """[N, 2] confident OpenPose keypoints of every person in one frame's JSON."""
+    people = json.loads(path.read_text())["people"]
+    points = np.concatenate([np.reshape(p["pose_keypoints_2d"], (-1, 3)) for p in people])
+    return points[points[:, 2] > min_confidence, :2]
+
+
+def pose2sim_medians(out: Path, frames: slice, scale: float, size_mismatch: str = "scale") -> dict[str, float]:
+    """Ingest the Pose2Sim demo and return, per camera, the median distance (in original-resolution px)
+    between the projected 3D joints and the nearest confident 2D keypoint, both in the ingested images."""
+    calibration = POSE2SIM / "Calib_qualisys.toml"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the cam01/cam02 size mismatch is asserted elsewhere
+        session = ingest(POSE2SIM, out, calibration=calibration, frames=frames, scale=scale, progress=False,
+                         reader_options={"size_mismatch": size_mismatch})
+        decoded = {c.name: c for c in VideoReader(size_mismatch=size_mismatch).open(POSE2SIM, calibration).cameras}
+    joints = _trc_joints(POSE2SIM / "joints_3d.trc")
+    medians = {}
+    for name in session.camera_names:
+        stored, original = session.camera(name), decoded[name]
+        tag = name.replace("_", "")
+        distances = []
+        for index, t in enumerate(range(*frames.indices(len(joints)))):
+            points = _keypoints(POSE2SIM / "pose_2d" / tag / f"{tag}.{t:04d}.json")
+            # Into the ingested image space: undistort onto the stored K (which already includes the scale).
+            points = cv2.undistortPoints(points.reshape(-1, 1, 2), original.K, original.distortion, P=stored.K).reshape(-1, 2)
+            projected = stored.project(joints[t])
+            distances.extend(np.linalg.norm(projected[:, None] - points[None], axis=-1).min(axis=1))
+            assert session.present(name)[index]
+        medians[name] = float(np.median(distances)) / scale
+    return medians
+
+
+@pytest.mark.skipif(not POSE2SIM.is_dir(), reason=f"shared Pose2Sim demo not found at {POSE2SIM}")
+def test_pose2sim_demo_joints_land_on_keypoints(tmp_path: Path) -> None:
+    with pytest.warns(UserWarning, match=r"cam0[12]\.mp4 decodes at 1080×1920 but camera 'cam_0[12]' is calibrated at 1088×1920"):
+        VideoReader().open(POSE2SIM, POSE2SIM / "Calib_qualisys.toml")
+    medians = pose2sim_medians(tmp_path / "pose2sim.zarr", slice(0, 5), scale=0.5)
+    assert set(medians) == {"cam_01", "cam_02", "cam_03", "cam_04"}
+    assert all(m <= 25.0 for m in medians.values()), medians
+    session = SessionReader(tmp_path / "pose2sim.zarr")
+    assert (session.camera("cam_01").width, session.camera("cam_03").width) == (540, 544)

@@ -1,0 +1,96 @@
+"""The ``images`` reader: per-camera image folders plus a calibration, read lazily and ingested."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+import rig_fixtures as rig
+from mmcsplat.datasets.calibration import write_calibration
+from mmcsplat.datasets.images import ImageSequenceReader
+from mmcsplat.datasets.rig import name_key, natural_key
+from mmcsplat.ingest import detect_format, ingest
+
+
+def _capture(folder: Path, names=("c1", "c2", "c3"), frames: int = 3) -> list:
+    cameras = rig.ring_cameras(names)
+    folder.mkdir(parents=True)
+    write_calibration(folder / "calibration.toml", cameras)
+    rig.write_image_folders(folder, cameras, frames)
+    return cameras
+
+
+def test_name_rules() -> None:
+    assert name_key("cam_01") == name_key("cam01") == name_key("Cam-1") == ("cam", 1)
+    assert name_key("cam_01") != name_key("cam_10")
+    assert sorted(["frame10.png", "frame2.png", "frame1.png"], key=natural_key) == ["frame1.png", "frame2.png", "frame10.png"]
+
+
+def test_reads_frames_in_natural_order_lazily(tmp_path: Path) -> None:
+    source = tmp_path / "capture"
+    _capture(source, names=("c1",), frames=12)
+    reader = ImageSequenceReader(fps=25)
+    assert reader.detect(source) and detect_format(source) == "images"
+    recording = reader.open(source)
+    assert (recording.num_frames, recording.fps, recording.has_masks) == (12, 25.0, False)
+    frames = recording.frames("c1", range(2, 12, 4))
+    first = next(frames)  # a generator: frames are decoded one at a time
+    assert first.t == 2 and int(np.median(first.rgb)) == rig.background_level(2)
+    assert [f.t for f in frames] == [6, 10]
+    # frame10.png is frame 10 (not frame 2, as text order would have it).
+    assert int(np.median(next(recording.frames("c1", range(10, 11))).rgb)) == rig.background_level(10)
+
+
+def test_ingest_undistorts_exactly(tmp_path: Path) -> None:
+    calibrated = _capture(tmp_path / "capture")
+    session = ingest(tmp_path / "capture", tmp_path / "out.zarr", progress=False)
+    for camera in calibrated:
+        stored = session.camera(camera.name)
+        assert not stored.is_distorted
+        # Lossless PNGs: markers land within 0.3 px of the undistorted pinhole projection …
+        assert rig.marker_offsets(session.frame(1, camera.name).rgb, stored).max() < 0.3
+        # … and of the original distorted projection in the original image: the helper measures truly.
+        assert rig.marker_offsets(rig.frame_image(camera, 1), stored).max() > 2.0
+
+
+def test_images_subfolder_fuzzy_names_and_truncation(tmp_path: Path) -> None:
+    source = tmp_path / "capture"
+    cameras = rig.ring_cameras(["cam_01", "cam_02"])
+    source.mkdir()
+    write_calibration(source / "calibration.toml", cameras)
+    rig.write_image_folders(source / "images", cameras, 3)
+    (source / "images" / "cam_02").rename(source / "images" / "CAM2")
+    (source / "images" / "CAM2" / "frame2.png").unlink()
+    with pytest.warns(UserWarning, match=r"differ in length \(cam_01: 3, cam_02: 2\)"):
+        recording = ImageSequenceReader().open(source)
+    assert recording.num_frames == 2
+    assert recording.describe()["folders"]["cam_02"].endswith("CAM2")
+
+
+def test_bad_inputs(tmp_path: Path) -> None:
+    source = tmp_path / "capture"
+    _capture(source, frames=2)
+    (source / "c2" / "frame1.png").write_bytes(b"not a png")
+    recording = ImageSequenceReader().open(source)
+    with pytest.raises(ValueError, match=r"c2/frame1\.png: not a readable image"):
+        list(recording.frames("c2", range(2)))
+    out = tmp_path / "out.zarr"
+    with pytest.raises(ValueError, match="not a readable image"):
+        ingest(source, out, progress=False)
+    assert rig.no_session_left(out)
+
+    cv2.imwrite(str(source / "c2" / "frame1.png"), np.zeros((10, 10, 3), np.uint8))  # a different size
+    with pytest.raises(ValueError, match=r"camera 'c2' frame 1: decoded shape \(10, 10, 3\), expected \(96, 128, 3\)"):
+        ingest(source, out, progress=False)
+    assert rig.no_session_left(out)
+
+    for path in (source / "c3").iterdir():
+        path.unlink()
+    (source / "c3").rmdir()
+    with pytest.raises(FileNotFoundError, match=r"no image folder for calibrated camera 'c3' \(found: c1, c2\)"):
+        ImageSequenceReader().open(source)
+    with pytest.raises(ValueError, match="size_mismatch"):
+        ImageSequenceReader(size_mismatch="stretch")
