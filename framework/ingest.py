@@ -20,7 +20,7 @@ import attrs
 import numpy as np
 
 from .camera import Camera
-from .registry import PluginError, Registry, default_registry
+from .registry import Registry, default_registry
 
 if TYPE_CHECKING:
     from .store import SessionReader
@@ -164,10 +164,7 @@ def ingest(
         raise ValueError(f"scale must be positive, got {scale}")
     registry = default_registry()
     name = format or detect_format(source, registry)
-    try:
-        reader = registry.create("reader", name, **(reader_options or {}))
-    except PluginError as error:
-        raise ValueError(str(error)) from error
+    reader = registry.create("reader", name, **(reader_options or {}))
     recording = reader.open(source, calibration, units)
     try:
         selected = _select(recording.cameras, cameras, "--cameras")
