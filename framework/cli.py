@@ -12,6 +12,7 @@ from . import __version__
 COMMANDS = {
     "plugins": "plugins",
     "ingest": "ingest",
+    "segment": "segment",
 }
 
 

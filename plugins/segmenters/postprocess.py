@@ -1,0 +1,84 @@
+"""Mask post-processing shared by every built-in segmenter, and the base class that applies it."""
+
+from __future__ import annotations
+
+from abc import abstractmethod
+from collections.abc import Iterator
+
+import attrs
+import cv2
+import numpy as np
+
+from mmcsplat.interfaces import Segmenter
+from mmcsplat.store import SessionReader
+
+
+def _disk(radius: int) -> np.ndarray:
+    """An elliptical structuring element of the given radius in pixels."""
+    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+
+
+def largest_component(mask: np.ndarray) -> np.ndarray:
+    """Only the largest 8-connected component of ``mask`` [H, W] bool (an empty mask stays empty)."""
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    if count <= 2:  # background alone, or one component
+        return mask.astype(bool, copy=True)
+    largest = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+    return labels == largest
+
+
+def dilate(mask: np.ndarray, radius: int) -> np.ndarray:
+    """``mask`` grown by ``radius`` pixels (a disk); radius 0 returns a copy."""
+    if radius == 0:
+        return mask.astype(bool, copy=True)
+    return cv2.dilate(mask.astype(np.uint8), _disk(radius)).astype(bool)
+
+
+def open_close(mask: np.ndarray, open_radius: int, close_radius: int) -> np.ndarray:
+    """Morphological opening (removes specks) then closing (fills pinholes), each skipped at radius 0."""
+    result = mask.astype(np.uint8)
+    if open_radius:
+        result = cv2.morphologyEx(result, cv2.MORPH_OPEN, _disk(open_radius))
+    if close_radius:
+        result = cv2.morphologyEx(result, cv2.MORPH_CLOSE, _disk(close_radius))
+    return result.astype(bool)
+
+
+def _non_negative(instance: object, attribute: attrs.Attribute, value: int) -> None:
+    if value < 0:
+        raise ValueError(f"{attribute.name} must be ≥ 0 pixels, got {value}")
+
+
+@attrs.frozen
+class PostProcess:
+    """The clean-up applied to every raw mask: keep the largest connected component (the reference study
+    removed experimenters' legs this way), then dilate by ``dilation`` pixels."""
+
+    largest_component: bool = attrs.field(default=True, converter=bool)
+    dilation: int = attrs.field(default=0, converter=int, validator=_non_negative)
+
+    def __call__(self, mask: np.ndarray) -> np.ndarray:
+        """The cleaned-up copy of ``mask`` [H, W] bool."""
+        if self.largest_component:
+            mask = largest_component(mask)
+        return dilate(mask, self.dilation)
+
+
+class PostProcessedSegmenter(Segmenter):
+    """A segmenter whose raw masks go through :class:`PostProcess`; subclasses implement :meth:`raw`."""
+
+    def __init__(self, largest_component: bool = True, dilation: int = 0) -> None:
+        self.postprocess = PostProcess(largest_component, dilation)
+
+    @abstractmethod
+    def raw(self, session: SessionReader, camera: str) -> Iterator[tuple[int, np.ndarray, np.ndarray | None]]:
+        """Yield (t, raw mask, labels or None) for every present frame of ``camera``, in order."""
+
+    def segment(self, session: SessionReader, camera: str) -> Iterator[tuple[int, np.ndarray, np.ndarray | None]]:
+        for t, mask, labels in self.raw(session, camera):
+            yield t, self.postprocess(mask), labels
+
+
+def present_frames(session: SessionReader, camera: str) -> np.ndarray:
+    """The frame indices ``camera`` has in ``session``, ascending."""
+    return np.flatnonzero(session.present(camera))
