@@ -1,0 +1,251 @@
+"""Numba kernels of the ``torch-cpu`` renderer: tile binning, front-to-back compositing and its backward.
+
+Pure numpy in and out; :mod:`mmcsplat.backends.torch_cpu` wraps them in a torch.autograd.Function.
+Conventions are those of docs/rendering.md. Arrays are indexed camera c, Gaussian i; tiles are numbered
+row-major within a camera and flattened camera-major (``ct = c * tiles + t``). Arithmetic is float64
+whatever the storage type, so the backward recovers transmittance by division without drift.
+
+Two exact optimisations over the reference's "every Gaussian of the tile, every pixel of the tile":
+a pixel can only receive α ≥ 1/255 inside the ellipse dᵀ·conic·d ≤ 2·ln(255·o), so each Gaussian visits
+only the pixels of that ellipse's bounding box, and is binned only into the tiles of its 3σ tile rectangle
+(from the shared projection) that the box touches. The pixels left out would have been skipped anyway, so
+the image is unchanged.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from mmcsplat.rendering import ALPHA_MAX, ALPHA_MIN, TILE_SIZE, TRANSMITTANCE_MIN
+
+_PARALLEL = {"parallel": True, "cache": True, "fastmath": False, "nogil": True}
+#: Per-instance gradient columns: d mean2d (x, y), d conic (a, b, c), d opacity, then d values.
+GRAD_VALUES = 6
+#: Relative and absolute slack on the contribution box: covers the rounding of the power's evaluation.
+_BOX_SLACK = 1e-6
+
+
+@njit(cache=True, fastmath=False, inline="always")
+def _alpha(dx, dy, a, b, c, o):
+    """(α, falloff) of a Gaussian at offset (dx, dy); α = 0 where the pixel is skipped."""
+    power = -0.5 * (a * dx * dx + c * dy * dy) - b * dx * dy
+    if power > 0.0:
+        return 0.0, 0.0
+    falloff = math.exp(power)
+    alpha = min(ALPHA_MAX, o * falloff)
+    if alpha < ALPHA_MIN:
+        return 0.0, 0.0
+    return alpha, falloff
+
+
+@njit(cache=True, fastmath=False, inline="always")
+def _span(centre, half, lo, hi):
+    """Integer pixel range [start, stop) of [centre − half, centre + half] within [lo, hi)."""
+    start = centre - half
+    stop = centre + half
+    first = lo if start <= lo else min(hi, int(math.ceil(start)))
+    last = hi if stop >= hi - 1 else max(lo, int(math.floor(stop)) + 1)
+    return first, max(first, last)
+
+
+@njit(**_PARALLEL)
+def bin_gaussians(xy, conic, opacity, depth, tiles_rect, width, height):
+    """Per-tile lists of Gaussian ids sorted by (depth, index).
+
+    xy [C, N, 2] 2D means, conic [C, N, 3], opacity [N], depth [C, N] camera z, tiles_rect [C, N, 4] the
+    half-open 3σ tile range (x0, x1, y0, y1), empty for culled Gaussians. Returns extent [C, N, 2] (half
+    width and height of the contribution box, px), offsets [C·tiles + 1] int64 and ids [offsets[-1]]
+    int32: tile ct holds ids[offsets[ct]:offsets[ct + 1]].
+    """
+    n_cams, n = depth.shape
+    tiles_x = (width + TILE_SIZE - 1) // TILE_SIZE
+    tiles = tiles_x * ((height + TILE_SIZE - 1) // TILE_SIZE)
+    extent = np.zeros((n_cams, n, 2), np.float64)
+    rect = np.zeros((n_cams, n, 4), np.int64)  # the part of tiles_rect the contribution box touches
+    counts = np.zeros(n_cams * tiles + 1, np.int64)
+    for cam in prange(n_cams):
+        base = cam * tiles + 1
+        for i in range(n):
+            x0, x1, y0, y1 = tiles_rect[cam, i, 0], tiles_rect[cam, i, 1], tiles_rect[cam, i, 2], tiles_rect[cam, i, 3]
+            o = opacity[i]
+            if x1 <= x0 or y1 <= y0 or o < ALPHA_MIN:  # culled, or α = min(0.99, o·falloff) < 1/255 everywhere
+                continue
+            mx, my = xy[cam, i, 0], xy[cam, i, 1]
+            a, b, c = conic[cam, i, 0], conic[cam, i, 1], conic[cam, i, 2]
+            det = a * c - b * b
+            if det > 0.0:
+                reach = 2.0 * math.log(o / ALPHA_MIN)
+                hx = math.sqrt(reach * c / det) * (1.0 + _BOX_SLACK) + _BOX_SLACK
+                hy = math.sqrt(reach * a / det) * (1.0 + _BOX_SLACK) + _BOX_SLACK
+                x0 = max(x0, math.floor((mx - hx) / TILE_SIZE))
+                x1 = min(x1, math.floor((mx + hx) / TILE_SIZE) + 1)
+                y0 = max(y0, math.floor((my - hy) / TILE_SIZE))
+                y1 = min(y1, math.floor((my + hy) / TILE_SIZE) + 1)
+            else:  # numerically indefinite conic: no box, visit the whole 3σ rectangle
+                hx = hy = np.inf
+            if x1 <= x0 or y1 <= y0:
+                continue
+            extent[cam, i, 0] = hx
+            extent[cam, i, 1] = hy
+            rect[cam, i, 0], rect[cam, i, 1], rect[cam, i, 2], rect[cam, i, 3] = x0, x1, y0, y1
+            for ty in range(y0, y1):
+                for tx in range(x0, x1):
+                    counts[base + ty * tiles_x + tx] += 1
+    offsets = np.cumsum(counts)
+    ids = np.empty(offsets[-1], np.int32)
+    for cam in prange(n_cams):
+        cursor = offsets[cam * tiles:(cam + 1) * tiles].copy()
+        for i in np.argsort(depth[cam], kind="mergesort"):  # stable: equal depths by index
+            x0, x1, y0, y1 = rect[cam, i, 0], rect[cam, i, 1], rect[cam, i, 2], rect[cam, i, 3]
+            for ty in range(y0, y1):
+                for tx in range(x0, x1):
+                    t = ty * tiles_x + tx
+                    ids[cursor[t]] = i
+                    cursor[t] += 1
+    return extent, offsets, ids
+
+
+@njit(**_PARALLEL)
+def composite_forward(xy, conic, opacity, extent, values, offsets, ids, width, height):
+    """Front-to-back compositing of every tile of every camera.
+
+    values [C, N, D] are the channels composited with weights αᵢTᵢ. Returns acc [C, H, W, D] (Σ αᵢTᵢ vᵢ),
+    alpha [C, H, W] (Σ αᵢTᵢ), and for the backward the final transmittance [C, H, W] (float64) and last
+    [C, H, W] int32, the number of list entries up to and including the pixel's last contributor.
+    """
+    n_cams, _, dims = values.shape
+    tiles_x = (width + TILE_SIZE - 1) // TILE_SIZE
+    tiles = tiles_x * ((height + TILE_SIZE - 1) // TILE_SIZE)
+    acc = np.zeros((n_cams, height, width, dims), values.dtype)
+    alpha = np.zeros((n_cams, height, width), values.dtype)
+    trans = np.ones((n_cams, height, width), np.float64)
+    last = np.zeros((n_cams, height, width), np.int32)
+    for ct in prange(n_cams * tiles):
+        start, end = offsets[ct], offsets[ct + 1]
+        if start == end:
+            continue
+        cam, t = ct // tiles, ct % tiles
+        u0, v0 = (t % tiles_x) * TILE_SIZE, (t // tiles_x) * TILE_SIZE
+        u1, v1 = min(u0 + TILE_SIZE, width), min(v0 + TILE_SIZE, height)
+        tile_t = np.ones((TILE_SIZE, TILE_SIZE))
+        tile_acc = np.zeros((TILE_SIZE, TILE_SIZE, dims))
+        tile_w = np.zeros((TILE_SIZE, TILE_SIZE))
+        tile_last = np.zeros((TILE_SIZE, TILE_SIZE), np.int32)
+        done = np.zeros((TILE_SIZE, TILE_SIZE), np.bool_)
+        active = (u1 - u0) * (v1 - v0)
+        for k in range(start, end):
+            i = ids[k]
+            mx, my, o = xy[cam, i, 0], xy[cam, i, 1], opacity[i]
+            a, b, c = conic[cam, i, 0], conic[cam, i, 1], conic[cam, i, 2]
+            ua, ub = _span(mx, extent[cam, i, 0], u0, u1)
+            va, vb = _span(my, extent[cam, i, 1], v0, v1)
+            for v in range(va, vb):
+                for u in range(ua, ub):
+                    if done[v - v0, u - u0]:
+                        continue
+                    alpha_i, _ = _alpha(u - mx, v - my, a, b, c, o)
+                    if alpha_i == 0.0:
+                        continue
+                    t_now = tile_t[v - v0, u - u0]
+                    t_next = t_now * (1.0 - alpha_i)
+                    if t_next < TRANSMITTANCE_MIN:
+                        done[v - v0, u - u0] = True
+                        active -= 1
+                        continue
+                    w = alpha_i * t_now
+                    for d in range(dims):
+                        tile_acc[v - v0, u - u0, d] += w * values[cam, i, d]
+                    tile_w[v - v0, u - u0] += w
+                    tile_t[v - v0, u - u0] = t_next
+                    tile_last[v - v0, u - u0] = k - start + 1
+            if active == 0:
+                break
+        for v in range(v0, v1):
+            for u in range(u0, u1):
+                trans[cam, v, u] = tile_t[v - v0, u - u0]
+                alpha[cam, v, u] = tile_w[v - v0, u - u0]
+                last[cam, v, u] = tile_last[v - v0, u - u0]
+                for d in range(dims):
+                    acc[cam, v, u, d] = tile_acc[v - v0, u - u0, d]
+    return acc, alpha, trans, last
+
+
+@njit(**_PARALLEL)
+def composite_backward(xy, conic, opacity, extent, values, offsets, ids, width, height, trans, last, grad_acc, grad_alpha):
+    """Gradients of :func:`composite_forward` given d loss / d acc [C, H, W, D] and d loss / d alpha [C, H, W].
+
+    Each pixel walks back from its last contributor, recovering Tᵢ = Tᵢ₊₁ / (1 − αᵢ). Every (tile, Gaussian)
+    list entry owns a row of gradients, so tiles run in parallel without races; rows are then summed per
+    Gaussian in list order, which makes the result independent of the thread count. Returns [C, N, 6 + D]:
+    columns d mean2d (x, y), d conic (a, b, c), d opacity, d values.
+    """
+    n_cams, n, dims = values.shape
+    tiles_x = (width + TILE_SIZE - 1) // TILE_SIZE
+    tiles = tiles_x * ((height + TILE_SIZE - 1) // TILE_SIZE)
+    rows = np.zeros((ids.shape[0], GRAD_VALUES + dims))
+    for ct in prange(n_cams * tiles):
+        start, end = offsets[ct], offsets[ct + 1]
+        if start == end:
+            continue
+        cam, t = ct // tiles, ct % tiles
+        u0, v0 = (t % tiles_x) * TILE_SIZE, (t // tiles_x) * TILE_SIZE
+        u1, v1 = min(u0 + TILE_SIZE, width), min(v0 + TILE_SIZE, height)
+        tile_t = np.empty((TILE_SIZE, TILE_SIZE))
+        # per pixel Σ over later contributors j of wⱼ (g·vⱼ), minus d loss/d alpha · T_final, so that
+        # d loss / d αᵢ = Tᵢ (g·vᵢ) − q / (1 − αᵢ)  (alpha = 1 − T_final: d alpha / d αᵢ = T_final / (1 − αᵢ))
+        tile_q = np.zeros((TILE_SIZE, TILE_SIZE))
+        reached = 0
+        for v in range(v0, v1):
+            for u in range(u0, u1):
+                tile_t[v - v0, u - u0] = trans[cam, v, u]
+                tile_q[v - v0, u - u0] = -grad_alpha[cam, v, u] * trans[cam, v, u]
+                reached = max(reached, last[cam, v, u])
+        grad_v = np.empty(dims)
+        for k in range(start + reached - 1, start - 1, -1):
+            i = ids[k]
+            j = k - start
+            mx, my, o = xy[cam, i, 0], xy[cam, i, 1], opacity[i]
+            a, b, c = conic[cam, i, 0], conic[cam, i, 1], conic[cam, i, 2]
+            ua, ub = _span(mx, extent[cam, i, 0], u0, u1)
+            va, vb = _span(my, extent[cam, i, 1], v0, v1)
+            g_mx = g_my = g_a = g_b = g_c = g_o = 0.0
+            grad_v[:] = 0.0
+            for v in range(va, vb):
+                for u in range(ua, ub):
+                    if j >= last[cam, v, u]:
+                        continue
+                    dx, dy = u - mx, v - my
+                    alpha_i, falloff = _alpha(dx, dy, a, b, c, o)
+                    if alpha_i == 0.0:
+                        continue
+                    keep = 1.0 - alpha_i
+                    t_i = tile_t[v - v0, u - u0] / keep
+                    w = alpha_i * t_i
+                    g_dot_v = 0.0
+                    for d in range(dims):
+                        g = grad_acc[cam, v, u, d]
+                        grad_v[d] += w * g
+                        g_dot_v += g * values[cam, i, d]
+                    g_alpha_i = t_i * g_dot_v - tile_q[v - v0, u - u0] / keep
+                    tile_q[v - v0, u - u0] += w * g_dot_v
+                    tile_t[v - v0, u - u0] = t_i
+                    if o * falloff > ALPHA_MAX:  # the cap passes no gradient
+                        continue
+                    g_o += g_alpha_i * falloff
+                    g_power = g_alpha_i * alpha_i
+                    g_a -= 0.5 * dx * dx * g_power
+                    g_c -= 0.5 * dy * dy * g_power
+                    g_b -= dx * dy * g_power
+                    g_mx += g_power * (a * dx + b * dy)
+                    g_my += g_power * (c * dy + b * dx)
+            row = rows[k]
+            row[0], row[1], row[2], row[3], row[4], row[5] = g_mx, g_my, g_a, g_b, g_c, g_o
+            row[GRAD_VALUES:] = grad_v
+    grads = np.zeros((n_cams, n, GRAD_VALUES + dims))
+    for cam in prange(n_cams):
+        for k in range(offsets[cam * tiles], offsets[(cam + 1) * tiles]):
+            grads[cam, ids[k]] += rows[k]
+    return grads

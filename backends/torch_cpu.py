@@ -1,0 +1,148 @@
+"""The ``torch-cpu`` renderer: the fast CPU path, for users without a GPU.
+
+Projection (:mod:`mmcsplat.backends.cpu_projection`), binning and compositing
+(:mod:`mmcsplat.backends.cpu_raster`) are numba kernels threaded over Gaussians and tiles, each behind a
+torch.autograd.Function with a hand-written backward; only the cheap glue (sigmoid, channel packing,
+background, depth normalisation) is torch autograd. Everything is computed in float64 and returned in the
+input's dtype: on this path float64 costs next to nothing (the kernels are latency-bound scalar code) and
+keeps the backward's transmittance recovery and the float32 outputs within rounding of the reference.
+Camera poses and intrinsics are not differentiated. Conventions: docs/rendering.md.
+"""
+
+from __future__ import annotations
+
+import threading
+
+import attrs
+import numpy as np
+import torch
+from torch.autograd.function import once_differentiable
+
+from mmcsplat.interfaces import Renderer
+from mmcsplat.rendering import DEPTH_EPS, Gaussians, RenderCameras, RenderOutput, validate_render_inputs
+
+from . import cpu_projection, cpu_raster
+
+_DTYPE = torch.float64
+#: numba's workqueue threading layer aborts on concurrent launches; renders already use every core, so
+#: concurrent calls from several Python threads simply take turns.
+_KERNEL_LOCK = threading.Lock()
+
+
+def _numpy(tensor: torch.Tensor) -> np.ndarray:
+    return tensor.detach().contiguous().numpy()
+
+
+@attrs.frozen(eq=False)
+class Binning:
+    """Depth-sorted per-tile Gaussian lists of one render (see :func:`cpu_raster.bin_gaussians`)."""
+
+    extent: np.ndarray
+    offsets: np.ndarray
+    ids: np.ndarray
+    width: int
+    height: int
+
+
+class _Project(torch.autograd.Function):
+    """(means2d [C, N, 2], conics [C, N, 3], depths [C, N], radii [C, N], tiles [C, N, 4]) of the Gaussians
+    in the cameras; differentiable in means, quats and log-scales (all float64)."""
+
+    @staticmethod
+    def forward(ctx, means, quats, log_scales, cameras: RenderCameras):  # noqa: D102 (torch API)
+        arrays = [_numpy(t) for t in (means, quats, log_scales, cameras.viewmats.to(_DTYPE), cameras.K.to(_DTYPE))]
+        size = (int(cameras.width), int(cameras.height))
+        with _KERNEL_LOCK:
+            means2d, conics, depths, radii, tiles = cpu_projection.project_forward(*arrays, *size)
+        ctx.arrays, ctx.size = arrays, size
+        ctx.radii = radii
+        radii, tiles = torch.from_numpy(radii), torch.from_numpy(tiles)
+        ctx.mark_non_differentiable(radii, tiles)
+        return torch.from_numpy(means2d), torch.from_numpy(conics), torch.from_numpy(depths), radii, tiles
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx, grad_means2d, grad_conics, grad_depths, _radii, _tiles):  # noqa: D102 (torch API)
+        grads = [_numpy(g.to(_DTYPE)) for g in (grad_means2d, grad_conics, grad_depths)]
+        with _KERNEL_LOCK:
+            g_means, g_quats, g_log_scales = cpu_projection.project_backward(*ctx.arrays, *ctx.size, ctx.radii, *grads)
+        return torch.from_numpy(g_means), torch.from_numpy(g_quats), torch.from_numpy(g_log_scales), None
+
+
+def bin_gaussians(means2d, conics, opacities, depths, tiles, width: int, height: int) -> Binning:
+    """Depth-sorted per-tile lists of the projected Gaussians."""
+    arrays = [_numpy(t) for t in (means2d, conics, opacities, depths, tiles)]
+    with _KERNEL_LOCK:
+        extent, offsets, ids = cpu_raster.bin_gaussians(*arrays, width, height)
+    return Binning(extent, offsets, ids, width, height)
+
+
+class _Composite(torch.autograd.Function):
+    """acc [C, H, W, D] = Σ αᵢTᵢ vᵢ and alpha [C, H, W] = 1 − T, differentiable in means2d, conics,
+    opacities and values [C, N, D]."""
+
+    @staticmethod
+    def forward(ctx, means2d, conics, opacities, values, binning: Binning):  # noqa: D102 (torch API)
+        arrays = [_numpy(t) for t in (means2d, conics, opacities, values)]
+        b = binning
+        with _KERNEL_LOCK:
+            acc, alpha, trans, last = cpu_raster.composite_forward(
+                *arrays[:3], b.extent, arrays[3], b.offsets, b.ids, b.width, b.height
+            )
+        ctx.arrays = (*arrays, trans, last)
+        ctx.binning = binning
+        return torch.from_numpy(acc), torch.from_numpy(alpha)
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx, grad_acc, grad_alpha):  # noqa: D102 (torch API)
+        means2d, conics, opacities, values, trans, last = ctx.arrays
+        b = ctx.binning
+        with _KERNEL_LOCK:
+            grads = cpu_raster.composite_backward(
+                means2d, conics, opacities, b.extent, values, b.offsets, b.ids, b.width, b.height, trans, last,
+                _numpy(grad_acc.to(_DTYPE)), _numpy(grad_alpha.to(_DTYPE)),
+            )
+        grads = torch.from_numpy(grads)
+        g = cpu_raster.GRAD_VALUES
+        return grads[..., 0:2], grads[..., 2:5], grads[..., 5].sum(0), grads[..., g:], None
+
+
+def rasterize(gaussians: Gaussians, cameras: RenderCameras, background: torch.Tensor | None = None) -> RenderOutput:
+    """Render C cameras on the CPU; outputs have the dtype of ``means``.
+
+    Differentiable with respect to every Gaussian parameter and ``RenderOutput.means2d`` (a zero [C, N, 2]
+    leaf, requiring grad when any parameter does and grad mode is on).
+    """
+    validate_render_inputs(gaussians, cameras, background)
+    dtype = gaussians.means.dtype
+    params = [getattr(gaussians, f) for f in ("means", "quats", "log_scales", "opacity_logits", "colors", "features")]
+    if any(p.device.type != "cpu" for p in params):
+        raise ValueError("the torch-cpu renderer needs CPU tensors; use torch-cuda or torch-reference on a GPU")
+    n_cams, n = cameras.count, gaussians.count
+    width, height = int(cameras.width), int(cameras.height)
+    needs_grad = torch.is_grad_enabled() and any(p.requires_grad for p in params)
+    means2d = torch.zeros((n_cams, n, 2), dtype=dtype, requires_grad=needs_grad)
+    g64 = Gaussians(*(p.to(_DTYPE) for p in params))
+    xy, conics, depths, radii, tiles = _Project.apply(g64.means, g64.quats, g64.log_scales, cameras)
+    xy = xy + means2d.to(_DTYPE)
+    opacities = torch.sigmoid(g64.opacity_logits)
+    binning = bin_gaussians(xy, conics, opacities, depths, tiles, width, height)
+    n_feat = g64.features.shape[1]
+    values = torch.cat([g64.colors.expand(n_cams, n, 3), g64.features.expand(n_cams, n, n_feat), depths[..., None]], dim=-1)
+    acc, alpha = _Composite.apply(xy, conics, opacities, values, binning)
+    bg = torch.zeros(3, dtype=_DTYPE) if background is None else background.to(_DTYPE)
+    rgb = acc[..., :3] + (1 - alpha)[..., None] * bg.reshape(-1, 1, 1, 3)
+    depth = acc[..., -1] / alpha.clamp_min(DEPTH_EPS)
+    return RenderOutput(
+        rgb=rgb.to(dtype), features=acc[..., 3:3 + n_feat].to(dtype), depth=depth.to(dtype), alpha=alpha.to(dtype),
+        radii=radii, means2d=means2d,
+    )
+
+
+class TorchCpuRenderer(Renderer):
+    """The ``torch-cpu`` backend: :func:`rasterize` behind the :class:`Renderer` interface."""
+
+    def render(self, gaussians: Gaussians, cameras: RenderCameras, background: torch.Tensor | None = None) -> RenderOutput:
+        """Render every camera; see :func:`rasterize`."""
+        return rasterize(gaussians, cameras, background)
