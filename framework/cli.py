@@ -11,6 +11,9 @@ from . import __version__
 #: Sub-command name → module in mmcsplat.commands defining ``add_arguments(parser)`` and ``run(args) -> int``.
 COMMANDS = {
     "plugins": "plugins",
+    "configs": "configs",
+    "fit": "fit",
+    "evaluate": "evaluate",
     "ingest": "ingest",
     "segment": "segment",
 }
@@ -45,9 +48,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"mmcsplat {args.command}: error: {error}", file=sys.stderr)
         return 2
     except Exception as error:  # plugin, input and store errors carry clear messages of their own
+        from .errors import MmcsplatError
         from .registry import PluginError
 
-        if isinstance(error, (PluginError, ValueError, FileNotFoundError, FileExistsError, NotADirectoryError)):
+        if isinstance(error, (MmcsplatError, PluginError, ValueError, FileNotFoundError, FileExistsError, NotADirectoryError)):
             print(f"mmcsplat {args.command}: error: {error}", file=sys.stderr)
             return 2
         raise

@@ -6,6 +6,32 @@ from mmcsplat import Registration, hookimpl, needs_modules
 
 
 @hookimpl
+def mmcsplat_initializers() -> list[Registration]:
+    return [
+        Registration("random", "mmcsplat.plugins.initializers:RandomInitializer",
+                     "N Gaussians uniform in a cube around the calibration centre"),
+        Registration("masked", "mmcsplat.plugins.initializers:MaskedInitializer",
+                     "images zeroed outside the subject mask; Gaussians far from the centre pruned"),
+        Registration("visual-hull", "mmcsplat.plugins.initializers:VisualHullInitializer",
+                     "Gaussians sampled inside the intersection of the cameras' mask cones"),
+        Registration("depth-supervised", "mmcsplat.plugins.initializers:DepthSupervisedInitializer",
+                     "L1 depth loss with a learnable per-camera scale and offset"),
+        Registration("sparsity-pruned", "mmcsplat.plugins.initializers:SparsityPrunedInitializer",
+                     "prune Gaussians whose nearest neighbour is farther than 0.1 m"),
+    ]
+
+
+@hookimpl
+def mmcsplat_densifiers() -> list[Registration]:
+    return [
+        Registration("default", "mmcsplat.plugins.densifiers:DefaultDensifier",
+                     "3DGS clone/split on the screen-space gradient, opacity and size pruning"),
+        Registration("budget", "mmcsplat.plugins.densifiers:BudgetDensifier",
+                     "a hard cap on the Gaussian count; dead Gaussians relocated (MCMC-style)"),
+    ]
+
+
+@hookimpl
 def mmcsplat_metrics() -> list[Registration]:
     return [
         Registration("psnr", "mmcsplat.plugins.metrics:PSNR", "peak signal-to-noise ratio (dB), optionally inside a mask"),

@@ -22,7 +22,9 @@ import importlib, importlib.metadata, json, sys
 modules = ["mmcsplat", "mmcsplat.cli", "mmcsplat.commands", "mmcsplat.plugins", "mmcsplat.backends",
            "mmcsplat.datasets", "mmcsplat.datasets.synthetic", "mmcsplat.plugins.registrations",
            "mmcsplat.backends.registrations", "mmcsplat.datasets.registrations"]
-files = {name: importlib.import_module(name).__file__ for name in modules}
+import mmcsplat.plugins.registrations, mmcsplat.backends.registrations, mmcsplat.datasets.registrations
+# find_spec locates a module (importing its parents) without running it: enough to prove where it resolves.
+files = {name: importlib.util.find_spec(name).origin for name in modules}
 shadowing = [name for name in ("framework", "plugins", "backends", "datasets")
              if importlib.util.find_spec(name) is not None]
 groups = sorted(ep.name for ep in importlib.metadata.entry_points(group="mmcsplat"))

@@ -1,0 +1,173 @@
+"""Densification strategies: how the Gaussian set grows, splits, dies and moves during a fit."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+
+from mmcsplat.interfaces import Densifier
+from mmcsplat.model import GaussianModel
+from mmcsplat.rendering import RenderOutput
+
+
+def _quat_to_matrix(quats: torch.Tensor) -> torch.Tensor:
+    w, x, y, z = torch.nn.functional.normalize(quats, dim=-1).unbind(-1)
+    return torch.stack(
+        [
+            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+        ],
+        dim=-1,
+    ).reshape(*quats.shape[:-1], 3, 3)
+
+
+def _rows(model: GaussianModel, index: torch.Tensor) -> dict[str, torch.Tensor]:
+    return {name: tensor.detach()[index].clone() for name, tensor in model.params.items()}
+
+
+def _set_opacity(model: GaussianModel, opacity_logits: torch.Tensor) -> None:
+    with torch.no_grad():
+        model.params["opacity_logits"].copy_(opacity_logits)
+    state = model.optimizers["opacity_logits"].state.get(model.params["opacity_logits"])
+    if state:
+        state["exp_avg"].zero_()
+        state["exp_avg_sq"].zero_()
+
+
+class DefaultDensifier(Densifier):
+    """3DGS densification: Gaussians whose accumulated screen-space gradient reaches ``grad_threshold`` are
+    cloned (small) or split in two (larger than ``size_fraction`` × scene scale, children's scales divided by
+    ``split_factor``); Gaussians with opacity below ``prune_opacity`` or larger than ``prune_size_fraction`` ×
+    scene scale are pruned; every ``every`` iterations from ``start`` to ``stop``. Opacities are reset to
+    ``reset_opacity`` every ``reset_every`` iterations."""
+
+    def __init__(
+        self,
+        grad_threshold: float = 2e-4,
+        size_fraction: float = 0.01,
+        split_factor: float = 1.6,
+        prune_opacity: float = 0.005,
+        prune_size_fraction: float = 0.1,
+        start: int = 500,
+        stop: int = 15_000,
+        every: int = 100,
+        reset_every: int = 3000,
+        reset_opacity: float = 0.01,
+    ) -> None:
+        self.grad_threshold = grad_threshold
+        self.size_fraction = size_fraction
+        self.split_factor = split_factor
+        self.prune_opacity = prune_opacity
+        self.prune_size_fraction = prune_size_fraction
+        self.start = start
+        self.stop = stop
+        self.every = every
+        self.reset_every = reset_every
+        self.reset_opacity = reset_opacity
+
+    def initialize_state(self, scene_scale: float) -> dict[str, Any]:
+        return {"scene_scale": scene_scale, "grad_sum": None, "count": None}
+
+    def step_post_backward(self, model: GaussianModel, state: dict[str, Any], step: int, render: RenderOutput) -> None:
+        if step >= self.stop:
+            return
+        self._accumulate(model, state, render)
+        if step >= self.start and step % self.every == 0:
+            self._densify_and_prune(model, state, step)
+        if step > 0 and step % self.reset_every == 0:
+            cap = torch.logit(torch.tensor(self.reset_opacity))
+            _set_opacity(model, model.params["opacity_logits"].detach().clamp(max=cap))
+
+    def _accumulate(self, model: GaussianModel, state: dict[str, Any], render: RenderOutput) -> None:
+        grad = render.means2d.grad
+        n = model.count
+        if state["grad_sum"] is None or len(state["grad_sum"]) != n:  # pruned elsewhere: start afresh
+            state["grad_sum"] = torch.zeros(n)
+            state["count"] = torch.zeros(n)
+        if grad is None or grad.shape[1] != n:
+            return
+        height, width = render.rgb.shape[1:3]
+        # The threshold is in normalised device coordinates, as 3DGS and gsplat measure it.
+        ndc = grad.detach() * torch.tensor([width / 2.0, height / 2.0], dtype=grad.dtype)
+        visible = render.radii > 0
+        for camera in range(grad.shape[0]):
+            seen = visible[camera]
+            state["grad_sum"][seen] += ndc[camera][seen].norm(dim=-1).float()
+            state["count"][seen] += 1
+
+    def _densify_and_prune(self, model: GaussianModel, state: dict[str, Any], step: int) -> None:
+        scene_scale = state["scene_scale"]
+        average = state["grad_sum"] / state["count"].clamp_min(1)
+        size = model.params["log_scales"].detach().exp().amax(dim=-1)
+        grown = average >= self.grad_threshold
+        clone = grown & (size <= self.size_fraction * scene_scale)
+        split = grown & (size > self.size_fraction * scene_scale)
+        generator = torch.Generator().manual_seed(step)  # reproducible after a resume
+
+        clone_rows = _rows(model, clone.nonzero()[:, 0])
+        split_index = split.nonzero()[:, 0].repeat(2)
+        split_rows = _rows(model, split_index)
+        scales = split_rows["log_scales"].exp()
+        offsets = torch.randn(scales.shape, generator=generator) * scales
+        rotation = _quat_to_matrix(split_rows["quats"])
+        split_rows["means"] = split_rows["means"] + (rotation @ offsets[..., None])[..., 0]
+        split_rows["log_scales"] = torch.log(scales / self.split_factor)
+        edit = {name: torch.cat([clone_rows[name], split_rows[name]]) for name in clone_rows}
+        opacity = torch.sigmoid(model.params["opacity_logits"].detach())
+        doomed = split | (opacity < self.prune_opacity) | (size > self.prune_size_fraction * scene_scale)
+        if edit["means"].shape[0] or doomed.any():
+            model.replace(edit, keep=~doomed, source=None)
+        state["grad_sum"] = torch.zeros(model.count)
+        state["count"] = torch.zeros(model.count)
+
+
+class BudgetDensifier(Densifier):
+    """Never more than ``cap`` Gaussians — "model no more than a scene needs". Every ``every`` iterations
+    from ``start`` to ``stop``, dead Gaussians (opacity below ``dead_opacity``) are relocated onto live ones
+    drawn in proportion to opacity (MCMC-style: the source and its copies share its opacity so the
+    rendered image is unchanged to first order), and the set grows by ``growth`` × N the same way while
+    under the cap. An initialisation above the cap is cut to the most opaque ``cap``."""
+
+    def __init__(
+        self, cap: int = 20_000, growth: float = 0.05, dead_opacity: float = 0.005, start: int = 500, stop: int = 15_000, every: int = 100
+    ) -> None:
+        if cap < 1:
+            raise ValueError(f"budget densifier: cap must be positive, got {cap}")
+        self.cap = cap
+        self.growth = growth
+        self.dead_opacity = dead_opacity
+        self.start = start
+        self.stop = stop
+        self.every = every
+
+    def initialize_state(self, scene_scale: float) -> dict[str, Any]:
+        return {}
+
+    def step_post_backward(self, model: GaussianModel, state: dict[str, Any], step: int, render: RenderOutput) -> None:
+        opacity = torch.sigmoid(model.params["opacity_logits"].detach())
+        if model.count > self.cap:
+            keep = torch.zeros(model.count, dtype=torch.bool)
+            keep[opacity.topk(self.cap).indices] = True
+            model.replace({}, keep=keep, source=None)
+            return
+        if not (self.start <= step < self.stop and step % self.every == 0):
+            return
+        generator = torch.Generator().manual_seed(step)
+        dead = opacity < self.dead_opacity
+        alive = (~dead).nonzero()[:, 0]
+        if len(alive) == 0:
+            return
+        grow = min(self.cap - model.count, int(self.growth * model.count))
+        copies = int(dead.sum()) + max(grow, 0)
+        if copies == 0:
+            return
+        weights = opacity[alive]
+        sources = alive[torch.multinomial(weights, copies, replacement=True, generator=generator)]
+        # Each source and its k copies share its opacity: 1 − (1 − o)^(1 / (k + 1)) each.
+        per_source = torch.bincount(sources, minlength=model.count).float()
+        shared = 1 - (1 - opacity).pow(1 / (per_source + 1))
+        new_logits = torch.where(per_source > 0, torch.logit(shared.clamp(1e-6, 1 - 1e-6)), model.params["opacity_logits"].detach())
+        _set_opacity(model, new_logits)
+        model.replace(_rows(model, sources), keep=~dead, source=None)
