@@ -12,9 +12,7 @@ tables are named otherwise keeps the file's order.
 
 from __future__ import annotations
 
-import os
 import re
-import tempfile
 import tomllib
 from collections.abc import Sequence
 from pathlib import Path
@@ -22,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from mmcsplat.atomic import write_text_atomic
 from mmcsplat.camera import Camera
 
 #: Metres per unit of a calibration file's translations.
@@ -138,12 +137,4 @@ def write_calibration(path: Path, cameras: Sequence[Camera], units: str = "m", m
             "translation": (camera.t / scale).tolist(),
         }
     document["metadata"] = dict(metadata or {})
-    text = tomli_w.dumps(document)
-    handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(handle, "w", encoding="utf-8") as file:
-            file.write(text)
-        os.replace(temporary, path)
-    except BaseException:
-        os.unlink(temporary)
-        raise
+    write_text_atomic(path, tomli_w.dumps(document))
