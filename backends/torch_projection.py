@@ -9,6 +9,7 @@ from __future__ import annotations
 import attrs
 import torch
 
+from mmcsplat.geometry import quat_to_rotmat
 from mmcsplat.rendering import LOW_PASS, NEAR_PLANE, SIGMA_EXTENT, TILE_SIZE, Gaussians, RenderCameras
 
 
@@ -28,17 +29,6 @@ class Projection:
     radii: torch.Tensor
     tiles: torch.Tensor
     opacities: torch.Tensor
-
-
-def quat_to_rotmat(quats: torch.Tensor) -> torch.Tensor:
-    """[N, 4] (w, x, y, z) quaternions, normalised here, → [N, 3, 3] rotation matrices."""
-    w, x, y, z = (quats / quats.norm(dim=-1, keepdim=True)).unbind(-1)
-    rows = (
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    )
-    return torch.stack(rows, dim=-1).reshape(-1, 3, 3)
 
 
 def covariances_3d(quats: torch.Tensor, log_scales: torch.Tensor) -> torch.Tensor:

@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
+import torch
 
 from .camera import Camera
 
@@ -30,3 +31,14 @@ def rig_scale(cameras: Sequence[Camera], center: np.ndarray) -> float:
     """The scene scale in metres: the mean distance from the cameras to the rig centre (learning rates
     and densification thresholds are relative to it, as in 3DGS)."""
     return float(np.mean([np.linalg.norm(camera.center - center) for camera in cameras]))
+
+
+def quat_to_rotmat(quats: torch.Tensor) -> torch.Tensor:
+    """[N, 4] (w, x, y, z) quaternions, normalised here, → [N, 3, 3] rotation matrices."""
+    w, x, y, z = (quats / quats.norm(dim=-1, keepdim=True)).unbind(-1)
+    rows = (
+        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+    )
+    return torch.stack(rows, dim=-1).reshape(-1, 3, 3)

@@ -6,21 +6,10 @@ from typing import Any
 
 import torch
 
+from mmcsplat.geometry import quat_to_rotmat
 from mmcsplat.interfaces import Densifier
 from mmcsplat.model import GaussianModel
 from mmcsplat.rendering import RenderOutput
-
-
-def _quat_to_matrix(quats: torch.Tensor) -> torch.Tensor:
-    w, x, y, z = torch.nn.functional.normalize(quats, dim=-1).unbind(-1)
-    return torch.stack(
-        [
-            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-        ],
-        dim=-1,
-    ).reshape(*quats.shape[:-1], 3, 3)
 
 
 def _rows(model: GaussianModel, index: torch.Tensor) -> dict[str, torch.Tensor]:
@@ -111,7 +100,7 @@ class DefaultDensifier(Densifier):
         split_rows = _rows(model, split_index)
         scales = split_rows["log_scales"].exp()
         offsets = torch.randn(scales.shape, generator=generator) * scales
-        rotation = _quat_to_matrix(split_rows["quats"])
+        rotation = quat_to_rotmat(split_rows["quats"])
         split_rows["means"] = split_rows["means"] + (rotation @ offsets[..., None])[..., 0]
         split_rows["log_scales"] = torch.log(scales / self.split_factor)
         edit = {name: torch.cat([clone_rows[name], split_rows[name]]) for name in clone_rows}
