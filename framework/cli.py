@@ -16,6 +16,7 @@ COMMANDS = {
     "evaluate": "evaluate",
     "ingest": "ingest",
     "segment": "segment",
+    "synth": "synth",
 }
 
 
