@@ -20,8 +20,8 @@ AMBIENT, DIFFUSE = 0.35, 0.65
 VOID_COLOUR = np.array([0.8, 0.82, 0.85])  # beyond the floor: no surface, depth 0
 GROUND_HALF_SIZE = 3.0  # metres: the floor is a 6 m square
 
-# Per-ray labels.
-VOID, GROUND, ADULT, INFANT = 0, 1, 2, 3
+# What a ray of the static layer hits.
+VOID, GROUND, ADULT = 0, 1, 2
 
 
 @attrs.frozen(eq=False)
@@ -48,7 +48,7 @@ class AdultLeg:
 @attrs.frozen(eq=False)
 class StaticHits:
     """Per ray of one camera, what the static scene shows: ``depth`` [N] (camera z; ``inf`` where nothing
-    is hit) and ``label`` [N] (VOID, GROUND or ADULT)."""
+    is hit) and ``label`` [N] (VOID, GROUND or ADULT), which picks the texture."""
 
     depth: np.ndarray
     label: np.ndarray
@@ -75,6 +75,7 @@ def paint_static(origin: np.ndarray, directions: np.ndarray, hits: StaticHits, l
     colour = np.tile(VOID_COLOUR, (len(directions), 1))
     points = origin + np.where(np.isfinite(hits.depth), hits.depth, 0.0)[:, None] * directions
     ground = hits.label == GROUND
+    points[ground, 2] = 0.0  # exactly on the plane: rounding must not pick a texture cell below it
     colour[ground] = shade(albedo("mat", points[ground]), np.tile([0.0, 0.0, 1.0], (int(ground.sum()), 1)))
     if leg is not None:
         adult = hits.label == ADULT
@@ -133,19 +134,18 @@ def paint_body(hits: BodyHits, parts: tuple[Part, ...], pose: BodyPose) -> np.nd
 
 @attrs.frozen(eq=False)
 class Image:
-    """One rendered view: ``rgb`` [H, W, 3] uint8, the infant's ``mask`` [H, W] uint8 (1 inside),
-    ``depth`` [H, W] float32 camera z in metres (0 where no surface) and ``label`` [H, W] int8."""
+    """One rendered view: ``rgb`` [H, W, 3] uint8, the infant's ``mask`` [H, W] uint8 (1 inside) and
+    ``depth`` [H, W] float32 camera z in metres (0 where no surface)."""
 
     rgb: np.ndarray
     mask: np.ndarray
     depth: np.ndarray
-    label: np.ndarray
 
 
 class ViewRenderer:
     """Renders one camera's view of the scene frame by frame. Colour averages ``samples``² rays per pixel
-    (anti-aliasing, as a sensor integrates over its pixel); mask, depth and labels come from the ray
-    through the pixel centre, so they are exact at the pixel (u, v)."""
+    (anti-aliasing, as a sensor integrates over its pixel); mask and depth come from the ray through the
+    pixel centre, so they are exact at the pixel (u, v)."""
 
     def __init__(self, camera: Camera, samples: int, leg: AdultLeg | None) -> None:
         self.camera = camera
@@ -179,7 +179,6 @@ class ViewRenderer:
         colour = colour.reshape(h, w, 3)
         rgb = np.round(np.clip(colour, 0.0, 1.0) * 255).astype(np.uint8)
         depth = np.where(np.isfinite(centre.depth), centre.depth, 0.0).reshape(h, w).astype(np.float32)
-        label = self.centre_static.label.copy()
-        label[centre.rays] = INFANT
-        label = label.reshape(h, w)
-        return Image(rgb, (label == INFANT).astype(np.uint8), depth, label)
+        mask = np.zeros(h * w, dtype=np.uint8)
+        mask[centre.rays] = 1
+        return Image(rgb, mask.reshape(h, w), depth)
