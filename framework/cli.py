@@ -10,13 +10,14 @@ from . import __version__
 
 #: Sub-command name → module in mmcsplat.commands defining ``add_arguments(parser)`` and ``run(args) -> int``.
 COMMANDS = {
-    "plugins": "plugins",
-    "configs": "configs",
-    "fit": "fit",
-    "evaluate": "evaluate",
+    "demo": "demo",
+    "synth": "synth",
     "ingest": "ingest",
     "segment": "segment",
-    "synth": "synth",
+    "fit": "fit",
+    "evaluate": "evaluate",
+    "plugins": "plugins",
+    "configs": "configs",
 }
 
 
