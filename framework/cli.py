@@ -26,7 +26,9 @@ class CommandError(Exception):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="mmcsplat", description=__doc__.split("\n")[0] if __doc__ else None)
+    parser = argparse.ArgumentParser(
+        prog="mmcsplat", description="Markerless motion capture of infants with dynamic 3D Gaussian splatting."
+    )
     parser.add_argument("--version", action="version", version=f"mmcsplat {__version__}")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name, module_name in COMMANDS.items():

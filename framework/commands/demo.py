@@ -1,5 +1,7 @@
-"""The main job on built-in data: synthesize the infant capture, ingest it, segment it, fit the first frame
-and evaluate it on the held-out camera. Steps already done in OUT are reused, so a rerun resumes.
+"""Run the main job on the built-in synthetic infant capture, end to end.
+
+Synthesizes the capture, ingests it, segments it, fits the first frame and evaluates it on the held-out
+camera. Steps already done in OUT are reused, so a rerun resumes where the last one stopped.
 """
 
 from __future__ import annotations
