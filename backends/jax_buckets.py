@@ -1,0 +1,247 @@
+"""Bucketed, cached front end of the JAX rasterizer: static shapes that change rarely.
+
+A training run's Gaussian count drifts every densification step and its tile lists with it. Compiling
+:func:`~mmcsplat.backends.jax_raster.rasterize_fixed` for every exact shape would recompile each step, so
+:class:`JaxRasterizer` pads the Gaussians to a geometric ladder of sizes (×1.25 by default; padding is
+culled through the ``kept`` mask) and sizes the tile-list capacity on the same kind of ladder, growing it
+(and re-rendering) when a scene overflows it and shrinking it only when the load has fallen three rungs.
+``jax.jit`` keeps one compiled program per rung. :attr:`JaxRasterizer.stats` counts XLA compilations and
+their time, so a run can show that it does not recompile.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from typing import Any
+
+import attrs
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .jax_raster import CameraArrays, GaussianArrays, RasterResult, RasterSpec, count_blocks, rasterize_fixed
+
+_COMPILE_EVENTS = (
+    "/jax/core/compile/jaxpr_trace_duration",
+    "/jax/core/compile/jaxpr_to_mlir_module_duration",
+    "/jax/core/compile/backend_compile_duration",
+)
+
+
+def bucket(n: int, minimum: int, ratio: float) -> int:
+    """The smallest rung ≥ ``n`` of the ladder minimum, ⌈minimum·ratio⌉₈, … (each rung rounded up to a
+    multiple of 8, and at least 8 above the previous one)."""
+    size = minimum
+    while size < n:
+        size = max(size + 8, math.ceil(size * ratio / 8) * 8)
+    return size
+
+
+@attrs.define
+class CompileStats:
+    """XLA compilations observed during the rasterizer's calls (including small eager ops, such as the
+    padding of a new Gaussian count), their total time (tracing, lowering and compiling), and the renders
+    repeated because the tile lists overflowed their capacity."""
+
+    compiles: int = 0
+    compile_seconds: float = 0.0
+    reruns: int = 0
+
+
+@attrs.frozen(eq=False)
+class Prepared:
+    """Gaussians padded to their bucket, with the ``kept`` mask, the real count and the background [C, 3]
+    and means2d [C, N_pad, 2] to pass to :func:`rasterize_fixed`."""
+
+    gaussians: GaussianArrays
+    background: jax.Array
+    means2d: jax.Array
+    kept: jax.Array
+    count: int
+
+
+def _forward_vjp(gaussians, cameras, background, means2d, kept, spec):
+    """The images and a ``vjp`` function for them (a pytree, so it crosses ``jax.jit``), plus the
+    non-differentiable radii and capacity report as auxiliary outputs."""
+
+    def images(gaussians, background, means2d):
+        result = rasterize_fixed(gaussians, cameras, background, means2d, kept, spec)
+        return (result.rgb, result.features, result.depth, result.alpha), (result.radii, result.needed_blocks)
+
+    return jax.vjp(images, gaussians, background, means2d, has_aux=True)
+
+
+def _apply_vjp(vjp: Callable, cotangents: tuple[jax.Array, ...]) -> tuple[Any, ...]:
+    return vjp(cotangents)
+
+
+class JaxRasterizer:
+    """The JAX rasterizer with bucketed shapes, usable directly from JAX.
+
+    Call it eagerly, inside ``jax.grad`` or ``jax.vjp`` if you like (the capacity check needs concrete
+    values, so not inside ``jax.jit``: there, call :func:`rasterize_fixed` with a fixed
+    :class:`RasterSpec` and check ``overflow`` yourself). ``ratio`` is the growth factor of the ladders,
+    ``block_size`` the slots per tile-list block.
+    """
+
+    def __init__(self, block_size: int = 32, ratio: float = 1.25, min_gaussians: int = 256, min_blocks: int = 32) -> None:
+        self.block_size = block_size
+        self.ratio = ratio
+        self.min_gaussians = min_gaussians
+        self.min_blocks = min_blocks
+        self.stats = CompileStats()
+        self._capacity: dict[tuple[int, int, int], int] = {}
+        self._render = jax.jit(rasterize_fixed, static_argnames="spec")
+        self._count = jax.jit(count_blocks, static_argnames="spec")
+        self._forward = jax.jit(_forward_vjp, static_argnames="spec")
+        self._backward = jax.jit(_apply_vjp)
+
+    # -- public API -------------------------------------------------------------------------------------
+
+    def __call__(
+        self,
+        gaussians: GaussianArrays,
+        cameras: CameraArrays,
+        width: int,
+        height: int,
+        background: jax.Array | None = None,
+        means2d: jax.Array | None = None,
+    ) -> RasterResult:
+        """Render C cameras; differentiable with ``jax.grad``/``jax.vjp`` with respect to the Gaussians,
+        ``background`` ([3] or [C, 3], black when omitted) and ``means2d`` ([C, N, 2], zeros when
+        omitted). Returns a :class:`RasterResult` with radii [C, N] for the caller's N."""
+        prepared = self.prepare(gaussians, cameras, background, means2d)
+        with self._watch():
+            result = self._with_capacity(
+                cameras, width, height, prepared,
+                lambda spec: self._render(prepared.gaussians, cameras, prepared.background, prepared.means2d, prepared.kept, spec=spec),
+                lambda result: result.needed_blocks,
+            )
+        return attrs.evolve(result, radii=result.radii[:, : prepared.count])
+
+    def forward_with_vjp(
+        self, prepared: Prepared, cameras: CameraArrays, width: int, height: int
+    ) -> tuple[tuple[jax.Array, ...], Callable, jax.Array]:
+        """For bridges to other frameworks: (rgb, features, depth, alpha), a ``vjp`` to pass to
+        :meth:`backward` and radii [C, N_pad], on already padded inputs (see :meth:`prepare`)."""
+        with self._watch():
+            images, vjp, (radii, _) = self._with_capacity(
+                cameras, width, height, prepared,
+                lambda spec: self._forward(prepared.gaussians, cameras, prepared.background, prepared.means2d, prepared.kept, spec=spec),
+                lambda out: out[2][1],
+            )
+        return images, vjp, radii
+
+    def backward(self, vjp: Callable, cotangents: tuple[jax.Array, ...]) -> tuple[GaussianArrays, jax.Array, jax.Array]:
+        """Gradients (Gaussians, background [C, 3], means2d [C, N_pad, 2]) for the cotangents of
+        (rgb, features, depth, alpha)."""
+        with self._watch():
+            return self._backward(vjp, cotangents)
+
+    def prepare(
+        self, gaussians: GaussianArrays, cameras: CameraArrays, background: jax.Array | None, means2d: jax.Array | None
+    ) -> Prepared:
+        """Pad the Gaussians (and ``means2d``) to their bucket and broadcast the background to [C, 3]."""
+        n = gaussians.means.shape[0]
+        num_cameras = cameras.K.shape[0]
+        dtype = gaussians.means.dtype
+        padded = bucket(n, self.min_gaussians, self.ratio)
+        # Padding is culled by the mask; an identity rotation keeps its (unused) projection finite.
+        fill = {"quats": jnp.array([1.0, 0.0, 0.0, 0.0], dtype)}
+        with self._watch():
+            arrays = {
+                name: _pad_rows(getattr(gaussians, name), padded, fill.get(name))
+                for name in ("means", "quats", "log_scales", "opacity_logits", "colors", "features")
+            }
+            if means2d is None:
+                means2d = jnp.zeros((num_cameras, padded, 2), dtype)
+            else:
+                means2d = jnp.pad(means2d, ((0, 0), (0, padded - n), (0, 0)))
+            background = jnp.zeros(3, dtype) if background is None else jnp.asarray(background, dtype)
+            background = jnp.broadcast_to(background, (num_cameras, 3))
+        kept = jnp.asarray(np.arange(padded) < n)
+        return Prepared(GaussianArrays(**arrays), background, means2d, kept, n)
+
+    # -- capacity ---------------------------------------------------------------------------------------
+
+    def _with_capacity(self, cameras: CameraArrays, width: int, height: int, prepared: Prepared, run: Callable, needed_of: Callable):
+        """Run at the remembered capacity; on overflow grow it to the needed rung and run again."""
+        key = (cameras.K.shape[0], width, height)
+        capacity = self._capacity.get(key)
+        if capacity is None:
+            probe = RasterSpec(width, height, 1, self.block_size)
+            kept_gaussians = jax.lax.stop_gradient(prepared.gaussians)
+            needed = _concrete(self._count(kept_gaussians, jax.lax.stop_gradient(cameras), prepared.kept, spec=probe))
+            capacity = self._rung(needed)
+        while True:
+            out = run(RasterSpec(width, height, capacity, self.block_size))
+            needed = _concrete(needed_of(out))
+            if needed <= capacity:
+                break
+            self.stats.reruns += 1
+            capacity = self._rung(needed)
+        if needed * self.ratio**3 < capacity:  # the load fell three rungs: use a cheaper program next time
+            capacity = self._rung(needed)
+        self._capacity[key] = capacity
+        return out
+
+    def _rung(self, needed: int) -> int:
+        capacity = bucket(needed, self.min_blocks, self.ratio)
+        if capacity * self.block_size >= 2**31:
+            raise ValueError(f"the tile lists need {needed} blocks of {self.block_size}: beyond int32 indexing")
+        return capacity
+
+    @contextmanager
+    def _watch(self) -> Iterator[None]:
+        """Add the XLA compilations made inside the block to :attr:`stats`."""
+        stats = self.stats
+
+        def listener(event: str, duration: float, **_: Any) -> None:
+            if event in _COMPILE_EVENTS:
+                stats.compile_seconds += duration
+                stats.compiles += event == _COMPILE_EVENTS[-1]
+
+        jax.monitoring.register_event_duration_secs_listener(listener)
+        try:
+            yield
+        finally:
+            jax.monitoring.unregister_event_duration_listener(listener)
+
+
+def _pad_rows(x: jax.Array, rows: int, fill: jax.Array | None) -> jax.Array:
+    """Pad ``x`` along its first axis to ``rows`` with zeros (or copies of ``fill``)."""
+    extra = rows - x.shape[0]
+    if fill is None:
+        return jnp.pad(x, ((0, extra),) + ((0, 0),) * (x.ndim - 1))
+    return jnp.concatenate([x, jnp.broadcast_to(fill, (extra, *x.shape[1:]))])
+
+
+def _concrete(value: jax.Array) -> int:
+    """A capacity figure as a Python int; explains the failure under ``jax.jit``."""
+    try:
+        return int(value)
+    except jax.errors.ConcretizationTypeError as error:
+        raise ValueError(
+            "JaxRasterizer chooses its capacity from the scene and cannot run inside jax.jit; "
+            "use mmcsplat.backends.jax_raster.rasterize_fixed with a fixed RasterSpec there"
+        ) from error
+
+
+_DEFAULT: JaxRasterizer | None = None
+
+
+def rasterize(
+    gaussians: GaussianArrays,
+    cameras: CameraArrays,
+    width: int,
+    height: int,
+    background: jax.Array | None = None,
+    means2d: jax.Array | None = None,
+) -> RasterResult:
+    """Render with a process-wide :class:`JaxRasterizer` (see its ``__call__``)."""
+    global _DEFAULT
+    if _DEFAULT is None:
+        _DEFAULT = JaxRasterizer()
+    return _DEFAULT(gaussians, cameras, width, height, background, means2d)

@@ -1,0 +1,285 @@
+"""The 3DGS rasterizer of docs/rendering.md as one pure, jit-compilable JAX function with static shapes.
+
+:func:`rasterize_fixed` projects, bins and composites C cameras; its shapes are fixed by the Gaussian
+count it is given and by a :class:`RasterSpec` (image size and the capacity ``max_blocks`` of the tile
+lists). Every (tile, Gaussian) pair lands in a block of ``block_size`` slots; a tile's depth-sorted list
+spans consecutive blocks, so no per-tile list length is imposed and the cost follows the real load. When
+the lists need more blocks than the capacity, the result says so (``overflow``, ``needed_blocks``) and its
+images are NaN: a truncated image is never returned as if it were right. :mod:`mmcsplat.backends.jax_buckets`
+picks capacities, grows them and re-renders, so callers normally never see an overflow.
+"""
+
+from __future__ import annotations
+
+import attrs
+import jax
+import jax.numpy as jnp
+
+from mmcsplat.rendering import DEPTH_EPS, LOW_PASS, NEAR_PLANE, SIGMA_EXTENT, TILE_SIZE
+
+from .jax_composite import SPLAT_HEADER, composite_blocks
+
+#: Radii are capped here before the int32 cast (a radius this large covers any image anyway).
+MAX_RADIUS = 2.0**30
+
+
+def _pytree(cls: type, data: tuple[str, ...]) -> type:
+    """Register an attrs class as a JAX pytree whose leaves are the ``data`` fields."""
+    return jax.tree_util.register_dataclass(cls, data_fields=list(data), meta_fields=[])
+
+
+@attrs.frozen(eq=False)
+class GaussianArrays:
+    """The Gaussians of :class:`mmcsplat.rendering.Gaussians` as JAX arrays (same shapes and meaning)."""
+
+    means: jax.Array
+    quats: jax.Array
+    log_scales: jax.Array
+    opacity_logits: jax.Array
+    colors: jax.Array
+    features: jax.Array
+
+
+@attrs.frozen(eq=False)
+class CameraArrays:
+    """C pinhole cameras: K [C, 3, 3] and world-to-camera viewmats [C, 4, 4] (OpenCV axes); the image size
+    is static and lives in :class:`RasterSpec`."""
+
+    K: jax.Array
+    viewmats: jax.Array
+
+
+@attrs.frozen(eq=False)
+class RasterResult:
+    """rgb [C, H, W, 3], features [C, H, W, F], depth [C, H, W], alpha [C, H, W], radii [C, N] int32;
+    ``needed_blocks`` the tile-list blocks this scene needs and ``overflow`` whether that exceeded the
+    capacity (the images are then NaN)."""
+
+    rgb: jax.Array
+    features: jax.Array
+    depth: jax.Array
+    alpha: jax.Array
+    radii: jax.Array
+    needed_blocks: jax.Array
+    overflow: jax.Array
+
+
+_pytree(GaussianArrays, ("means", "quats", "log_scales", "opacity_logits", "colors", "features"))
+_pytree(CameraArrays, ("K", "viewmats"))
+_pytree(RasterResult, ("rgb", "features", "depth", "alpha", "radii", "needed_blocks", "overflow"))
+
+
+@attrs.frozen
+class RasterSpec:
+    """The static configuration of one compiled rasterizer: image size, tile-list capacity ``max_blocks``
+    (blocks of ``block_size`` depth-sorted Gaussians; all cameras share them)."""
+
+    width: int
+    height: int
+    max_blocks: int
+    block_size: int = 32
+
+    @property
+    def tiles_x(self) -> int:
+        return -(-self.width // TILE_SIZE)
+
+    @property
+    def tiles_y(self) -> int:
+        return -(-self.height // TILE_SIZE)
+
+
+@attrs.frozen(eq=False)
+class _Projected:
+    """Per camera and Gaussian ([C, N, ...]): 2D means, conics (a, b, c), depths, opacities [N], integer
+    radii, tile ranges (x0, x1, y0, y1) and the kept mask."""
+
+    means2d: jax.Array
+    conics: jax.Array
+    depths: jax.Array
+    opacities: jax.Array
+    radii: jax.Array
+    tiles: jax.Array
+    valid: jax.Array
+
+
+def _rotations(quats: jax.Array) -> jax.Array:
+    """[N, 4] (w, x, y, z) quaternions, normalised here, → [N, 3, 3] rotation matrices."""
+    w, x, y, z = jnp.moveaxis(quats / jnp.linalg.norm(quats, axis=-1, keepdims=True), -1, 0)
+    rows = (
+        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+    )
+    return jnp.stack(rows, axis=-1).reshape(-1, 3, 3)
+
+
+def project(gaussians: GaussianArrays, cameras: CameraArrays, means2d: jax.Array, kept: jax.Array, spec: RasterSpec) -> _Projected:
+    """EWA projection, radii and tile ranges (steps 1–9 of docs/rendering.md); ``kept`` [N] masks out
+    padding. Culled entries get finite placeholders so that their gradients are 0, not NaN."""
+    rot, trans = cameras.viewmats[:, :3, :3], cameras.viewmats[:, :3, 3]
+    p = jnp.einsum("cij,nj->cni", rot, gaussians.means) + trans[:, None, :]
+    x, y, z = p[..., 0], p[..., 1], p[..., 2]
+    in_front = (z >= NEAR_PLANE) & kept[None, :]
+    z = jnp.where(in_front, z, 1.0)
+
+    scaled = _rotations(gaussians.quats) * jnp.exp(gaussians.log_scales)[:, None, :]  # R S, [N, 3, 3]
+    K = cameras.K
+    fx, fy, cx, cy = (v[:, None] for v in (K[:, 0, 0], K[:, 1, 1], K[:, 0, 2], K[:, 1, 2]))
+    tan_x, tan_y = spec.width / (2 * fx), spec.height / (2 * fy)
+    tx = z * jnp.clip(x / z, -(cx / fx + 0.3 * tan_x), (spec.width - cx) / fx + 0.3 * tan_x)
+    ty = z * jnp.clip(y / z, -(cy / fy + 0.3 * tan_y), (spec.height - cy) / fy + 0.3 * tan_y)
+    zero = jnp.zeros_like(z)
+    jac = jnp.stack([fx / z, zero, -fx * tx / (z * z), zero, fy / z, -fy * ty / (z * z)], axis=-1)
+    jac = jac.reshape(*z.shape, 2, 3)
+    half = jnp.einsum("cnij,cjk,nkl->cnil", jac, rot, scaled)  # J W R S: Σ₂ = half·halfᵀ
+    cov = jnp.einsum("cnik,cnjk->cnij", half, half) + LOW_PASS * jnp.eye(2, dtype=z.dtype)
+    a, b, c = cov[..., 0, 0], cov[..., 0, 1], cov[..., 1, 1]
+    det = a * c - b * b
+
+    mid = jax.lax.stop_gradient(0.5 * (a + c))
+    lambda1 = mid + jnp.sqrt(jnp.maximum(mid * mid - jax.lax.stop_gradient(det), 0.1))
+    radii = jnp.ceil(SIGMA_EXTENT * jnp.sqrt(lambda1))
+    valid = in_front & (det > 0) & jnp.isfinite(det) & jnp.isfinite(radii)
+    det = jnp.where(valid, det, 1.0)
+    conics = jnp.stack([c, -b, a], axis=-1) / det[..., None]
+    means = jnp.stack([fx * x / z + cx, fy * y / z + cy], axis=-1) + means2d
+    radii = jnp.where(valid, jnp.minimum(radii, MAX_RADIUS), 0.0)
+
+    m = jax.lax.stop_gradient(means)
+    grid = jnp.array([spec.tiles_x, spec.tiles_y], dtype=m.dtype)
+    low = jnp.clip(jnp.floor((m - radii[..., None]) / TILE_SIZE), 0, grid)
+    high = jnp.clip(jnp.floor((m + radii[..., None] + TILE_SIZE - 1) / TILE_SIZE), 0, grid)
+    tiles = jnp.stack([low[..., 0], high[..., 0], low[..., 1], high[..., 1]], axis=-1).astype(jnp.int32)
+    valid = valid & (tiles[..., 1] > tiles[..., 0]) & (tiles[..., 3] > tiles[..., 2])
+    tiles = jnp.where(valid[..., None], tiles, 0)
+    radii = jnp.where(valid, radii, 0.0).astype(jnp.int32)
+    return _Projected(means, conics, p[..., 2], jax.nn.sigmoid(gaussians.opacity_logits), radii, tiles, valid)
+
+
+def tile_counts(tiles: jax.Array, spec: RasterSpec) -> jax.Array:
+    """[C·T] number of Gaussians whose tile range (``tiles`` [C, N, 4], empty for culled ones) covers
+    each tile, tiles numbered camera-major then row-major; by summing rectangle corners."""
+    num_cameras = tiles.shape[0]
+    gx, gy = spec.tiles_x + 1, spec.tiles_y + 1
+    x0, x1, y0, y1 = jnp.moveaxis(tiles, -1, 0)
+    camera = jnp.arange(num_cameras, dtype=jnp.int32)[:, None] * (gx * gy)
+    corners = jnp.stack([y0 * gx + x0, y0 * gx + x1, y1 * gx + x0, y1 * gx + x1], axis=-1) + camera[..., None]
+    signs = jnp.array([1, -1, -1, 1], dtype=jnp.int32)
+    grid = jnp.zeros(num_cameras * gx * gy, jnp.int32).at[corners.reshape(-1)].add(jnp.tile(signs, corners.size // 4))
+    grid = jnp.cumsum(jnp.cumsum(grid.reshape(num_cameras, gy, gx), axis=1), axis=2)
+    return grid[:, :-1, :-1].reshape(-1)
+
+
+def needed_blocks(counts: jax.Array, block_size: int) -> jax.Array:
+    """Blocks the tile lists of ``counts`` [C·T] need."""
+    return jnp.sum((counts + block_size - 1) // block_size)
+
+
+def _bin(proj: _Projected, counts: jax.Array, spec: RasterSpec) -> tuple[jax.Array, jax.Array]:
+    """Lay the (tile, Gaussian) pairs out in blocks: [max_blocks·L] flat (camera·N + Gaussian) index per
+    slot (C·N, the dummy, for empty slots) and [max_blocks] tile of each block (C·T for unused blocks).
+    Within a tile, Gaussians are in front-to-back order: depth ascending, ties by index."""
+    num_cameras, n = proj.depths.shape
+    num_tiles = spec.tiles_x * spec.tiles_y
+    sentinel = num_cameras * num_tiles
+    slots = spec.max_blocks * spec.block_size
+    # Enumerate pairs Gaussian by Gaussian in depth order, then sort them stably by tile.
+    order = jnp.argsort(jnp.where(proj.valid, proj.depths, jnp.inf), axis=1, stable=True)  # [C, N]
+    tiles = jnp.take_along_axis(proj.tiles, order[..., None], axis=1).reshape(-1, 4)
+    flat = (order + jnp.arange(num_cameras, dtype=order.dtype)[:, None] * n).reshape(-1)
+    camera = jnp.repeat(jnp.arange(num_cameras, dtype=jnp.int32), n)
+    x0, x1, y0, y1 = tiles.T
+    width = jnp.maximum(x1 - x0, 1)
+    end = jnp.cumsum((x1 - x0) * (y1 - y0))
+    slot = jnp.arange(slots, dtype=jnp.int32)
+    source = jnp.minimum(jnp.searchsorted(end, slot, side="right"), flat.shape[0] - 1)
+    offset = slot - (end[source] - (x1 - x0)[source] * (y1 - y0)[source])
+    tile = camera[source] * num_tiles + (y0[source] + offset // width[source]) * spec.tiles_x + x0[source] + offset % width[source]
+    tile = jnp.where(slot < end[-1], tile, sentinel)
+    tile, member = jax.lax.sort((tile, flat[source]), num_keys=1, is_stable=True)
+
+    tile_start = jnp.cumsum(counts) - counts
+    blocks = (counts + spec.block_size - 1) // spec.block_size
+    block_start = jnp.cumsum(blocks) - blocks
+    safe = jnp.minimum(tile, sentinel - 1)
+    rank = slot - tile_start[safe]
+    block = block_start[safe] + rank // spec.block_size
+    target = jnp.where(tile < sentinel, block * spec.block_size + rank % spec.block_size, slots)
+    members = jnp.full(slots, num_cameras * n, jnp.int32).at[target].set(member, mode="drop")
+    block_tile = jnp.full(spec.max_blocks, sentinel, jnp.int32).at[jnp.where(tile < sentinel, block, spec.max_blocks)].set(tile, mode="drop")
+    return members, block_tile
+
+
+def rasterize_fixed(
+    gaussians: GaussianArrays,
+    cameras: CameraArrays,
+    background: jax.Array,
+    means2d: jax.Array,
+    kept: jax.Array,
+    spec: RasterSpec,
+) -> RasterResult:
+    """Render C cameras with static shapes (jit with ``spec`` static).
+
+    background [C, 3]; means2d [C, N, 2] added to the projected means (pass zeros and differentiate with
+    respect to it for the screen-space gradient); kept [N] bool (False for padding Gaussians, which are
+    culled). Differentiable with ``jax.grad``/``jax.vjp`` with respect to every float input. When the tile
+    lists need more than ``spec.max_blocks`` blocks, ``overflow`` is True and the images are NaN.
+    """
+    num_cameras = cameras.K.shape[0]
+    num_features = gaussians.features.shape[1]
+    proj = project(gaussians, cameras, means2d, kept, spec)
+    counts = tile_counts(proj.tiles, spec)
+    needed = needed_blocks(counts, spec.block_size)
+    members, block_tile = _bin(proj, counts, spec)
+
+    n = gaussians.means.shape[0]
+    values = jnp.concatenate(
+        [
+            jnp.broadcast_to(gaussians.colors, (num_cameras, n, 3)),
+            jnp.broadcast_to(gaussians.features, (num_cameras, n, num_features)),
+            proj.depths[..., None],
+        ],
+        axis=-1,
+    )
+    opacities = jnp.broadcast_to(proj.opacities[None, :, None], (num_cameras, n, 1))
+    table = jnp.concatenate([proj.means2d, proj.conics, opacities, values], axis=-1).reshape(num_cameras * n, -1)
+    table = jnp.concatenate([table, jnp.zeros_like(table[:1])])  # the dummy: opacity 0, never drawn
+    splats = table[members].reshape(spec.max_blocks, spec.block_size, -1)
+
+    num_tiles = spec.tiles_x * spec.tiles_y
+    local = block_tile % num_tiles
+    origins = (jnp.stack([local % spec.tiles_x, local // spec.tiles_x], axis=-1) * TILE_SIZE).astype(table.dtype)
+    first = jnp.concatenate([jnp.ones(1, bool), block_tile[1:] != block_tile[:-1]])
+    sums, log_t = composite_blocks(splats, origins, first)
+    segments = num_cameras * num_tiles + 1  # the last one collects unused blocks
+    sums = jax.ops.segment_sum(sums, block_tile, segments, indices_are_sorted=True)[:-1]
+    log_t = jax.ops.segment_sum(log_t, block_tile, segments, indices_are_sorted=True)[:-1]
+
+    def image(x: jax.Array) -> jax.Array:  # [C·T, 256, D] → [C, H, W, D]
+        x = x.reshape(num_cameras, spec.tiles_y, spec.tiles_x, TILE_SIZE, TILE_SIZE, -1)
+        x = x.transpose(0, 1, 3, 2, 4, 5).reshape(num_cameras, spec.tiles_y * TILE_SIZE, spec.tiles_x * TILE_SIZE, -1)
+        return x[:, : spec.height, : spec.width]
+
+    sums = image(sums)
+    log_t = image(log_t[..., None])[..., 0]
+    transmittance = jnp.exp(log_t)
+    alpha = -jnp.expm1(log_t)  # accurate where little is drawn, which the expected depth divides by
+    overflow = needed > spec.max_blocks
+    nan = jnp.where(overflow, jnp.nan, 0.0).astype(sums.dtype)
+    return RasterResult(
+        rgb=sums[..., :3] + transmittance[..., None] * background[:, None, None, :] + nan,
+        features=sums[..., 3 : 3 + num_features] + nan,
+        depth=sums[..., -1] / jnp.maximum(alpha, DEPTH_EPS) + nan,
+        alpha=alpha + nan,
+        radii=proj.radii,
+        needed_blocks=needed,
+        overflow=overflow,
+    )
+
+
+def count_blocks(gaussians: GaussianArrays, cameras: CameraArrays, kept: jax.Array, spec: RasterSpec) -> jax.Array:
+    """The blocks :func:`rasterize_fixed` would need (projection and tile counts only; cheap)."""
+    means2d = jnp.zeros((cameras.K.shape[0], gaussians.means.shape[0], 2), gaussians.means.dtype)
+    proj = project(gaussians, cameras, means2d, kept, spec)
+    return needed_blocks(tile_counts(proj.tiles, spec), spec.block_size)
+

@@ -1,0 +1,107 @@
+"""The ``jax`` renderer backend: the JAX rasterizer behind the torch :class:`~mmcsplat.interfaces.Renderer`
+interface, for the torch trainer.
+
+A ``torch.autograd.Function`` hands the tensors to JAX through DLPack (zero-copy where both sides share
+the device), runs the jit-compiled forward under ``jax.vjp`` and, in ``backward``, applies the saved vjp
+to the output cotangents. Computation is float32; float64 inputs are computed in float64 only when JAX
+runs with x64 enabled (``jax.config.update("jax_enable_x64", True)``), otherwise cast to float32.
+Outputs have the computation's dtype; gradients come back in each input's dtype.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import jax
+import jax.numpy as jnp
+import torch
+import torch.utils.dlpack
+
+from mmcsplat.interfaces import Renderer
+from mmcsplat.rendering import Gaussians, RenderCameras, RenderOutput, validate_render_inputs
+
+from .jax_buckets import JaxRasterizer
+from .jax_raster import CameraArrays, GaussianArrays
+
+_FIELDS = ("means", "quats", "log_scales", "opacity_logits", "colors", "features")
+_warned: set[str] = set()
+
+
+def _warn_once(message: str) -> None:
+    if message not in _warned:
+        _warned.add(message)
+        warnings.warn(message, RuntimeWarning, stacklevel=3)
+
+
+def to_jax(tensor: torch.Tensor) -> jax.Array:
+    """A torch tensor as a JAX array, through DLPack (zero-copy on a shared device). Falls back to a
+    host copy through NumPy when DLPack cannot carry it (e.g. a CUDA tensor while JAX runs on the CPU),
+    and warns once with the reason."""
+    tensor = tensor.detach().contiguous()
+    try:
+        return jax.dlpack.from_dlpack(tensor)
+    except Exception as error:  # noqa: BLE001 - any DLPack failure has the same remedy
+        _warn_once(f"DLPack could not pass a {tensor.device} tensor to JAX ({error}); copying through host memory")
+        return jnp.asarray(tensor.cpu().numpy())
+
+
+def to_torch(array: jax.Array, device: torch.device) -> torch.Tensor:
+    """A JAX array as a torch tensor on ``device``, through DLPack; a NumPy copy if that fails."""
+    try:
+        tensor = torch.utils.dlpack.from_dlpack(array)
+    except Exception as error:  # noqa: BLE001
+        _warn_once(f"DLPack could not pass a JAX array to torch ({error}); copying through host memory")
+        tensor = torch.from_numpy(jax.device_get(array).copy())
+    return tensor.to(device)
+
+
+class _JaxRender(torch.autograd.Function):
+    """(Gaussian parameters, background, means2d) → (rgb, features, depth, alpha, radii) through JAX."""
+
+    @staticmethod
+    def forward(ctx, rasterizer: JaxRasterizer, cameras: RenderCameras, dtype: torch.dtype, background, means2d, *params):
+        device = params[0].device
+        jax_cameras = CameraArrays(to_jax(cameras.K.to(dtype)), to_jax(cameras.viewmats.to(dtype)))
+        gaussians = GaussianArrays(*(to_jax(p.to(dtype)) for p in params))
+        prepared = rasterizer.prepare(gaussians, jax_cameras, to_jax(background.to(dtype)), to_jax(means2d.to(dtype)))
+        images, vjp, radii = rasterizer.forward_with_vjp(prepared, jax_cameras, int(cameras.width), int(cameras.height))
+        ctx.rasterizer, ctx.vjp, ctx.count = rasterizer, vjp, prepared.count
+        ctx.dtypes = (background.dtype, means2d.dtype, *(p.dtype for p in params))
+        radii = to_torch(radii[:, : prepared.count], device)
+        ctx.mark_non_differentiable(radii)
+        return (*(to_torch(image, device) for image in images), radii)
+
+    @staticmethod
+    def backward(ctx, grad_rgb, grad_features, grad_depth, grad_alpha, _grad_radii):
+        cotangents = tuple(to_jax(g) for g in (grad_rgb, grad_features, grad_depth, grad_alpha))
+        gaussians, background, means2d = ctx.rasterizer.backward(ctx.vjp, cotangents)
+        device, n = grad_rgb.device, ctx.count
+        grads = [to_torch(background, device), to_torch(means2d[:, :n], device)]
+        grads += [to_torch(getattr(gaussians, field)[:n], device) for field in _FIELDS]
+        return None, None, None, *(g.to(dtype) for g, dtype in zip(grads, ctx.dtypes, strict=True))
+
+
+class JaxRenderer(Renderer):
+    """The ``jax`` backend. ``block_size`` and ``ratio`` configure the bucketing (see
+    :class:`~mmcsplat.backends.jax_buckets.JaxRasterizer`); one instance keeps its compiled programs, so
+    reuse it across a run."""
+
+    def __init__(self, block_size: int = 32, ratio: float = 1.25) -> None:
+        self.rasterizer = JaxRasterizer(block_size=block_size, ratio=ratio)
+
+    def render(self, gaussians: Gaussians, cameras: RenderCameras, background: torch.Tensor | None = None) -> RenderOutput:
+        """Render every camera; differentiable with respect to every Gaussian parameter, the background
+        and ``RenderOutput.means2d``."""
+        validate_render_inputs(gaussians, cameras, background)
+        params = [getattr(gaussians, field) for field in _FIELDS]
+        means = gaussians.means
+        x64 = means.dtype == torch.float64 and jax.config.jax_enable_x64
+        dtype = torch.float64 if x64 else torch.float32
+        num_cameras = cameras.count
+        needs_grad = torch.is_grad_enabled() and any(p.requires_grad for p in params)
+        means2d = torch.zeros((num_cameras, gaussians.count, 2), dtype=means.dtype, device=means.device, requires_grad=needs_grad)
+        if background is None:
+            background = means.new_zeros(3)
+        background = background.to(device=means.device).expand(num_cameras, 3)
+        rgb, features, depth, alpha, radii = _JaxRender.apply(self.rasterizer, cameras, dtype, background, means2d, *params)
+        return RenderOutput(rgb=rgb, features=features, depth=depth, alpha=alpha, radii=radii, means2d=means2d)
