@@ -4,6 +4,7 @@ autograd. Readable rather than fast; any device, float32 or float64. The contrac
 
 from __future__ import annotations
 
+import attrs
 import torch
 
 from mmcsplat.interfaces import Renderer
@@ -20,6 +21,9 @@ from mmcsplat.rendering import (
 )
 
 from .torch_projection import Projection, project
+
+#: The Gaussian parameters, in the order of :class:`Gaussians`' fields.
+FIELDS = tuple(field.name for field in attrs.fields(Gaussians))
 
 
 def composite(
@@ -93,18 +97,24 @@ def rasterize(gaussians: Gaussians, cameras: RenderCameras, background: torch.Te
     zero [C, N, 2] leaf, requiring grad when any parameter does).
     """
     validate_render_inputs(gaussians, cameras, background)
-    means = gaussians.means
-    dtype, device = means.dtype, means.device
-    params = [getattr(gaussians, f) for f in ("means", "quats", "log_scales", "opacity_logits", "colors", "features")]
-    gaussians = Gaussians(*(p.to(dtype) for p in params))
-    num_cameras, n, height, width = cameras.count, gaussians.count, int(cameras.height), int(cameras.width)
+    params = [getattr(gaussians, field) for field in FIELDS]
     needs_grad = torch.is_grad_enabled() and any(p.requires_grad for p in params)
-    means2d = torch.zeros((num_cameras, n, 2), dtype=dtype, device=device, requires_grad=needs_grad)
-    proj = project(gaussians, cameras, means2d)
+    means2d = gaussians.means.new_zeros((cameras.count, gaussians.count, 2)).requires_grad_(needs_grad)
+    return rasterize_with_offset(gaussians, cameras, means2d, background)
 
+
+def rasterize_with_offset(
+    gaussians: Gaussians, cameras: RenderCameras, means2d: torch.Tensor, background: torch.Tensor | None = None
+) -> RenderOutput:
+    """:func:`rasterize` with the caller's [C, N, 2] 2D-mean offset (zero for the contract's outputs;
+    any value for checking gradients); inputs are assumed validated."""
+    dtype, device = gaussians.means.dtype, gaussians.means.device
+    gaussians = Gaussians(*(getattr(gaussians, field).to(dtype) for field in FIELDS))
+    proj = project(gaussians, cameras, means2d)
+    num_cameras, height, width = cameras.count, int(cameras.height), int(cameras.width)
     num_features = gaussians.features.shape[1]
     if background is None:
-        background = means.new_zeros(3)
+        background = gaussians.means.new_zeros(3)
     background = background.to(device=device, dtype=dtype).expand(num_cameras, 3)
     rgb, features, depth, alpha = [], [], [], []
     for camera in range(num_cameras):
