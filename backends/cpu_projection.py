@@ -18,7 +18,10 @@ from mmcsplat.rendering import LOW_PASS, NEAR_PLANE, SIGMA_EXTENT, TILE_SIZE
 
 _PARALLEL = {"parallel": True, "cache": True, "fastmath": False, "nogil": True}
 _INLINE = {"cache": True, "fastmath": False, "inline": "always"}
+_HELPER = {"cache": True, "fastmath": False}
 _MAX_RADIUS = 2.0**31 - 1  # radii are int32
+_BLOCK = 256  # Gaussians per parallel work item: the scratch array is allocated once per block
+_SCRATCH_ROWS = 15  # 3-vectors: R, R·S, rows of J·W and of (J·W·R·S)ᵀ, and the backward's gradients
 
 
 @njit(**_INLINE)
@@ -74,6 +77,43 @@ def _screen(means, i, view, intr, cam, width, height, rs, t0, t1, a0, a1):
     return px, py, pz, tx, ty, clamped_x, clamped_y, fx, fy, cx, cy
 
 
+@njit(**_HELPER)
+def _project_gaussian(i, means, quats, log_scales, viewmats, intrinsics, width, height, scratch,
+                      means2d, conics, depths, radii, tiles):
+    """Project Gaussian i into every camera (writes row i of the outputs of :func:`project_forward`)."""
+    rot, rs, t0, t1, a0, a1 = scratch[0:3], scratch[3:6], scratch[6], scratch[7], scratch[8], scratch[9]
+    tiles_x = (width + TILE_SIZE - 1) // TILE_SIZE
+    tiles_y = (height + TILE_SIZE - 1) // TILE_SIZE
+    _rotation_scale(quats, log_scales, i, rot, rs)
+    for cam in range(viewmats.shape[0]):
+        px, py, pz, _, _, _, _, fx, fy, cx, cy = _screen(means, i, viewmats, intrinsics, cam, width, height, rs, t0, t1, a0, a1)
+        depths[cam, i] = pz
+        if pz < NEAR_PLANE:
+            continue
+        sxx = a0[0] * a0[0] + a0[1] * a0[1] + a0[2] * a0[2] + LOW_PASS
+        sxy = a0[0] * a1[0] + a0[1] * a1[1] + a0[2] * a1[2]
+        syy = a1[0] * a1[0] + a1[1] * a1[1] + a1[2] * a1[2] + LOW_PASS
+        det = sxx * syy - sxy * sxy
+        if not (det > 0.0 and math.isfinite(det)):
+            continue
+        mid = 0.5 * (sxx + syy)
+        radius = math.ceil(SIGMA_EXTENT * math.sqrt(mid + math.sqrt(max(0.1, mid * mid - det))))
+        if not math.isfinite(radius):
+            continue
+        radius = min(radius, _MAX_RADIUS)
+        u, v = fx * px / pz + cx, fy * py / pz + cy
+        x0 = min(max(math.floor((u - radius) / TILE_SIZE), 0.0), tiles_x)
+        x1 = min(max(math.floor((u + radius + TILE_SIZE - 1) / TILE_SIZE), 0.0), tiles_x)
+        y0 = min(max(math.floor((v - radius) / TILE_SIZE), 0.0), tiles_y)
+        y1 = min(max(math.floor((v + radius + TILE_SIZE - 1) / TILE_SIZE), 0.0), tiles_y)
+        if x1 <= x0 or y1 <= y0:
+            continue
+        radii[cam, i] = int(radius)
+        tiles[cam, i, 0], tiles[cam, i, 1], tiles[cam, i, 2], tiles[cam, i, 3] = int(x0), int(x1), int(y0), int(y1)
+        means2d[cam, i, 0], means2d[cam, i, 1] = u, v
+        conics[cam, i, 0], conics[cam, i, 1], conics[cam, i, 2] = syy / det, -sxy / det, sxx / det
+
+
 @njit(**_PARALLEL)
 def project_forward(means, quats, log_scales, viewmats, intrinsics, width, height):
     """Project N Gaussians into C cameras (float64 arrays; intrinsics [C, 3, 3], viewmats [C, 4, 4]).
@@ -84,45 +124,93 @@ def project_forward(means, quats, log_scales, viewmats, intrinsics, width, heigh
     range and zero means2d and conic.
     """
     n_cams, n = viewmats.shape[0], means.shape[0]
-    tiles_x = (width + TILE_SIZE - 1) // TILE_SIZE
-    tiles_y = (height + TILE_SIZE - 1) // TILE_SIZE
     means2d = np.zeros((n_cams, n, 2))
     conics = np.zeros((n_cams, n, 3))
     depths = np.zeros((n_cams, n))
     radii = np.zeros((n_cams, n), np.int32)
     tiles = np.zeros((n_cams, n, 4), np.int64)
-    for i in prange(n):
-        rot, rs = np.empty((3, 3)), np.empty((3, 3))
-        t0, t1, a0, a1 = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
-        _rotation_scale(quats, log_scales, i, rot, rs)
-        for cam in range(n_cams):
-            px, py, pz, _, _, _, _, fx, fy, cx, cy = _screen(means, i, viewmats, intrinsics, cam, width, height, rs, t0, t1, a0, a1)
-            depths[cam, i] = pz
-            if pz < NEAR_PLANE:
-                continue
-            sxx = a0[0] * a0[0] + a0[1] * a0[1] + a0[2] * a0[2] + LOW_PASS
-            sxy = a0[0] * a1[0] + a0[1] * a1[1] + a0[2] * a1[2]
-            syy = a1[0] * a1[0] + a1[1] * a1[1] + a1[2] * a1[2] + LOW_PASS
-            det = sxx * syy - sxy * sxy
-            if not (det > 0.0 and math.isfinite(det)):
-                continue
-            mid = 0.5 * (sxx + syy)
-            radius = math.ceil(SIGMA_EXTENT * math.sqrt(mid + math.sqrt(max(0.1, mid * mid - det))))
-            if not math.isfinite(radius):
-                continue
-            radius = min(radius, _MAX_RADIUS)
-            u, v = fx * px / pz + cx, fy * py / pz + cy
-            x0 = min(max(math.floor((u - radius) / TILE_SIZE), 0.0), tiles_x)
-            x1 = min(max(math.floor((u + radius + TILE_SIZE - 1) / TILE_SIZE), 0.0), tiles_x)
-            y0 = min(max(math.floor((v - radius) / TILE_SIZE), 0.0), tiles_y)
-            y1 = min(max(math.floor((v + radius + TILE_SIZE - 1) / TILE_SIZE), 0.0), tiles_y)
-            if x1 <= x0 or y1 <= y0:
-                continue
-            radii[cam, i] = int(radius)
-            tiles[cam, i, 0], tiles[cam, i, 1], tiles[cam, i, 2], tiles[cam, i, 3] = int(x0), int(x1), int(y0), int(y1)
-            means2d[cam, i, 0], means2d[cam, i, 1] = u, v
-            conics[cam, i, 0], conics[cam, i, 1], conics[cam, i, 2] = syy / det, -sxy / det, sxx / det
+    for block in prange((n + _BLOCK - 1) // _BLOCK):
+        scratch = np.empty((_SCRATCH_ROWS, 3))
+        for i in range(block * _BLOCK, min(n, (block + 1) * _BLOCK)):
+            _project_gaussian(i, means, quats, log_scales, viewmats, intrinsics, width, height, scratch,
+                              means2d, conics, depths, radii, tiles)
     return means2d, conics, depths, radii, tiles
+
+
+@njit(**_HELPER)
+def _backward_gaussian(i, means, quats, log_scales, viewmats, intrinsics, width, height, radii, scratch,
+                       grad_means2d, grad_conics, grad_depths, g_means, g_quats, g_log_scales):
+    """Row i of the gradients of :func:`project_backward`, summed over the cameras."""
+    rot, rs, t0, t1, a0, a1 = scratch[0:3], scratch[3:6], scratch[6], scratch[7], scratch[8], scratch[9]
+    g_rs, g_a0, g_a1 = scratch[10:13], scratch[13], scratch[14]
+    n_cams = viewmats.shape[0]
+    norm, w, x, y, z = _rotation_scale(quats, log_scales, i, rot, rs)
+    g_rs[:] = 0.0
+    for cam in range(n_cams):
+        if radii[cam, i] == 0:
+            continue
+        px, py, pz, tx, ty, clamped_x, clamped_y, fx, fy, _, _ = _screen(
+            means, i, viewmats, intrinsics, cam, width, height, rs, t0, t1, a0, a1
+        )
+        sxx = a0[0] * a0[0] + a0[1] * a0[1] + a0[2] * a0[2] + LOW_PASS
+        sxy = a0[0] * a1[0] + a0[1] * a1[1] + a0[2] * a1[2]
+        syy = a1[0] * a1[0] + a1[1] * a1[1] + a1[2] * a1[2] + LOW_PASS
+        inv = 1.0 / (sxx * syy - sxy * sxy)
+        # conic = (syy, −sxy, sxx) / det
+        ga, gb, gc = grad_conics[cam, i, 0], grad_conics[cam, i, 1], grad_conics[cam, i, 2]
+        g_det = -(ga * syy - gb * sxy + gc * sxx) * inv * inv
+        g_sxx = gc * inv + g_det * syy
+        g_syy = ga * inv + g_det * sxx
+        g_sxy = -gb * inv - 2.0 * g_det * sxy
+        # sxx = a0·a0, sxy = a0·a1, syy = a1·a1 with a0 = (R S)ᵀ t0, a1 = (R S)ᵀ t1
+        for k in range(3):
+            g_a0[k] = 2.0 * g_sxx * a0[k] + g_sxy * a1[k]
+            g_a1[k] = 2.0 * g_syy * a1[k] + g_sxy * a0[k]
+        g00 = g02 = g11 = g12 = 0.0
+        for j in range(3):
+            g_t0 = rs[j, 0] * g_a0[0] + rs[j, 1] * g_a0[1] + rs[j, 2] * g_a0[2]
+            g_t1 = rs[j, 0] * g_a1[0] + rs[j, 1] * g_a1[1] + rs[j, 2] * g_a1[2]
+            for k in range(3):
+                g_rs[j, k] += t0[j] * g_a0[k] + t1[j] * g_a1[k]
+            g00 += g_t0 * viewmats[cam, 0, j]
+            g02 += g_t0 * viewmats[cam, 2, j]
+            g11 += g_t1 * viewmats[cam, 1, j]
+            g12 += g_t1 * viewmats[cam, 2, j]
+        # means2d = (fx·px/pz + cx, fy·py/pz + cy); depth = pz; J = [[fx/z, 0, −fx·tx/z²], [0, fy/z, −fy·ty/z²]]
+        gu, gv = grad_means2d[cam, i, 0], grad_means2d[cam, i, 1]
+        z2 = pz * pz
+        g_px = gu * fx / pz
+        g_py = gv * fy / pz
+        g_pz = grad_depths[cam, i] - (gu * fx * px + gv * fy * py) / z2 - (fx * g00 + fy * g11) / z2
+        g_pz += 2.0 * (fx * tx * g02 + fy * ty * g12) / (z2 * pz)
+        g_tx, g_ty = -fx * g02 / z2, -fy * g12 / z2
+        if clamped_x:  # tx = z · limit
+            g_pz += g_tx * tx / pz
+        else:  # tx = px
+            g_px += g_tx
+        if clamped_y:
+            g_pz += g_ty * ty / pz
+        else:
+            g_py += g_ty
+        for k in range(3):
+            g_means[i, k] += viewmats[cam, 0, k] * g_px + viewmats[cam, 1, k] * g_py + viewmats[cam, 2, k] * g_pz
+    # rs = R·diag(s), s = exp(log_scales)
+    for k in range(3):
+        scale = math.exp(log_scales[i, k])
+        g_log_scales[i, k] = scale * (g_rs[0, k] * rot[0, k] + g_rs[1, k] * rot[1, k] + g_rs[2, k] * rot[2, k])
+        for j in range(3):
+            g_rs[j, k] *= scale  # now d loss / d R
+    g = g_rs
+    gw = 2 * (-z * g[0, 1] + y * g[0, 2] + z * g[1, 0] - x * g[1, 2] - y * g[2, 0] + x * g[2, 1])
+    gx = 2 * (y * g[0, 1] + z * g[0, 2] + y * g[1, 0] - 2 * x * g[1, 1] - w * g[1, 2] + z * g[2, 0] + w * g[2, 1] - 2 * x * g[2, 2])
+    gy = 2 * (-2 * y * g[0, 0] + x * g[0, 1] + w * g[0, 2] + x * g[1, 0] + z * g[1, 2] - w * g[2, 0] + z * g[2, 1] - 2 * y * g[2, 2])
+    gz = 2 * (-2 * z * g[0, 0] - w * g[0, 1] + x * g[0, 2] + w * g[1, 0] - 2 * z * g[1, 1] + y * g[1, 2] + x * g[2, 0] + y * g[2, 1])
+    # q̂ = q / |q|: d loss / d q = (g − q̂ (q̂·g)) / |q|
+    dot = w * gw + x * gx + y * gy + z * gz
+    g_quats[i, 0] = (gw - w * dot) / norm
+    g_quats[i, 1] = (gx - x * dot) / norm
+    g_quats[i, 2] = (gy - y * dot) / norm
+    g_quats[i, 3] = (gz - z * dot) / norm
 
 
 @njit(**_PARALLEL)
@@ -130,78 +218,13 @@ def project_backward(means, quats, log_scales, viewmats, intrinsics, width, heig
     """Gradients of :func:`project_forward`'s means2d, conics and depths with respect to means [N, 3],
     quats [N, 4] and log_scales [N, 3]; culled Gaussians (radius 0) pass nothing, clamps pass nothing
     where they clamp (as autograd through the reference)."""
-    n_cams, n = viewmats.shape[0], means.shape[0]
+    n = means.shape[0]
     g_means = np.zeros((n, 3))
     g_quats = np.zeros((n, 4))
     g_log_scales = np.zeros((n, 3))
-    for i in prange(n):
-        rot, rs, g_rs = np.empty((3, 3)), np.empty((3, 3)), np.zeros((3, 3))
-        t0, t1, a0, a1 = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
-        g_a0, g_a1 = np.empty(3), np.empty(3)
-        norm, w, x, y, z = _rotation_scale(quats, log_scales, i, rot, rs)
-        for cam in range(n_cams):
-            if radii[cam, i] == 0:
-                continue
-            px, py, pz, tx, ty, clamped_x, clamped_y, fx, fy, _, _ = _screen(
-                means, i, viewmats, intrinsics, cam, width, height, rs, t0, t1, a0, a1
-            )
-            sxx = a0[0] * a0[0] + a0[1] * a0[1] + a0[2] * a0[2] + LOW_PASS
-            sxy = a0[0] * a1[0] + a0[1] * a1[1] + a0[2] * a1[2]
-            syy = a1[0] * a1[0] + a1[1] * a1[1] + a1[2] * a1[2] + LOW_PASS
-            inv = 1.0 / (sxx * syy - sxy * sxy)
-            # conic = (syy, −sxy, sxx) / det
-            ga, gb, gc = grad_conics[cam, i, 0], grad_conics[cam, i, 1], grad_conics[cam, i, 2]
-            g_det = -(ga * syy - gb * sxy + gc * sxx) * inv * inv
-            g_sxx = gc * inv + g_det * syy
-            g_syy = ga * inv + g_det * sxx
-            g_sxy = -gb * inv - 2.0 * g_det * sxy
-            # sxx = a0·a0, sxy = a0·a1, syy = a1·a1 with a0 = (R S)ᵀ t0, a1 = (R S)ᵀ t1
-            for k in range(3):
-                g_a0[k] = 2.0 * g_sxx * a0[k] + g_sxy * a1[k]
-                g_a1[k] = 2.0 * g_syy * a1[k] + g_sxy * a0[k]
-            g00 = g02 = g11 = g12 = 0.0
-            for j in range(3):
-                g_t0 = rs[j, 0] * g_a0[0] + rs[j, 1] * g_a0[1] + rs[j, 2] * g_a0[2]
-                g_t1 = rs[j, 0] * g_a1[0] + rs[j, 1] * g_a1[1] + rs[j, 2] * g_a1[2]
-                for k in range(3):
-                    g_rs[j, k] += t0[j] * g_a0[k] + t1[j] * g_a1[k]
-                g00 += g_t0 * viewmats[cam, 0, j]
-                g02 += g_t0 * viewmats[cam, 2, j]
-                g11 += g_t1 * viewmats[cam, 1, j]
-                g12 += g_t1 * viewmats[cam, 2, j]
-            # means2d = (fx·px/pz + cx, fy·py/pz + cy); depth = pz; J = [[fx/z, 0, −fx·tx/z²], [0, fy/z, −fy·ty/z²]]
-            gu, gv = grad_means2d[cam, i, 0], grad_means2d[cam, i, 1]
-            z2 = pz * pz
-            g_px = gu * fx / pz
-            g_py = gv * fy / pz
-            g_pz = grad_depths[cam, i] - (gu * fx * px + gv * fy * py) / z2 - (fx * g00 + fy * g11) / z2
-            g_pz += 2.0 * (fx * tx * g02 + fy * ty * g12) / (z2 * pz)
-            g_tx, g_ty = -fx * g02 / z2, -fy * g12 / z2
-            if clamped_x:  # tx = z · limit
-                g_pz += g_tx * tx / pz
-            else:  # tx = px
-                g_px += g_tx
-            if clamped_y:
-                g_pz += g_ty * ty / pz
-            else:
-                g_py += g_ty
-            for k in range(3):
-                g_means[i, k] += viewmats[cam, 0, k] * g_px + viewmats[cam, 1, k] * g_py + viewmats[cam, 2, k] * g_pz
-        # rs = R·diag(s), s = exp(log_scales)
-        for k in range(3):
-            scale = math.exp(log_scales[i, k])
-            g_log_scales[i, k] = scale * (g_rs[0, k] * rot[0, k] + g_rs[1, k] * rot[1, k] + g_rs[2, k] * rot[2, k])
-            for j in range(3):
-                g_rs[j, k] *= scale  # now d loss / d R
-        g = g_rs
-        gw = 2 * (-z * g[0, 1] + y * g[0, 2] + z * g[1, 0] - x * g[1, 2] - y * g[2, 0] + x * g[2, 1])
-        gx = 2 * (y * g[0, 1] + z * g[0, 2] + y * g[1, 0] - 2 * x * g[1, 1] - w * g[1, 2] + z * g[2, 0] + w * g[2, 1] - 2 * x * g[2, 2])
-        gy = 2 * (-2 * y * g[0, 0] + x * g[0, 1] + w * g[0, 2] + x * g[1, 0] + z * g[1, 2] - w * g[2, 0] + z * g[2, 1] - 2 * y * g[2, 2])
-        gz = 2 * (-2 * z * g[0, 0] - w * g[0, 1] + x * g[0, 2] + w * g[1, 0] - 2 * z * g[1, 1] + y * g[1, 2] + x * g[2, 0] + y * g[2, 1])
-        # q̂ = q / |q|: d loss / d q = (g − q̂ (q̂·g)) / |q|
-        dot = w * gw + x * gx + y * gy + z * gz
-        g_quats[i, 0] = (gw - w * dot) / norm
-        g_quats[i, 1] = (gx - x * dot) / norm
-        g_quats[i, 2] = (gy - y * dot) / norm
-        g_quats[i, 3] = (gz - z * dot) / norm
+    for block in prange((n + _BLOCK - 1) // _BLOCK):
+        scratch = np.empty((_SCRATCH_ROWS, 3))
+        for i in range(block * _BLOCK, min(n, (block + 1) * _BLOCK)):
+            _backward_gaussian(i, means, quats, log_scales, viewmats, intrinsics, width, height, radii, scratch,
+                               grad_means2d, grad_conics, grad_depths, g_means, g_quats, g_log_scales)
     return g_means, g_quats, g_log_scales

@@ -19,16 +19,17 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from mmcsplat.rendering import ALPHA_MAX, ALPHA_MIN, TILE_SIZE, TRANSMITTANCE_MIN
+from mmcsplat.rendering import ALPHA_MAX, ALPHA_MIN, DEPTH_EPS, TILE_SIZE, TRANSMITTANCE_MIN
 
 _PARALLEL = {"parallel": True, "cache": True, "fastmath": False, "nogil": True}
-#: Per-instance gradient columns: d mean2d (x, y), d conic (a, b, c), d opacity, then d values.
+_INLINE = {"cache": True, "fastmath": False, "inline": "always"}
+#: Per-instance gradient columns: d mean2d (x, y), d conic (a, b, c), d opacity, then the channels'.
 GRAD_VALUES = 6
 #: Relative and absolute slack on the contribution box: covers the rounding of the power's evaluation.
 _BOX_SLACK = 1e-6
 
 
-@njit(cache=True, fastmath=False, inline="always")
+@njit(**_INLINE)
 def _alpha(dx, dy, a, b, c, o):
     """(α, falloff) of a Gaussian at offset (dx, dy); α = 0 where the pixel is skipped."""
     power = -0.5 * (a * dx * dx + c * dy * dy) - b * dx * dy
@@ -41,7 +42,7 @@ def _alpha(dx, dy, a, b, c, o):
     return alpha, falloff
 
 
-@njit(cache=True, fastmath=False, inline="always")
+@njit(**_INLINE)
 def _span(centre, half, lo, hi):
     """Integer pixel range [start, stop) of [centre − half, centre + half] within [lo, hi)."""
     start = centre - half
@@ -108,28 +109,37 @@ def bin_gaussians(xy, conic, opacity, depth, tiles_rect, width, height):
     return extent, offsets, ids
 
 
-@njit(**_PARALLEL)
-def composite_forward(xy, conic, opacity, extent, values, offsets, ids, width, height):
-    """Front-to-back compositing of every tile of every camera.
+@njit(**_INLINE)
+def _tile_bounds(ct, tiles, tiles_x, width, height):
+    """(camera, u0, u1, v0, v1) of flattened tile ``ct``."""
+    t = ct % tiles
+    u0, v0 = (t % tiles_x) * TILE_SIZE, (t // tiles_x) * TILE_SIZE
+    return ct // tiles, u0, min(u0 + TILE_SIZE, width), v0, min(v0 + TILE_SIZE, height)
 
-    values [C, N, D] are the channels composited with weights αᵢTᵢ. Returns acc [C, H, W, D] (Σ αᵢTᵢ vᵢ),
-    alpha [C, H, W] (Σ αᵢTᵢ), and for the backward the final transmittance [C, H, W] (float64) and last
-    [C, H, W] int32, the number of list entries up to and including the pixel's last contributor.
+
+@njit(**_PARALLEL)
+def composite_forward(xy, conic, opacity, extent, colors, features, depths, background, offsets, ids, width, height,
+                      rgb, feat, depth, alpha):
+    """Front-to-back compositing of every tile of every camera, writing the outputs in place.
+
+    colors [N, 3], features [N, F], depths [C, N] are the composited channels, background [C, 3]; rgb
+    [C, H, W, 3], feat [C, H, W, F], depth [C, H, W], alpha [C, H, W] receive colour + T·background, the
+    feature sums, Σ wᵢzᵢ / max(alpha, DEPTH_EPS) and alpha = Σ wᵢ (wᵢ = αᵢTᵢ). Returns, for the backward,
+    float64 [C, H, W] final transmittance, alpha and depth sum, and last [C, H, W] int32: the number of
+    list entries up to and including the pixel's last contributor.
     """
-    n_cams, _, dims = values.shape
+    n_cams = depths.shape[0]
+    n_feat = features.shape[1]
+    dims = 3 + n_feat + 1  # colour, features, depth
     tiles_x = (width + TILE_SIZE - 1) // TILE_SIZE
     tiles = tiles_x * ((height + TILE_SIZE - 1) // TILE_SIZE)
-    acc = np.zeros((n_cams, height, width, dims), values.dtype)
-    alpha = np.zeros((n_cams, height, width), values.dtype)
-    trans = np.ones((n_cams, height, width), np.float64)
+    trans = np.ones((n_cams, height, width))
+    weight = np.zeros((n_cams, height, width))
+    depth_sum = np.zeros((n_cams, height, width))
     last = np.zeros((n_cams, height, width), np.int32)
     for ct in prange(n_cams * tiles):
+        cam, u0, u1, v0, v1 = _tile_bounds(ct, tiles, tiles_x, width, height)
         start, end = offsets[ct], offsets[ct + 1]
-        if start == end:
-            continue
-        cam, t = ct // tiles, ct % tiles
-        u0, v0 = (t % tiles_x) * TILE_SIZE, (t // tiles_x) * TILE_SIZE
-        u1, v1 = min(u0 + TILE_SIZE, width), min(v0 + TILE_SIZE, height)
         tile_t = np.ones((TILE_SIZE, TILE_SIZE))
         tile_acc = np.zeros((TILE_SIZE, TILE_SIZE, dims))
         tile_w = np.zeros((TILE_SIZE, TILE_SIZE))
@@ -156,8 +166,12 @@ def composite_forward(xy, conic, opacity, extent, values, offsets, ids, width, h
                         active -= 1
                         continue
                     w = alpha_i * t_now
-                    for d in range(dims):
-                        tile_acc[v - v0, u - u0, d] += w * values[cam, i, d]
+                    acc = tile_acc[v - v0, u - u0]
+                    for d in range(3):
+                        acc[d] += w * colors[i, d]
+                    for d in range(n_feat):
+                        acc[3 + d] += w * features[i, d]
+                    acc[dims - 1] += w * depths[cam, i]
                     tile_w[v - v0, u - u0] += w
                     tile_t[v - v0, u - u0] = t_next
                     tile_last[v - v0, u - u0] = k - start + 1
@@ -165,43 +179,63 @@ def composite_forward(xy, conic, opacity, extent, values, offsets, ids, width, h
                 break
         for v in range(v0, v1):
             for u in range(u0, u1):
-                trans[cam, v, u] = tile_t[v - v0, u - u0]
-                alpha[cam, v, u] = tile_w[v - v0, u - u0]
+                acc = tile_acc[v - v0, u - u0]
+                t_final, w_sum = tile_t[v - v0, u - u0], tile_w[v - v0, u - u0]
+                for d in range(3):
+                    rgb[cam, v, u, d] = acc[d] + t_final * background[cam, d]
+                for d in range(n_feat):
+                    feat[cam, v, u, d] = acc[3 + d]
+                depth[cam, v, u] = acc[dims - 1] / max(w_sum, DEPTH_EPS)
+                alpha[cam, v, u] = w_sum
+                trans[cam, v, u], weight[cam, v, u], depth_sum[cam, v, u] = t_final, w_sum, acc[dims - 1]
                 last[cam, v, u] = tile_last[v - v0, u - u0]
-                for d in range(dims):
-                    acc[cam, v, u, d] = tile_acc[v - v0, u - u0, d]
-    return acc, alpha, trans, last
+    return trans, weight, depth_sum, last
 
 
 @njit(**_PARALLEL)
-def composite_backward(xy, conic, opacity, extent, values, offsets, ids, width, height, trans, last, grad_acc, grad_alpha):
-    """Gradients of :func:`composite_forward` given d loss / d acc [C, H, W, D] and d loss / d alpha [C, H, W].
+def composite_backward(xy, conic, opacity, extent, colors, features, depths, background, offsets, ids, width, height,
+                       trans, weight, depth_sum, last, grad_rgb, grad_feat, grad_depth, grad_alpha):
+    """Gradients of :func:`composite_forward` given d loss / d (rgb, feat, depth, alpha).
 
     Each pixel walks back from its last contributor, recovering Tᵢ = Tᵢ₊₁ / (1 − αᵢ). Every (tile, Gaussian)
     list entry owns a row of gradients, so tiles run in parallel without races; rows are then summed per
     Gaussian in list order, which makes the result independent of the thread count. Returns [C, N, 6 + D]:
-    columns d mean2d (x, y), d conic (a, b, c), d opacity, d values.
+    columns d mean2d (x, y), d conic (a, b, c), d opacity, then d colour (3), d features (F), d depth.
     """
-    n_cams, n, dims = values.shape
+    n_cams, n = depths.shape
+    n_feat = features.shape[1]
+    dims = 3 + n_feat + 1
     tiles_x = (width + TILE_SIZE - 1) // TILE_SIZE
     tiles = tiles_x * ((height + TILE_SIZE - 1) // TILE_SIZE)
     rows = np.zeros((ids.shape[0], GRAD_VALUES + dims))
     for ct in prange(n_cams * tiles):
-        start, end = offsets[ct], offsets[ct + 1]
-        if start == end:
+        start = offsets[ct]
+        if start == offsets[ct + 1]:
             continue
-        cam, t = ct // tiles, ct % tiles
-        u0, v0 = (t % tiles_x) * TILE_SIZE, (t // tiles_x) * TILE_SIZE
-        u1, v1 = min(u0 + TILE_SIZE, width), min(v0 + TILE_SIZE, height)
+        cam, u0, u1, v0, v1 = _tile_bounds(ct, tiles, tiles_x, width, height)
         tile_t = np.empty((TILE_SIZE, TILE_SIZE))
-        # per pixel Σ over later contributors j of wⱼ (g·vⱼ), minus d loss/d alpha · T_final, so that
+        tile_g = np.empty((TILE_SIZE, TILE_SIZE, dims))  # d loss / d Σ wᵢ vᵢ per channel
+        # per pixel Σ over later contributors j of wⱼ (g·vⱼ), minus d loss / d alpha · T_final, so that
         # d loss / d αᵢ = Tᵢ (g·vᵢ) − q / (1 − αᵢ)  (alpha = 1 − T_final: d alpha / d αᵢ = T_final / (1 − αᵢ))
-        tile_q = np.zeros((TILE_SIZE, TILE_SIZE))
+        tile_q = np.empty((TILE_SIZE, TILE_SIZE))
         reached = 0
         for v in range(v0, v1):
             for u in range(u0, u1):
+                g = tile_g[v - v0, u - u0]
+                g_alpha = grad_alpha[cam, v, u]
+                for d in range(3):
+                    g[d] = grad_rgb[cam, v, u, d]
+                    g_alpha -= grad_rgb[cam, v, u, d] * background[cam, d]  # rgb = colour + (1 − alpha)·bg
+                for d in range(n_feat):
+                    g[3 + d] = grad_feat[cam, v, u, d]
+                w_sum = weight[cam, v, u]
+                if w_sum >= DEPTH_EPS:  # depth = depth_sum / max(alpha, DEPTH_EPS)
+                    g[dims - 1] = grad_depth[cam, v, u] / w_sum
+                    g_alpha -= grad_depth[cam, v, u] * depth_sum[cam, v, u] / (w_sum * w_sum)
+                else:
+                    g[dims - 1] = grad_depth[cam, v, u] / DEPTH_EPS
                 tile_t[v - v0, u - u0] = trans[cam, v, u]
-                tile_q[v - v0, u - u0] = -grad_alpha[cam, v, u] * trans[cam, v, u]
+                tile_q[v - v0, u - u0] = -g_alpha * trans[cam, v, u]
                 reached = max(reached, last[cam, v, u])
         grad_v = np.empty(dims)
         for k in range(start + reached - 1, start - 1, -1):
@@ -224,11 +258,15 @@ def composite_backward(xy, conic, opacity, extent, values, offsets, ids, width, 
                     keep = 1.0 - alpha_i
                     t_i = tile_t[v - v0, u - u0] / keep
                     w = alpha_i * t_i
-                    g_dot_v = 0.0
-                    for d in range(dims):
-                        g = grad_acc[cam, v, u, d]
-                        grad_v[d] += w * g
-                        g_dot_v += g * values[cam, i, d]
+                    g = tile_g[v - v0, u - u0]
+                    g_dot_v = g[dims - 1] * depths[cam, i]
+                    grad_v[dims - 1] += w * g[dims - 1]
+                    for d in range(3):
+                        grad_v[d] += w * g[d]
+                        g_dot_v += g[d] * colors[i, d]
+                    for d in range(n_feat):
+                        grad_v[3 + d] += w * g[3 + d]
+                        g_dot_v += g[3 + d] * features[i, d]
                     g_alpha_i = t_i * g_dot_v - tile_q[v - v0, u - u0] / keep
                     tile_q[v - v0, u - u0] += w * g_dot_v
                     tile_t[v - v0, u - u0] = t_i

@@ -2,10 +2,11 @@
 
 Projection (:mod:`mmcsplat.backends.cpu_projection`), binning and compositing
 (:mod:`mmcsplat.backends.cpu_raster`) are numba kernels threaded over Gaussians and tiles, each behind a
-torch.autograd.Function with a hand-written backward; only the cheap glue (sigmoid, channel packing,
-background, depth normalisation) is torch autograd. Everything is computed in float64 and returned in the
-input's dtype: on this path float64 costs next to nothing (the kernels are latency-bound scalar code) and
-keeps the backward's transmittance recovery and the float32 outputs within rounding of the reference.
+torch.autograd.Function with a hand-written backward. The compositing kernel also assembles the outputs
+(background, depth normalisation, output dtype), so that only [N]- and [C, N]-sized glue is torch
+autograd. Everything is computed in float64 and returned in the input's dtype: on this path float64 costs
+next to nothing (the kernels are latency-bound scalar code) and keeps the backward's transmittance
+recovery and the float32 outputs within rounding of the reference.
 Camera poses and intrinsics are not differentiated. Conventions: docs/rendering.md.
 """
 
@@ -19,7 +20,7 @@ import torch
 from torch.autograd.function import once_differentiable
 
 from mmcsplat.interfaces import Renderer
-from mmcsplat.rendering import DEPTH_EPS, Gaussians, RenderCameras, RenderOutput, validate_render_inputs
+from mmcsplat.rendering import Gaussians, RenderCameras, RenderOutput, validate_render_inputs
 
 from . import cpu_projection, cpu_raster
 
@@ -78,41 +79,49 @@ def bin_gaussians(means2d, conics, opacities, depths, tiles, width: int, height:
 
 
 class _Composite(torch.autograd.Function):
-    """acc [C, H, W, D] = Σ αᵢTᵢ vᵢ and alpha [C, H, W] = 1 − T, differentiable in means2d, conics,
-    opacities and values [C, N, D]."""
+    """(rgb, features, depth, alpha) images of the projected Gaussians, in ``dtype``; differentiable in
+    means2d, conics, opacities, colors, features, depths (float64) and the background [C, 3]."""
 
     @staticmethod
-    def forward(ctx, means2d, conics, opacities, values, binning: Binning):  # noqa: D102 (torch API)
-        arrays = [_numpy(t) for t in (means2d, conics, opacities, values)]
+    def forward(ctx, means2d, conics, opacities, colors, features, depths, background, binning: Binning, dtype):  # noqa: D102
         b = binning
+        n_cams, n_feat = depths.shape[0], features.shape[1]
+        images = (
+            torch.empty((n_cams, b.height, b.width, 3), dtype=dtype),
+            torch.empty((n_cams, b.height, b.width, n_feat), dtype=dtype),
+            torch.empty((n_cams, b.height, b.width), dtype=dtype),
+            torch.empty((n_cams, b.height, b.width), dtype=dtype),
+        )
+        inputs = [_numpy(t) for t in (means2d, conics, opacities)] + [b.extent]
+        inputs += [_numpy(t) for t in (colors, features, depths, background)]
         with _KERNEL_LOCK:
-            acc, alpha, trans, last = cpu_raster.composite_forward(
-                *arrays[:3], b.extent, arrays[3], b.offsets, b.ids, b.width, b.height
-            )
-        ctx.arrays = (*arrays, trans, last)
-        ctx.binning = binning
-        return torch.from_numpy(acc), torch.from_numpy(alpha)
+            state = cpu_raster.composite_forward(*inputs, b.offsets, b.ids, b.width, b.height, *(t.numpy() for t in images))
+        ctx.inputs, ctx.state, ctx.binning = inputs, state, b
+        return images
 
     @staticmethod
     @once_differentiable
-    def backward(ctx, grad_acc, grad_alpha):  # noqa: D102 (torch API)
-        means2d, conics, opacities, values, trans, last = ctx.arrays
+    def backward(ctx, grad_rgb, grad_features, grad_depth, grad_alpha):  # noqa: D102 (torch API)
         b = ctx.binning
+        grads = [_numpy(g) for g in (grad_rgb, grad_features, grad_depth, grad_alpha)]
         with _KERNEL_LOCK:
-            grads = cpu_raster.composite_backward(
-                means2d, conics, opacities, b.extent, values, b.offsets, b.ids, b.width, b.height, trans, last,
-                _numpy(grad_acc.to(_DTYPE)), _numpy(grad_alpha.to(_DTYPE)),
-            )
-        grads = torch.from_numpy(grads)
-        g = cpu_raster.GRAD_VALUES
-        return grads[..., 0:2], grads[..., 2:5], grads[..., 5].sum(0), grads[..., g:], None
+            rows = cpu_raster.composite_backward(*ctx.inputs, b.offsets, b.ids, b.width, b.height, *ctx.state, *grads)
+        rows = torch.from_numpy(rows)
+        g, n_feat = cpu_raster.GRAD_VALUES, ctx.inputs[5].shape[1]
+        grad_background = None
+        if ctx.needs_input_grad[6]:  # rgb = colour + T·background
+            grad_background = torch.einsum("chwk,chw->ck", grad_rgb.to(_DTYPE), torch.from_numpy(ctx.state[0]))
+        return (
+            rows[..., 0:2], rows[..., 2:5], rows[..., 5].sum(0), rows[..., g:g + 3].sum(0),
+            rows[..., g + 3:g + 3 + n_feat].sum(0), rows[..., -1], grad_background, None, None,
+        )
 
 
 def rasterize(gaussians: Gaussians, cameras: RenderCameras, background: torch.Tensor | None = None) -> RenderOutput:
     """Render C cameras on the CPU; outputs have the dtype of ``means``.
 
-    Differentiable with respect to every Gaussian parameter and ``RenderOutput.means2d`` (a zero [C, N, 2]
-    leaf, requiring grad when any parameter does and grad mode is on).
+    Differentiable with respect to every Gaussian parameter, the background and ``RenderOutput.means2d``
+    (a zero [C, N, 2] leaf, requiring grad when any parameter does and grad mode is on).
     """
     validate_render_inputs(gaussians, cameras, background)
     dtype = gaussians.means.dtype
@@ -128,16 +137,9 @@ def rasterize(gaussians: Gaussians, cameras: RenderCameras, background: torch.Te
     xy = xy + means2d.to(_DTYPE)
     opacities = torch.sigmoid(g64.opacity_logits)
     binning = bin_gaussians(xy, conics, opacities, depths, tiles, width, height)
-    n_feat = g64.features.shape[1]
-    values = torch.cat([g64.colors.expand(n_cams, n, 3), g64.features.expand(n_cams, n, n_feat), depths[..., None]], dim=-1)
-    acc, alpha = _Composite.apply(xy, conics, opacities, values, binning)
     bg = torch.zeros(3, dtype=_DTYPE) if background is None else background.to(_DTYPE)
-    rgb = acc[..., :3] + (1 - alpha)[..., None] * bg.reshape(-1, 1, 1, 3)
-    depth = acc[..., -1] / alpha.clamp_min(DEPTH_EPS)
-    return RenderOutput(
-        rgb=rgb.to(dtype), features=acc[..., 3:3 + n_feat].to(dtype), depth=depth.to(dtype), alpha=alpha.to(dtype),
-        radii=radii, means2d=means2d,
-    )
+    images = _Composite.apply(xy, conics, opacities, g64.colors, g64.features, depths, bg.expand(n_cams, 3), binning, dtype)
+    return RenderOutput(*images, radii=radii, means2d=means2d)
 
 
 class TorchCpuRenderer(Renderer):
