@@ -18,6 +18,7 @@ COMMANDS = {
     "evaluate": "evaluate",
     "plugins": "plugins",
     "configs": "configs",
+    "bench": "bench",
 }
 
 
