@@ -130,9 +130,9 @@ class PeakMemory:
 
     def __enter__(self) -> PeakMemory:
         _malloc_trim()
-        self._start = _rss_kib()
+        self._start = _status_kib("VmRSS")
         try:
-            Path("/proc/self/clear_refs").write_text("5")
+            Path("/proc/self/clear_refs").write_text("5")  # resets VmHWM to the current RSS
         except OSError:
             self._start = None
         if torch.cuda.is_available() and torch.cuda.is_initialized():
@@ -141,16 +141,17 @@ class PeakMemory:
         return self
 
     def __exit__(self, *exc: object) -> None:
-        if self._start is not None:
-            match = re.search(r"VmHWM:\s+(\d+)", Path("/proc/self/status").read_text())
-            if match:
-                self.host_mib = max(0, int(match.group(1)) - self._start) / 1024
+        peak = _status_kib("VmHWM")
+        if self._start is not None and peak is not None:
+            self.host_mib = max(0, peak - self._start) / 1024
         if torch.cuda.is_available() and torch.cuda.is_initialized():
             self.cuda_mib = max(0, torch.cuda.max_memory_allocated() - self._cuda_start) / 2**20
 
 
-def _rss_kib() -> int | None:
-    match = re.search(r"VmRSS:\s+(\d+)", Path("/proc/self/status").read_text()) if Path("/proc/self/status").exists() else None
+def _status_kib(field: str) -> int | None:
+    """A memory field of /proc/self/status in KiB (None off Linux)."""
+    status = Path("/proc/self/status")
+    match = re.search(rf"{field}:\s+(\d+)", status.read_text()) if status.exists() else None
     return int(match.group(1)) if match else None
 
 
@@ -224,7 +225,7 @@ def run_benchmark(
     misses its target is profiled over one more run, to explain the shortfall."""
     if repeats < 1:
         raise ValueError(f"repeats must be at least 1, got {repeats}")
-    names = list(renderers)
+    names = sorted(renderers, key=lambda name: name != BASELINE)  # the baseline heads each table
     results = []
     for key in scene_keys:
         scene = build_scene(key)
