@@ -102,8 +102,10 @@ class RenderOutput:
 
     rgb [C, H, W, 3] (composited over the background), features [C, H, W, F] (no background), depth
     [C, H, W] (expected depth: Σ wᵢ zᵢ / max(alpha, 1e-10), 0 where nothing was drawn), alpha [C, H, W],
-    radii [C, N] integer screen radii in pixels (0 = culled), and means2d [C, N, 2], a zero tensor added to
-    the projected 2D means: after backward, ``means2d.grad`` is the per-Gaussian screen-space gradient
+    radii [C, N] integer screen radii in pixels (0 = culled), and means2d [C, N, 2], a tensor on the path
+    of the projected 2D means (the reference backends add a zero input there; gsplat returns the means
+    themselves): only its shape and its gradient are contract — after backward, ``means2d.grad`` is the
+    per-Gaussian screen-space gradient
     densification accumulates (``None`` when the caller did not request gradients).
     """
 
