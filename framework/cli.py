@@ -16,6 +16,8 @@ COMMANDS = {
     "segment": "segment",
     "fit": "fit",
     "evaluate": "evaluate",
+    "render": "render",
+    "export": "export",
     "plugins": "plugins",
     "configs": "configs",
     "bench": "bench",
