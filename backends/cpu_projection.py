@@ -88,6 +88,10 @@ def _project_gaussian(i, means, quats, log_scales, viewmats, intrinsics, width, 
     for cam in range(viewmats.shape[0]):
         px, py, pz, _, _, _, _, fx, fy, cx, cy = _screen(means, i, viewmats, intrinsics, cam, width, height, rs, t0, t1, a0, a1)
         depths[cam, i] = pz
+        radii[cam, i] = 0  # culled until proven otherwise
+        tiles[cam, i, 0] = tiles[cam, i, 1] = tiles[cam, i, 2] = tiles[cam, i, 3] = 0
+        means2d[cam, i, 0] = means2d[cam, i, 1] = 0.0
+        conics[cam, i, 0] = conics[cam, i, 1] = conics[cam, i, 2] = 0.0
         if pz < NEAR_PLANE:
             continue
         sxx = a0[0] * a0[0] + a0[1] * a0[1] + a0[2] * a0[2] + LOW_PASS
@@ -124,11 +128,12 @@ def project_forward(means, quats, log_scales, viewmats, intrinsics, width, heigh
     range and zero means2d and conic.
     """
     n_cams, n = viewmats.shape[0], means.shape[0]
-    means2d = np.zeros((n_cams, n, 2))
-    conics = np.zeros((n_cams, n, 3))
-    depths = np.zeros((n_cams, n))
-    radii = np.zeros((n_cams, n), np.int32)
-    tiles = np.zeros((n_cams, n, 4), np.int64)
+    # np.empty, filled by _project_gaussian: np.zeros would be a parallel region (a fork-join) of its own
+    means2d = np.empty((n_cams, n, 2))
+    conics = np.empty((n_cams, n, 3))
+    depths = np.empty((n_cams, n))
+    radii = np.empty((n_cams, n), np.int32)
+    tiles = np.empty((n_cams, n, 4), np.int64)
     for block in prange((n + _BLOCK - 1) // _BLOCK):
         scratch = np.empty((_SCRATCH_ROWS, 3))
         for i in range(block * _BLOCK, min(n, (block + 1) * _BLOCK)):
@@ -146,6 +151,7 @@ def _backward_gaussian(i, means, quats, log_scales, viewmats, intrinsics, width,
     n_cams = viewmats.shape[0]
     norm, w, x, y, z = _rotation_scale(quats, log_scales, i, rot, rs)
     g_rs[:] = 0.0
+    g_means[i] = 0.0
     for cam in range(n_cams):
         if radii[cam, i] == 0:
             continue
@@ -219,9 +225,9 @@ def project_backward(means, quats, log_scales, viewmats, intrinsics, width, heig
     quats [N, 4] and log_scales [N, 3]; culled Gaussians (radius 0) pass nothing, clamps pass nothing
     where they clamp (as autograd through the reference)."""
     n = means.shape[0]
-    g_means = np.zeros((n, 3))
-    g_quats = np.zeros((n, 4))
-    g_log_scales = np.zeros((n, 3))
+    g_means = np.empty((n, 3))  # filled by _backward_gaussian
+    g_quats = np.empty((n, 4))
+    g_log_scales = np.empty((n, 3))
     for block in prange((n + _BLOCK - 1) // _BLOCK):
         scratch = np.empty((_SCRATCH_ROWS, 3))
         for i in range(block * _BLOCK, min(n, (block + 1) * _BLOCK)):

@@ -5,11 +5,14 @@ Conventions are those of docs/rendering.md. Arrays are indexed camera c, Gaussia
 row-major within a camera and flattened camera-major (``ct = c * tiles + t``). Arithmetic is float64
 whatever the storage type, so the backward recovers transmittance by division without drift.
 
-Two exact optimisations over the reference's "every Gaussian of the tile, every pixel of the tile":
-a pixel can only receive α ≥ 1/255 inside the ellipse dᵀ·conic·d ≤ 2·ln(255·o), so each Gaussian visits
-only the pixels of that ellipse's bounding box, and is binned only into the tiles of its 3σ tile rectangle
-(from the shared projection) that the box touches. The pixels left out would have been skipped anyway, so
-the image is unchanged.
+Exact optimisations over the reference's "every Gaussian of the tile, every pixel of the tile": a pixel
+can only receive α ≥ 1/255 inside the ellipse dᵀ·conic·d ≤ 2·ln(255·o), so each Gaussian visits only the
+pixels of that ellipse's bounding box, skips exp outside the ellipse, and is binned only into the tiles
+of its 3σ tile rectangle (from the projection) that the box touches. The pixels left out would have been
+skipped anyway (the bounds carry a relative slack of 1e-6 over rounding), so the image is unchanged.
+Arrays are allocated with np.empty and filled inside the parallel loops: in a parallel=True function each
+np.zeros is a parallel region of its own, and every region costs a fork-join, which hurts on an
+oversubscribed machine.
 """
 
 from __future__ import annotations
@@ -30,10 +33,11 @@ _BOX_SLACK = 1e-6
 
 
 @njit(**_INLINE)
-def _alpha(dx, dy, a, b, c, o):
-    """(α, falloff) of a Gaussian at offset (dx, dy); α = 0 where the pixel is skipped."""
+def _alpha(dx, dy, a, b, c, o, floor):
+    """(α, falloff) of a Gaussian at offset (dx, dy); α = 0 where the pixel is skipped. ``floor`` is a
+    power below which α < 1/255 for certain (so exp is not evaluated there)."""
     power = -0.5 * (a * dx * dx + c * dy * dy) - b * dx * dy
-    if power > 0.0:
+    if power > 0.0 or power < floor:
         return 0.0, 0.0
     falloff = math.exp(power)
     alpha = min(ALPHA_MAX, o * falloff)
@@ -57,19 +61,23 @@ def bin_gaussians(xy, conic, opacity, depth, tiles_rect, width, height):
     """Per-tile lists of Gaussian ids sorted by (depth, index).
 
     xy [C, N, 2] 2D means, conic [C, N, 3], opacity [N], depth [C, N] camera z, tiles_rect [C, N, 4] the
-    half-open 3σ tile range (x0, x1, y0, y1), empty for culled Gaussians. Returns extent [C, N, 2] (half
-    width and height of the contribution box, px), offsets [C·tiles + 1] int64 and ids [offsets[-1]]
+    half-open 3σ tile range (x0, x1, y0, y1), empty for culled Gaussians. Returns extent [C, N, 3] (half
+    width and height of the contribution box in px, and the power below which α < 1/255), offsets [C·tiles + 1] int64 and ids [offsets[-1]]
     int32: tile ct holds ids[offsets[ct]:offsets[ct + 1]].
     """
     n_cams, n = depth.shape
     tiles_x = (width + TILE_SIZE - 1) // TILE_SIZE
     tiles = tiles_x * ((height + TILE_SIZE - 1) // TILE_SIZE)
-    extent = np.zeros((n_cams, n, 2), np.float64)
-    rect = np.zeros((n_cams, n, 4), np.int64)  # the part of tiles_rect the contribution box touches
-    counts = np.zeros(n_cams * tiles + 1, np.int64)
+    extent = np.empty((n_cams, n, 3))
+    rect = np.empty((n_cams, n, 4), np.int64)  # the part of tiles_rect the contribution box touches
+    counts = np.empty(n_cams * tiles + 1, np.int64)
+    counts[0] = 0
     for cam in prange(n_cams):
         base = cam * tiles + 1
+        counts[base:base + tiles] = 0
         for i in range(n):
+            extent[cam, i, 0] = extent[cam, i, 1] = extent[cam, i, 2] = 0.0
+            rect[cam, i, 0] = rect[cam, i, 1] = rect[cam, i, 2] = rect[cam, i, 3] = 0
             x0, x1, y0, y1 = tiles_rect[cam, i, 0], tiles_rect[cam, i, 1], tiles_rect[cam, i, 2], tiles_rect[cam, i, 3]
             o = opacity[i]
             if x1 <= x0 or y1 <= y0 or o < ALPHA_MIN:  # culled, or α = min(0.99, o·falloff) < 1/255 everywhere
@@ -79,6 +87,7 @@ def bin_gaussians(xy, conic, opacity, depth, tiles_rect, width, height):
             det = a * c - b * b
             if det > 0.0:
                 reach = 2.0 * math.log(o / ALPHA_MIN)
+                floor = -0.5 * reach * (1.0 + _BOX_SLACK) - _BOX_SLACK
                 hx = math.sqrt(reach * c / det) * (1.0 + _BOX_SLACK) + _BOX_SLACK
                 hy = math.sqrt(reach * a / det) * (1.0 + _BOX_SLACK) + _BOX_SLACK
                 x0 = max(x0, math.floor((mx - hx) / TILE_SIZE))
@@ -87,10 +96,12 @@ def bin_gaussians(xy, conic, opacity, depth, tiles_rect, width, height):
                 y1 = min(y1, math.floor((my + hy) / TILE_SIZE) + 1)
             else:  # numerically indefinite conic: no box, visit the whole 3σ rectangle
                 hx = hy = np.inf
+                floor = -np.inf
             if x1 <= x0 or y1 <= y0:
                 continue
             extent[cam, i, 0] = hx
             extent[cam, i, 1] = hy
+            extent[cam, i, 2] = floor
             rect[cam, i, 0], rect[cam, i, 1], rect[cam, i, 2], rect[cam, i, 3] = x0, x1, y0, y1
             for ty in range(y0, y1):
                 for tx in range(x0, x1):
@@ -133,10 +144,10 @@ def composite_forward(xy, conic, opacity, extent, colors, features, depths, back
     dims = 3 + n_feat + 1  # colour, features, depth
     tiles_x = (width + TILE_SIZE - 1) // TILE_SIZE
     tiles = tiles_x * ((height + TILE_SIZE - 1) // TILE_SIZE)
-    trans = np.ones((n_cams, height, width))
-    weight = np.zeros((n_cams, height, width))
-    depth_sum = np.zeros((n_cams, height, width))
-    last = np.zeros((n_cams, height, width), np.int32)
+    trans = np.empty((n_cams, height, width))
+    weight = np.empty((n_cams, height, width))
+    depth_sum = np.empty((n_cams, height, width))
+    last = np.empty((n_cams, height, width), np.int32)
     for ct in prange(n_cams * tiles):
         cam, u0, u1, v0, v1 = _tile_bounds(ct, tiles, tiles_x, width, height)
         start, end = offsets[ct], offsets[ct + 1]
@@ -152,11 +163,12 @@ def composite_forward(xy, conic, opacity, extent, colors, features, depths, back
             a, b, c = conic[cam, i, 0], conic[cam, i, 1], conic[cam, i, 2]
             ua, ub = _span(mx, extent[cam, i, 0], u0, u1)
             va, vb = _span(my, extent[cam, i, 1], v0, v1)
+            floor = extent[cam, i, 2]
             for v in range(va, vb):
                 for u in range(ua, ub):
                     if done[v - v0, u - u0]:
                         continue
-                    alpha_i, _ = _alpha(u - mx, v - my, a, b, c, o)
+                    alpha_i, _ = _alpha(u - mx, v - my, a, b, c, o, floor)
                     if alpha_i == 0.0:
                         continue
                     t_now = tile_t[v - v0, u - u0]
@@ -207,7 +219,7 @@ def composite_backward(xy, conic, opacity, extent, colors, features, depths, bac
     dims = 3 + n_feat + 1
     tiles_x = (width + TILE_SIZE - 1) // TILE_SIZE
     tiles = tiles_x * ((height + TILE_SIZE - 1) // TILE_SIZE)
-    rows = np.zeros((ids.shape[0], GRAD_VALUES + dims))
+    rows = np.empty((ids.shape[0], GRAD_VALUES + dims))
     for ct in prange(n_cams * tiles):
         start = offsets[ct]
         if start == offsets[ct + 1]:
@@ -237,6 +249,7 @@ def composite_backward(xy, conic, opacity, extent, colors, features, depths, bac
                 tile_t[v - v0, u - u0] = trans[cam, v, u]
                 tile_q[v - v0, u - u0] = -g_alpha * trans[cam, v, u]
                 reached = max(reached, last[cam, v, u])
+        rows[start + reached:offsets[ct + 1]] = 0.0  # entries behind every pixel's last contributor
         grad_v = np.empty(dims)
         for k in range(start + reached - 1, start - 1, -1):
             i = ids[k]
@@ -245,6 +258,7 @@ def composite_backward(xy, conic, opacity, extent, colors, features, depths, bac
             a, b, c = conic[cam, i, 0], conic[cam, i, 1], conic[cam, i, 2]
             ua, ub = _span(mx, extent[cam, i, 0], u0, u1)
             va, vb = _span(my, extent[cam, i, 1], v0, v1)
+            floor = extent[cam, i, 2]
             g_mx = g_my = g_a = g_b = g_c = g_o = 0.0
             grad_v[:] = 0.0
             for v in range(va, vb):
@@ -252,7 +266,7 @@ def composite_backward(xy, conic, opacity, extent, colors, features, depths, bac
                     if j >= last[cam, v, u]:
                         continue
                     dx, dy = u - mx, v - my
-                    alpha_i, falloff = _alpha(dx, dy, a, b, c, o)
+                    alpha_i, falloff = _alpha(dx, dy, a, b, c, o, floor)
                     if alpha_i == 0.0:
                         continue
                     keep = 1.0 - alpha_i
@@ -282,8 +296,15 @@ def composite_backward(xy, conic, opacity, extent, colors, features, depths, bac
             row = rows[k]
             row[0], row[1], row[2], row[3], row[4], row[5] = g_mx, g_my, g_a, g_b, g_c, g_o
             row[GRAD_VALUES:] = grad_v
-    grads = np.zeros((n_cams, n, GRAD_VALUES + dims))
-    for cam in prange(n_cams):
+    # sequential (one parallel region less; a few ms at most): plain loops, as a top-level slice
+    # assignment would become a parallel region of its own
+    grads = np.empty((n_cams, n, GRAD_VALUES + dims))
+    for cam in range(n_cams):
+        for i in range(n):
+            for col in range(GRAD_VALUES + dims):
+                grads[cam, i, col] = 0.0
         for k in range(offsets[cam * tiles], offsets[(cam + 1) * tiles]):
-            grads[cam, ids[k]] += rows[k]
+            i = ids[k]
+            for col in range(GRAD_VALUES + dims):
+                grads[cam, i, col] += rows[k, col]
     return grads
