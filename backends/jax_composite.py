@@ -1,11 +1,12 @@
 """Front-to-back alpha compositing of depth-sorted Gaussians in fixed-size blocks, in JAX, with a
 hand-written backward (a ``jax.custom_vjp``).
 
-The binning step (:mod:`mmcsplat.backends.jax_raster`) lays every tile's depth-sorted Gaussian list out as
-consecutive *blocks* of ``L`` slots (the last block of a tile padded with a dummy Gaussian of zero
-opacity), so the work is proportional to the number of (tile, Gaussian) pairs however unevenly the tiles
-are loaded. Per pixel, the running transmittance is a prefix sum of log(1 − α): inside a block a cumsum
-over ``L`` slots, across the blocks of one tile a segmented scan over block totals. Everything is
+The binning step (:mod:`mmcsplat.backends.jax_raster`) lays the depth-sorted Gaussian list of every pixel
+cell (a tile or a part of one) out as consecutive *blocks* of ``L`` slots (the last block of a cell padded
+with a dummy Gaussian of zero opacity), so the work is proportional to the number of (cell, Gaussian) pairs
+however unevenly the cells are loaded. Per pixel, the running transmittance is a prefix sum of
+log(1 − α): inside a block a small matrix product over ``L`` slots, across the blocks of one cell a
+segmented scan over block totals. Everything is
 vectorised; there is no early termination, but the "stop below 1e-4" rule of docs/rendering.md is honoured
 exactly by masking, and the backward pass reproduces autograd of the sequential definition (3DGS: the
 gradient of αₖ needs the colour still to come behind it, here a reverse segmented prefix sum).
@@ -18,17 +19,11 @@ import math
 import jax
 import jax.numpy as jnp
 
-from mmcsplat.rendering import ALPHA_MAX, ALPHA_MIN, TILE_SIZE, TRANSMITTANCE_MIN
+from mmcsplat.rendering import ALPHA_MAX, ALPHA_MIN, TRANSMITTANCE_MIN
 
 #: Splat table columns before the blended channels: mean x, mean y, conic a, b, c, opacity.
 SPLAT_HEADER = 6
 LOG_T_MIN = math.log(TRANSMITTANCE_MIN)
-
-
-def tile_offsets(dtype: jnp.dtype) -> jax.Array:
-    """[256, 2] (x, y) offsets of a tile's pixels from its corner, row-major."""
-    p = jnp.arange(TILE_SIZE * TILE_SIZE)
-    return jnp.stack([p % TILE_SIZE, p // TILE_SIZE], axis=-1).astype(dtype)
 
 
 def _exclusive_segment_scan(values: jax.Array, first: jax.Array, reverse: bool) -> jax.Array:
@@ -54,10 +49,9 @@ def _prefix_matrix(size: int, dtype: jnp.dtype, strict: bool, upper: bool) -> ja
     return (before | (~strict & (i[:, None] == i[None, :]))).astype(dtype)
 
 
-def _alphas(splats: jax.Array, origins: jax.Array) -> tuple[jax.Array, ...]:
+def _alphas(splats: jax.Array, pixels: jax.Array) -> tuple[jax.Array, ...]:
     """Per block, pixel and slot: offsets (dx, dy), the Gaussian falloff exp(power), the unclamped
     α̂ = o·exp(power) and the α used (0 where skipped: power > 0 or α < 1/255). Shapes [B, P, L]."""
-    pixels = origins[:, None, :] + tile_offsets(origins.dtype)[None]  # [B, P, 2]
     mx, my, a, b, c, o = (splats[:, None, :, i] for i in range(SPLAT_HEADER))  # [B, 1, L]
     dx = pixels[..., 0, None] - mx
     dy = pixels[..., 1, None] - my
@@ -80,8 +74,8 @@ def _transmittance(alpha: jax.Array, first: jax.Array) -> tuple[jax.Array, jax.A
     return log_keep, inclusive - log_keep, alive
 
 
-def _composite_forward(splats: jax.Array, origins: jax.Array, first: jax.Array) -> tuple[jax.Array, jax.Array]:
-    *_, alpha = _alphas(splats, origins)
+def _composite_forward(splats: jax.Array, pixels: jax.Array, first: jax.Array) -> tuple[jax.Array, jax.Array]:
+    *_, alpha = _alphas(splats, pixels)
     log_keep, log_before, alive = _transmittance(alpha, first)
     weight = jnp.where(alive, alpha * jnp.exp(log_before), 0.0)
     sums = jnp.einsum("bpl,blc->bpc", weight, splats[..., SPLAT_HEADER:])
@@ -90,34 +84,34 @@ def _composite_forward(splats: jax.Array, origins: jax.Array, first: jax.Array) 
 
 
 @jax.custom_vjp
-def composite_blocks(splats: jax.Array, origins: jax.Array, first: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """Composite blocks of depth-sorted splats over their tile's 16×16 pixels.
+def composite_blocks(splats: jax.Array, pixels: jax.Array, first: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Composite blocks of depth-sorted splats over the pixels of their cell.
 
     splats [B, L, 6 + D]: per slot (mean x, mean y, conic a, b, c, opacity, D channels to blend), in
-    front-to-back order across the consecutive blocks of one tile; origins [B, 2] the pixel (x, y) of the
-    tile's top-left corner; first [B] bool marks the first block of each tile. Returns each block's share
-    of the tile's sums Σ αᵢTᵢ·valuesᵢ [B, 256, D] and of its final log-transmittance [B, 256]; summing the
-    blocks of a tile gives the tile's. Differentiable with respect to ``splats``.
+    front-to-back order across the consecutive blocks of one cell; pixels [B, P, 2] the (x, y) sample
+    points of each block's cell; first [B] bool marks the first block of each cell. Returns each block's
+    share of the cell's sums Σ αᵢTᵢ·valuesᵢ [B, P, D] and of its final log-transmittance [B, P]; summing
+    the blocks of a cell gives the cell's. Differentiable with respect to ``splats``.
     """
-    return _composite_forward(splats, origins, first)
+    return _composite_forward(splats, pixels, first)
 
 
-def _composite_fwd(splats, origins, first):
-    return _composite_forward(splats, origins, first), (splats, origins, first)
+def _composite_fwd(splats, pixels, first):
+    return _composite_forward(splats, pixels, first), (splats, pixels, first)
 
 
 def _composite_bwd(residuals, cotangents):
-    splats, origins, first = residuals
-    grad_sums, grad_log_t = cotangents  # [B, P, D], [B, P]: a tile's cotangent, repeated for its blocks
+    splats, pixels, first = residuals
+    grad_sums, grad_log_t = cotangents  # [B, P, D], [B, P]: a cell's cotangent, repeated for its blocks
     values = splats[..., SPLAT_HEADER:]
-    dx, dy, falloff, raw, alpha = _alphas(splats, origins)
+    dx, dy, falloff, raw, alpha = _alphas(splats, pixels)
     log_keep, log_before, alive = _transmittance(alpha, first)
     before = jnp.exp(log_before)
     weight = jnp.where(alive, alpha * before, 0.0)
 
     grad_values = jnp.einsum("bpl,bpc->blc", weight, grad_sums)
     # dL/dαₖ = Tₖ gₖ − (Σ_{j>k} wⱼ gⱼ + dL/dlog T) / (1 − αₖ), gₖ = values·dL/dsums; the suffix sum spans
-    # the later slots of this block and the later blocks of the tile.
+    # the later slots of this block and the later blocks of the cell.
     g = jnp.einsum("blc,bpc->bpl", values, grad_sums)
     contribution = weight * g
     suffix = contribution @ _prefix_matrix(alpha.shape[-1], alpha.dtype, strict=True, upper=False)

@@ -20,7 +20,7 @@ import torch.utils.dlpack
 from mmcsplat.interfaces import Renderer
 from mmcsplat.rendering import Gaussians, RenderCameras, RenderOutput, validate_render_inputs
 
-from .jax_buckets import JaxRasterizer
+from .jax_buckets import JaxRasterizer, Prepared
 from .jax_raster import CameraArrays, GaussianArrays
 
 _FIELDS = ("means", "quats", "log_scales", "opacity_logits", "colors", "features")
@@ -55,18 +55,40 @@ def to_torch(array: jax.Array, device: torch.device) -> torch.Tensor:
     return tensor.to(device)
 
 
+def _pad_rows(tensor: torch.Tensor, rows: int, fill: tuple[float, ...] | None = None) -> torch.Tensor:
+    """``tensor`` padded along its first axis to ``rows`` with zeros (or rows equal to ``fill``); padding
+    in torch spares JAX a padding program for every new Gaussian count."""
+    extra = rows - tensor.shape[0]
+    if extra == 0:
+        return tensor
+    pad = tensor.new_zeros((extra, *tensor.shape[1:])) if fill is None else tensor.new_tensor(fill).expand(extra, -1)
+    return torch.cat([tensor, pad])
+
+
+def _jax_inputs(
+    rasterizer: JaxRasterizer, cameras: RenderCameras, dtype: torch.dtype, background: torch.Tensor,
+    means2d: torch.Tensor, params: list[torch.Tensor],
+) -> tuple[Prepared, CameraArrays]:
+    """The rasterizer's inputs: Gaussians and means2d padded (in torch) to their bucket, in ``dtype``."""
+    count = params[0].shape[0]
+    rows = rasterizer.padded_size(count)
+    fills = {"quats": (1.0, 0.0, 0.0, 0.0)}  # an identity rotation keeps the padding's projection finite
+    gaussians = GaussianArrays(*(to_jax(_pad_rows(p.to(dtype), rows, fills.get(f))) for f, p in zip(_FIELDS, params)))
+    offsets = to_jax(_pad_rows(means2d.to(dtype).transpose(0, 1), rows).transpose(0, 1))
+    jax_cameras = CameraArrays(to_jax(cameras.K.to(dtype)), to_jax(cameras.viewmats.to(dtype)))
+    return rasterizer.prepare(gaussians, jax_cameras, to_jax(background.to(dtype)), offsets, count=count), jax_cameras
+
+
 class _JaxRender(torch.autograd.Function):
     """(Gaussian parameters, background, means2d) → (rgb, features, depth, alpha, radii) through JAX."""
 
     @staticmethod
     def forward(ctx, rasterizer: JaxRasterizer, cameras: RenderCameras, dtype: torch.dtype, background, means2d, *params):
         device = params[0].device
-        jax_cameras = CameraArrays(to_jax(cameras.K.to(dtype)), to_jax(cameras.viewmats.to(dtype)))
-        gaussians = GaussianArrays(*(to_jax(p.to(dtype)) for p in params))
-        prepared = rasterizer.prepare(gaussians, jax_cameras, to_jax(background.to(dtype)), to_jax(means2d.to(dtype)))
+        ctx.dtypes = (background.dtype, means2d.dtype, *(p.dtype for p in params))
+        prepared, jax_cameras = _jax_inputs(rasterizer, cameras, dtype, background, means2d, list(params))
         images, vjp, radii = rasterizer.forward_with_vjp(prepared, jax_cameras, int(cameras.width), int(cameras.height))
         ctx.rasterizer, ctx.vjp, ctx.count = rasterizer, vjp, prepared.count
-        ctx.dtypes = (background.dtype, means2d.dtype, *(p.dtype for p in params))
         radii = to_torch(radii[:, : prepared.count], device)
         ctx.mark_non_differentiable(radii)
         return (*(to_torch(image, device) for image in images), radii)
@@ -82,12 +104,12 @@ class _JaxRender(torch.autograd.Function):
 
 
 class JaxRenderer(Renderer):
-    """The ``jax`` backend. ``block_size`` and ``ratio`` configure the bucketing (see
-    :class:`~mmcsplat.backends.jax_buckets.JaxRasterizer`); one instance keeps its compiled programs, so
-    reuse it across a run."""
+    """The ``jax`` backend. ``block_size``, ``cell_size`` and ``ratio`` configure the lists and the
+    bucketing (see :class:`~mmcsplat.backends.jax_buckets.JaxRasterizer`); one instance keeps its compiled
+    programs, so reuse it across a run."""
 
-    def __init__(self, block_size: int = 32, ratio: float = 1.25) -> None:
-        self.rasterizer = JaxRasterizer(block_size=block_size, ratio=ratio)
+    def __init__(self, block_size: int = 32, cell_size: int = 8, ratio: float = 1.25) -> None:
+        self.rasterizer = JaxRasterizer(block_size=block_size, cell_size=cell_size, ratio=ratio)
 
     def render(self, gaussians: Gaussians, cameras: RenderCameras, background: torch.Tensor | None = None) -> RenderOutput:
         """Render every camera; differentiable with respect to every Gaussian parameter, the background
@@ -103,5 +125,12 @@ class JaxRenderer(Renderer):
         if background is None:
             background = means.new_zeros(3)
         background = background.to(device=means.device).expand(num_cameras, 3)
-        rgb, features, depth, alpha, radii = _JaxRender.apply(self.rasterizer, cameras, dtype, background, means2d, *params)
+        if needs_grad:
+            rgb, features, depth, alpha, radii = _JaxRender.apply(self.rasterizer, cameras, dtype, background, means2d, *params)
+        else:  # a forward-only program: no residuals kept for a backward that will not come
+            prepared, jax_cameras = _jax_inputs(self.rasterizer, cameras, dtype, background, means2d, params)
+            result = self.rasterizer.render_prepared(prepared, jax_cameras, int(cameras.width), int(cameras.height))
+            rgb, features, depth, alpha, radii = (
+                to_torch(x, means.device) for x in (result.rgb, result.features, result.depth, result.alpha, result.radii)
+            )
         return RenderOutput(rgb=rgb, features=features, depth=depth, alpha=alpha, radii=radii, means2d=means2d)
