@@ -70,7 +70,7 @@ class _Project(torch.autograd.Function):
         return torch.from_numpy(g_means), torch.from_numpy(g_quats), torch.from_numpy(g_log_scales), None
 
 
-def bin_gaussians(means2d, conics, opacities, depths, tiles, width: int, height: int) -> Binning:
+def _bin(means2d, conics, opacities, depths, tiles, width: int, height: int) -> Binning:
     """Depth-sorted per-tile lists of the projected Gaussians."""
     arrays = [_numpy(t) for t in (means2d, conics, opacities, depths, tiles)]
     with _KERNEL_LOCK:
@@ -136,7 +136,7 @@ def rasterize(gaussians: Gaussians, cameras: RenderCameras, background: torch.Te
     xy, conics, depths, radii, tiles = _Project.apply(g64.means, g64.quats, g64.log_scales, cameras)
     xy = xy + means2d.to(_DTYPE)
     opacities = torch.sigmoid(g64.opacity_logits)
-    binning = bin_gaussians(xy, conics, opacities, depths, tiles, width, height)
+    binning = _bin(xy, conics, opacities, depths, tiles, width, height)
     bg = torch.zeros(3, dtype=_DTYPE) if background is None else background.to(_DTYPE)
     images = _Composite.apply(xy, conics, opacities, g64.colors, g64.features, depths, bg.expand(n_cams, 3), binning, dtype)
     return RenderOutput(*images, radii=radii, means2d=means2d)
