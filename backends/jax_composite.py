@@ -74,13 +74,16 @@ def _transmittance(alpha: jax.Array, first: jax.Array) -> tuple[jax.Array, jax.A
     return log_keep, inclusive - log_keep, alive
 
 
-def _composite_forward(splats: jax.Array, pixels: jax.Array, first: jax.Array) -> tuple[jax.Array, jax.Array]:
-    *_, alpha = _alphas(splats, pixels)
+def _composite_forward(splats: jax.Array, pixels: jax.Array, first: jax.Array) -> tuple[tuple[jax.Array, jax.Array], tuple[jax.Array, ...]]:
+    """Outputs, and what the backward pass reuses: falloff, α of the composited slots (0 elsewhere) and T
+    before each slot ([B, P, L] each)."""
+    _, _, falloff, _, alpha = _alphas(splats, pixels)
     log_keep, log_before, alive = _transmittance(alpha, first)
-    weight = jnp.where(alive, alpha * jnp.exp(log_before), 0.0)
-    sums = jnp.einsum("bpl,blc->bpc", weight, splats[..., SPLAT_HEADER:])
+    alpha = jnp.where(alive, alpha, 0.0)
+    before = jnp.exp(log_before)
+    sums = jnp.einsum("bpl,blc->bpc", alpha * before, splats[..., SPLAT_HEADER:])
     log_t = jnp.sum(jnp.where(alive, log_keep, 0.0), axis=-1)
-    return sums, log_t
+    return (sums, log_t), (falloff, alpha, before)
 
 
 @jax.custom_vjp
@@ -93,21 +96,23 @@ def composite_blocks(splats: jax.Array, pixels: jax.Array, first: jax.Array) -> 
     share of the cell's sums Σ αᵢTᵢ·valuesᵢ [B, P, D] and of its final log-transmittance [B, P]; summing
     the blocks of a cell gives the cell's. Differentiable with respect to ``splats``.
     """
-    return _composite_forward(splats, pixels, first)
+    return _composite_forward(splats, pixels, first)[0]
 
 
 def _composite_fwd(splats, pixels, first):
-    return _composite_forward(splats, pixels, first), (splats, pixels, first)
+    outputs, saved = _composite_forward(splats, pixels, first)
+    return outputs, (splats, pixels, first, *saved)
 
 
 def _composite_bwd(residuals, cotangents):
-    splats, pixels, first = residuals
+    splats, pixels, first, falloff, alpha, before = residuals  # α: 0 where skipped or after the stop
     grad_sums, grad_log_t = cotangents  # [B, P, D], [B, P]: a cell's cotangent, repeated for its blocks
     values = splats[..., SPLAT_HEADER:]
-    dx, dy, falloff, raw, alpha = _alphas(splats, pixels)
-    log_keep, log_before, alive = _transmittance(alpha, first)
-    before = jnp.exp(log_before)
-    weight = jnp.where(alive, alpha * before, 0.0)
+    mx, my, a, b, c, o = (splats[:, None, :, i] for i in range(SPLAT_HEADER))  # [B, 1, L]
+    dx = pixels[..., 0, None] - mx
+    dy = pixels[..., 1, None] - my
+    raw = o * falloff
+    weight = alpha * before
 
     grad_values = jnp.einsum("bpl,bpc->blc", weight, grad_sums)
     # dL/dαₖ = Tₖ gₖ − (Σ_{j>k} wⱼ gⱼ + dL/dlog T) / (1 − αₖ), gₖ = values·dL/dsums; the suffix sum spans
@@ -119,9 +124,8 @@ def _composite_bwd(residuals, cotangents):
     suffix = suffix + _exclusive_segment_scan(jnp.sum(contribution, axis=-1), last, reverse=True)[..., None]
     grad_alpha = before * g - (suffix + grad_log_t[..., None]) / (1.0 - alpha)
     # Skipped, clamped (α̂ > 0.99) and stopped slots pass no gradient, as autograd of the forward gives.
-    grad_raw = jnp.where(alive & (alpha > 0) & (raw < ALPHA_MAX), grad_alpha, 0.0)
+    grad_raw = jnp.where((alpha > 0) & (raw < ALPHA_MAX), grad_alpha, 0.0)
     grad_power = grad_raw * raw
-    a, b, c = (splats[:, None, :, i] for i in (2, 3, 4))
     grad_header = jnp.stack(
         [
             jnp.sum(grad_power * (a * dx + b * dy), axis=1),

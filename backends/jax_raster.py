@@ -218,14 +218,21 @@ def _bin(proj: _Projected, counts: jax.Array, spec: RasterSpec) -> tuple[jax.Arr
     flat = (order + jnp.arange(num_cameras, dtype=order.dtype)[:, None] * n).reshape(-1)
     camera = jnp.repeat(jnp.arange(num_cameras, dtype=jnp.int32), n)
     width, size = x1 - x0, (x1 - x0) * (y1 - y0)
-    end = jnp.cumsum(size)
+    start = jnp.cumsum(size) - size
     slot = jnp.arange(slots, dtype=jnp.int32)
-    source = jnp.minimum(jnp.searchsorted(end, slot, side="right"), flat.shape[0] - 1)
-    offset = slot - (end - size)[source]
+    # The Gaussian of each slot: the last one starting at or before it (empty ranges start where the next
+    # one does, so they are never the last).
+    source = jnp.cumsum(jnp.zeros(slots, jnp.int32).at[start].add(1, mode="drop")) - 1
+    offset = slot - start[source]
     row, column = jnp.divmod(offset, jnp.maximum(width[source], 1))
     cell = camera[source] * per_camera + (y0[source] + row) * spec.cells_x + x0[source] + column
-    cell = jnp.where(slot < end[-1], cell, sentinel)
-    cell, member = jax.lax.sort((cell, flat[source]), num_keys=1, is_stable=True)
+    cell = jnp.where(slot < start[-1] + size[-1], cell, sentinel)
+    span = flat.shape[0]
+    if (sentinel + 1) * span < 2**31:  # one packed int32 key sorts several times faster than two operands
+        key = jax.lax.sort(cell * span + source)
+        cell, member = key // span, flat[key % span]
+    else:
+        cell, member = jax.lax.sort((cell, flat[source]), num_keys=1, is_stable=True)
 
     cell_start = jnp.cumsum(counts) - counts
     blocks = (counts + spec.block_size - 1) // spec.block_size
