@@ -126,8 +126,10 @@ def rasterize(gaussians: Gaussians, cameras: RenderCameras, background: torch.Te
     validate_render_inputs(gaussians, cameras, background)
     dtype = gaussians.means.dtype
     params = [getattr(gaussians, f) for f in ("means", "quats", "log_scales", "opacity_logits", "colors", "features")]
-    if any(p.device.type != "cpu" for p in params):
-        raise ValueError("the torch-cpu renderer needs CPU tensors; use torch-cuda or torch-reference on a GPU")
+    tensors = [*params, cameras.K, cameras.viewmats] + ([] if background is None else [background])
+    if any(t.device.type != "cpu" for t in tensors):
+        raise ValueError("the torch-cpu renderer needs CPU tensors (Gaussians, cameras and background); "
+                         "use torch-cuda or torch-reference on a GPU")
     n_cams, n = cameras.count, gaussians.count
     width, height = int(cameras.width), int(cameras.height)
     needs_grad = torch.is_grad_enabled() and any(p.requires_grad for p in params)
@@ -138,8 +140,9 @@ def rasterize(gaussians: Gaussians, cameras: RenderCameras, background: torch.Te
     opacities = torch.sigmoid(g64.opacity_logits)
     binning = _bin(xy, conics, opacities, depths, tiles, width, height)
     bg = torch.zeros(3, dtype=_DTYPE) if background is None else background.to(_DTYPE)
-    images = _Composite.apply(xy, conics, opacities, g64.colors, g64.features, depths, bg.expand(n_cams, 3), binning, dtype)
-    return RenderOutput(*images, radii=radii, means2d=means2d)
+    kernel_dtype = dtype if dtype in (torch.float32, torch.float64) else torch.float32  # numba has no half types
+    images = _Composite.apply(xy, conics, opacities, g64.colors, g64.features, depths, bg.expand(n_cams, 3), binning, kernel_dtype)
+    return RenderOutput(*(image.to(dtype) for image in images), radii=radii, means2d=means2d)
 
 
 class TorchCpuRenderer(Renderer):

@@ -135,6 +135,16 @@ def test_degenerate_gaussians_give_finite_images_and_gradients():
     assert float(alpha[0, 10, 20]) == pytest.approx(1 - (1 - 0.99) ** 2, abs=1e-9), "two capped Gaussians, then the stop"
 
 
+def test_half_precision_inputs_render_through_the_float32_kernels():
+    gaussians, cameras = make_scene(50, 30, 20, dtype=torch.float32)
+    full = torch_cpu.rasterize(gaussians, cameras)
+    half = torch_cpu.rasterize(leaves(gaussians, torch.bfloat16), cameras)
+    assert half.rgb.dtype == torch.bfloat16
+    assert torch.allclose(half.rgb.float(), full.rgb.detach(), atol=0.05)
+    (half.rgb.float() ** 2).sum().backward()
+    assert half.means2d.grad.dtype == torch.bfloat16 and torch.isfinite(half.means2d.grad.float()).all()
+
+
 def test_kernels_are_cached_and_specialised_once():
     """cache=True on every kernel, and inputs are normalised before the call so that float32 and float64
     renders share one compiled projection and binning (compositing adds one per output dtype)."""
