@@ -12,6 +12,7 @@ import subprocess
 import sys
 import textwrap
 from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
 
 import numba
 import pytest
@@ -172,7 +173,7 @@ def test_a_fresh_process_loads_the_kernels_from_the_cache():
         print(sum(sum(k.stats.cache_misses.values()) for k in kernels))
         """
     )
-    root = __import__("pathlib").Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[1]
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=root, timeout=300)
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip() == "0", "kernels were recompiled instead of loaded from numba's cache"
