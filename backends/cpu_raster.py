@@ -62,8 +62,8 @@ def bin_gaussians(xy, conic, opacity, depth, tiles_rect, width, height):
 
     xy [C, N, 2] 2D means, conic [C, N, 3], opacity [N], depth [C, N] camera z, tiles_rect [C, N, 4] the
     half-open 3σ tile range (x0, x1, y0, y1), empty for culled Gaussians. Returns extent [C, N, 3] (half
-    width and height of the contribution box in px, and the power below which α < 1/255), offsets [C·tiles + 1] int64 and ids [offsets[-1]]
-    int32: tile ct holds ids[offsets[ct]:offsets[ct + 1]].
+    width and height of the contribution box in px, and the power below which α < 1/255), offsets
+    [C·tiles + 1] int64 and ids [offsets[-1]] int32: tile ct holds ids[offsets[ct]:offsets[ct + 1]].
     """
     n_cams, n = depth.shape
     tiles_x = (width + TILE_SIZE - 1) // TILE_SIZE
