@@ -126,13 +126,42 @@ def apply_override(values: Mapping[str, Any], override: str, source: str = "conf
         value = tomllib.loads(f"v = {raw.strip()}")["v"]
     except tomllib.TOMLDecodeError:
         value = raw.strip()
+    return set_value(values, key, value, source)
+
+
+def set_value(values: Mapping[str, Any], key: str, value: Any, source: str = "configuration") -> dict[str, Any]:
+    """A copy of ``values`` with ``value`` at the dotted ``key``; missing tables are created. Inside an
+    array of tables (``[[initializer]]``) a part is an index or the ``name`` of one of its tables:
+    ``initializer.0.num_points`` and ``initializer.random.num_points`` reach the same value."""
     result = copy.deepcopy(dict(values))
-    node = result
+    node: Any = result
     parts = key.split(".")
-    for part in parts[:-1]:
-        child = node.setdefault(part, {})
-        if not isinstance(child, dict):
-            raise ConfigError(f"{source}: cannot set {key!r}: {part!r} is not a table")
-        node = child
-    node[parts[-1]] = value
+    for depth, part in enumerate(parts):
+        last = depth == len(parts) - 1
+        if isinstance(node, list):
+            index = _table_index(node, part, key, source)
+            if last:
+                node[index] = value
+            node = node[index]
+            continue
+        if not isinstance(node, dict):
+            raise ConfigError(f"{source}: cannot set {key!r}: {parts[depth - 1]!r} is not a table")
+        if last:
+            node[part] = value
+        else:
+            node = node.setdefault(part, {})
     return result
+
+
+def _table_index(tables: list, part: str, key: str, source: str) -> int:
+    """The position in an array of tables that ``part`` (an index or a table's ``name``) designates."""
+    if part.isdigit():
+        if int(part) >= len(tables):
+            raise ConfigError(f"{source}: cannot set {key!r}: index {part} is past the {len(tables)} table(s) there")
+        return int(part)
+    matches = [i for i, table in enumerate(tables) if isinstance(table, Mapping) and table.get("name") == part]
+    if len(matches) != 1:
+        names = [table.get("name") for table in tables if isinstance(table, Mapping)]
+        found = "no table" if not matches else f"{len(matches)} tables"
+        raise ConfigError(f"{source}: cannot set {key!r}: {found} named {part!r} there; its tables are {names}")
+    return matches[0]

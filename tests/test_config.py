@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from mmcsplat.config import ConfigError, apply_override, load_config
+from mmcsplat.config import ConfigError, apply_override, load_config, set_value
 
 
 def write(tmp_path, text: str):
@@ -39,6 +39,17 @@ def test_overrides_parse_values(tmp_path):
         apply_override({}, "no-equals-sign")
     with pytest.raises(ConfigError, match="not a table"):
         apply_override({"train": 1}, "train.x=1")
+
+
+def test_overrides_reach_into_arrays_of_tables_by_index_or_name():
+    values = {"initializer": [{"name": "random", "num_points": 10}, {"name": "masked"}]}
+    assert set_value(values, "initializer.random.num_points", 5)["initializer"][0]["num_points"] == 5
+    assert apply_override(values, "initializer.1.radius=2.5")["initializer"][1] == {"name": "masked", "radius": 2.5}
+    assert values["initializer"][0]["num_points"] == 10  # a copy, the original untouched
+    with pytest.raises(ConfigError, match="no table named 'visual-hull'"):
+        set_value(values, "initializer.visual-hull.num_points", 5)
+    with pytest.raises(ConfigError, match="index 2 is past the 2 table"):
+        set_value(values, "initializer.2.num_points", 5)
 
 
 def test_errors_name_the_source(tmp_path):
