@@ -16,6 +16,7 @@ COMMANDS = {
     "segment": "segment",
     "fit": "fit",
     "evaluate": "evaluate",
+    "compare": "compare",
     "render": "render",
     "export": "export",
     "plugins": "plugins",

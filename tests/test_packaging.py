@@ -15,7 +15,7 @@ import pluggy
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-SOURCES = ("pyproject.toml", "README.md", "framework", "plugins", "backends", "datasets")
+SOURCES = ("pyproject.toml", "README.md", "framework", "plugins", "backends", "datasets", "studies")
 
 CHECK = """
 import importlib, importlib.metadata, json, sys

@@ -1,0 +1,256 @@
+"""Studies: the file format and its errors, grid expansion, cell keys, running (process pool, in-process,
+Ray), resuming an interrupted study, and the tables and charts it writes."""
+
+from __future__ import annotations
+
+import json
+
+import attrs
+import pytest
+
+from fitting_scene import write_config, write_ground_truth, write_session
+from mmcsplat.cli import main
+from mmcsplat.fit import CHECKPOINT, FirstFrameFit
+from mmcsplat.registry import default_registry
+from mmcsplat.store import SessionReader
+from mmcsplat.study import StudyError, cell_key, expand, load_study
+from mmcsplat.study_cells import RESULT_FILE
+from mmcsplat.study_results import derive_columns, pareto_front
+from mmcsplat.study_runner import publish, run_study
+from mmcsplat.study_sessions import prepare_session
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    """A folder with the fitting scene's session and a two-iteration configuration."""
+    folder = tmp_path_factory.mktemp("study")
+    write_session(folder / "scene.zarr")
+    write_config(folder / "fit.toml", iterations=2, checkpoint_every=1)
+    return folder
+
+
+def write_study(folder, body: str, name: str = "study.toml", session: str = 'path = "scene.zarr"'):
+    path = folder / name
+    path.write_text(f'[study]\nname = "tiny"\n{body.strip()}\n\n[sessions.scene]\n{session}\n')
+    return path
+
+
+def variant(name: str, extra: str = "") -> str:
+    return f'\n[[variant]]\nname = "{name}"\nconfig = "fit.toml"\n{extra}\n'
+
+
+def test_grid_and_rows_expand_into_cells(scene, tmp_path):
+    study = load_study(write_study(scene, 'folds = ["cam_0", "cam_2"]\nseeds = [0, 1]\nset = { "fit.lambda_seg" = 1.0 }\n'
+                                   + variant("base")
+                                   + variant("grid", 'grid = { initializer.random.num_points = [50, 100], "fit.lambda_seg" = [0.0, 2.0] }')
+                                   + variant("row", 'set = { "initializer.0.half_size" = 0.3 }\ndensifier = { name = "budget", cap = 300 }')))
+    names = [v.name for v in study.variants]
+    assert names == ["base", "grid (num_points=50, lambda_seg=0.0)", "grid (num_points=50, lambda_seg=2.0)",
+                     "grid (num_points=100, lambda_seg=0.0)", "grid (num_points=100, lambda_seg=2.0)", "row"]
+    by_name = {v.name: v.config for v in study.variants}
+    assert by_name["base"].get("fit.lambda_seg") == 1.0  # the study-wide override
+    assert by_name["grid (num_points=100, lambda_seg=0.0)"].get("fit.lambda_seg") == 0.0  # the grid wins over it
+    assert by_name["grid (num_points=100, lambda_seg=0.0)"].values["initializer"][0]["num_points"] == 100
+    assert by_name["row"].values["initializer"][0]["half_size"] == 0.3
+    assert by_name["row"].values["densifier"] == {"name": "budget", "cap": 300}  # replaced whole
+    cells = expand(study, tmp_path)
+    assert len(cells) == 6 * 2 * 2  # variants × folds × seeds
+    assert {(c.fold, c.seed) for c in cells} == {("cam_0", 0), ("cam_0", 1), ("cam_2", 0), ("cam_2", 1)}
+    assert all(c.spec.config_values["fit"]["seed"] == c.seed for c in cells)
+    assert len({c.spec.key for c in cells}) == len(cells)
+
+
+def test_cell_keys_are_stable_and_cover_what_decides_a_result(scene, tmp_path):
+    config = {"fit": {"iterations": 2, "seed": 0}, "renderer": {"name": "torch-cpu"}}
+    # Pinned: a change of this value makes every existing study directory run again.
+    assert cell_key(config, {"path": "/s.zarr"}, ["cam_0"], 0, "torch-cpu") == "4904fab2d7c88ad6"
+    reordered = {"renderer": {"name": "torch-cpu"}, "fit": {"seed": 0, "iterations": 2}}
+    assert cell_key(reordered, {"path": "/s.zarr"}, ("cam_0",), 0, "torch-cpu") == "4904fab2d7c88ad6"
+    for changed in [({**config, "fit": {"iterations": 3, "seed": 0}}, {"path": "/s.zarr"}, ["cam_0"], 0, "torch-cpu"),
+                    (config, {"path": "/t.zarr"}, ["cam_0"], 0, "torch-cpu"), (config, {"path": "/s.zarr"}, ["cam_1"], 0, "torch-cpu"),
+                    (config, {"path": "/s.zarr"}, ["cam_0"], 1, "torch-cpu"), (config, {"path": "/s.zarr"}, ["cam_0"], 0, "jax")]:
+        assert cell_key(*changed) != "4904fab2d7c88ad6"
+    # The same study read twice gives the same keys; renaming a variant does not change its cells.
+    body = 'folds = ["cam_0"]\n' + variant("a")
+    first = [c.spec.key for c in expand(load_study(write_study(scene, body, "one.toml")), tmp_path)]
+    again = [c.spec.key for c in expand(load_study(write_study(scene, body.replace('"a"', '"renamed"'), "two.toml")), tmp_path)]
+    assert first == again
+
+
+BAD_STUDIES = [
+    ("[study\n", "invalid TOML"),
+    ('[study]\nname = "x"\n[[variant]]\nname = "a"\nconfig = "paper-masked"\n', r"\[sessions\] is missing"),
+    ('[study]\n[sessions.s]\npath = "s.zarr"\n[[variants]]\nname = "a"\n', r"unknown top-level key\(s\) \['variants'\]"),
+    ('[sessions.s]\npath = "s.zarr"\nsynthetic = {}\n[[variant]]\nname = "a"\nconfig = "paper-masked"\n', "exactly one of 'path'"),
+    ('[sessions.s]\nsynthetic = { legs = 3 }\n[[variant]]\nname = "a"\nconfig = "paper-masked"\n', r"\[sessions.s\] synthetic: .*legs"),
+    ('[sessions.s]\npath = "s.zarr"\n', r"no \[\[variant\]\] table"),
+    ('[sessions.s]\npath = "s.zarr"\n[[variant]]\nname = "a"\n', "variant 'a' needs 'config'"),
+    ('[sessions.s]\npath = "s.zarr"\n[[variant]]\nname = "a"\nconfig = "no-such-config"\n', "unknown configuration 'no-such-config'"),
+    ('[sessions.s]\npath = "s.zarr"\n[[variant]]\nname = "a"\nconfig = "paper-masked"\ngrid = { "fit.lambda_seg" = 1 }\n', "non-empty list"),
+    ('[sessions.s]\npath = "s.zarr"\n[[variant]]\nname = "a"\nconfig = "paper-masked"\ninitializer = [{ name = "rando" }]\n',
+     "variant 'a': unknown initializer 'rando'"),
+    ('[sessions.s]\npath = "s.zarr"\n[[variant]]\nname = "a"\nconfig = "paper-masked"\nset = { "fit.iteration" = 5 }\n', r"unknown \[fit\] keys \['iteration'\]"),
+    ('[sessions.s]\npath = "s.zarr"\n[[variant]]\nname = "a"\nconfig = "paper-masked"\nset = { "initializer.rando.x" = 5 }\n', "no table named 'rando'"),
+    ('[sessions.s]\npath = "s.zarr"\n[[variant]]\nname = "a"\nconfig = "paper-masked"\n[[variant]]\nname = "a"\nconfig = "paper-masked"\n', "must be unique"),
+    ('[study]\nseeds = [0.5]\n[sessions.s]\npath = "s.zarr"\n[[variant]]\nname = "a"\nconfig = "paper-masked"\n', "list of integers"),
+    ('[study]\nbackends = ["no-such-renderer"]\n[sessions.s]\npath = "s.zarr"\n[[variant]]\nname = "a"\nconfig = "paper-masked"\n',
+     "unknown renderer 'no-such-renderer'"),
+]
+
+
+@pytest.mark.parametrize("text, message", BAD_STUDIES)
+def test_bad_study_files_name_what_is_wrong(tmp_path, text, message):
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(StudyError, match=message):
+        load_study(path)
+
+
+def test_missing_and_unknown_studies(tmp_path, capsys):
+    with pytest.raises(StudyError, match="does not exist"):
+        load_study(tmp_path / "nope.toml")
+    assert main(["compare", "no-such-study", "--out", str(tmp_path / "out")]) == 2
+    assert "built-in ones are dynamics, paper-ablation" in capsys.readouterr().err
+
+
+def test_unknown_fold_camera_fails_before_any_cell_runs(scene, tmp_path):
+    study = load_study(write_study(scene, 'folds = ["cam_9"]\n' + variant("a"), "fold.toml"))
+    with pytest.raises(StudyError, match="has no camera 'cam_9' to hold out"):
+        run_study(study, tmp_path / "out", progress=False)
+    assert not (tmp_path / "out" / "cells").exists()
+
+
+def test_builtin_paper_ablation_has_the_studys_five_rows(tmp_path):
+    study = load_study("paper-ablation")
+    cells = expand(study, tmp_path)
+    assert len(cells) == 5 * 4 and {c.fold for c in cells} == {"cam_0", "cam_2", "cam_4", "cam_6"}
+    registry = default_registry()
+    rows = [(c.mask, c.lambda_seg, c.sparse, c.init_points, c.init_range_m)
+            for c in (derive_columns(variant.config, registry) for variant in study.variants)]
+    assert rows == [(True, 3.0, False, 10_000, 1.5), (True, 3.0, False, 20_000, 1.5), (False, 3.0, False, 100_000, 10.0),
+                    (False, 0.0, False, 100_000, 10.0), (True, 3.0, True, 10_000, 1.5)]
+    assert study.sessions[0].synthetic["frames"] == 1 and study.sessions[0].segmenter.name == "precomputed"
+
+
+def test_builtin_dynamics_study_compares_two_methods():
+    registry = default_registry()
+    if "deformation" not in registry.names("dynamics"):
+        pytest.skip("the deformation dynamics method is not registered yet")
+    study = load_study("dynamics")
+    assert [v.config.plugin("dynamics").name for v in study.variants] == ["iterative", "deformation"]
+
+
+def test_pareto_front():
+    # (wall time, PSNR): the third is slower and worse than the second.
+    assert pareto_front([(1.0, 10.0), (2.0, 12.0), (3.0, 11.0), (4.0, 13.0)], minimize_x=True) == [0, 1, 3]
+    assert pareto_front([(1.0, 10.0), (2.0, 12.0), (3.0, 11.0)], minimize_x=False) == [1, 2]
+
+
+def test_study_runs_in_a_process_pool_writes_results_and_reuses_done_cells(scene, tmp_path, capsys):
+    study = write_study(scene, 'folds = ["cam_0", "cam_2"]\n' + variant("small", 'set = { "initializer.random.num_points" = 40 }')
+                        + variant("large"), "pool.toml")
+    out = tmp_path / "out"
+    assert main(["compare", str(study), "--out", str(out), "--workers", "1", "--no-progress"]) == 0
+    assert "4 cells, 4 run now, 0 reused" in capsys.readouterr().out
+    for name in ("results.csv", "results.json", "results.md", "study.toml", "charts/speed_accuracy.png", "charts/speed_accuracy.svg",
+                 "charts/psnr_gaussians.png", "charts/psnr_gaussians.svg"):
+        assert (out / name).stat().st_size > 0, name
+    results = json.loads((out / "results.json").read_text())
+    assert len(results["cells"]) == 4 and all(cell["status"] == "complete" for cell in results["cells"])
+    small = next(v for v in results["variants"] if v["variant"] == "small")
+    assert small["cells"] == 2 and small["init_points"] == 40 and small["mask"] is True and small["val_masked_psnr_std"] is not None
+    assert small["iterations"] == 2 and small["iterations_per_s"] > 0 and small["num_gaussians"] <= 40
+    assert results["findings"]["smallest_within"] in {"small", "large"}
+    table = (out / "results.md").read_text()
+    assert "| Mask | λ_seg | Sparse | #init points | init range (m) | val PSNR | train PSNR |" in table
+    assert "| small | yes | 3 | no | 40 | 0.5 |" in table and "charts/speed_accuracy.png" in table
+    assert len((out / "results.csv").read_text().splitlines()) == 1 + 4 + 2  # header, cells, variants
+
+    done = {path: path.stat().st_mtime_ns for path in out.glob("cells/*/result.json")}
+    again = run_study(load_study(study), out, progress=False)
+    assert (again.ran, again.reused) == (0, 4)
+    assert {path: path.stat().st_mtime_ns for path in out.glob("cells/*/result.json")} == done
+
+    page = tmp_path / "docs" / "results.md"
+    page.parent.mkdir()
+    page.write_text("# Results\n\nHand-written introduction.\n")
+    for _ in range(2):  # the second replaces the first's section
+        publish(again, page, "mmcsplat compare pool.toml --out out --publish docs/results.md")
+    text = page.read_text()
+    assert text.startswith("# Results\n\nHand-written introduction.") and text.count("<!-- study: tiny -->") == 1
+    assert "![Speed against accuracy](results/tiny/speed_accuracy.png)" in text and "`mmcsplat compare pool.toml" in text
+    assert (tmp_path / "docs" / "results" / "tiny" / "psnr_gaussians.svg").stat().st_size > 0
+
+
+def test_interrupted_study_skips_done_cells_and_resumes_the_cut_off_fit(scene, tmp_path, monkeypatch):
+    write_config(tmp_path / "fit.toml", iterations=3, checkpoint_every=1)
+    study = load_study(write_study(tmp_path, 'folds = ["cam_0", "cam_2"]\n' + variant("a"),
+                                   session=f'path = "{scene / "scene.zarr"}"'))
+    original = FirstFrameFit._prune
+
+    def killed(self, model, step):
+        original(self, model, step)
+        if self.heldout_cameras[0].name == "cam_2" and step == 1:  # after the checkpoint at 1 iteration
+            raise KeyboardInterrupt
+    monkeypatch.setattr(FirstFrameFit, "_prune", killed)
+    out = tmp_path / "out"
+    with pytest.raises(KeyboardInterrupt):
+        run_study(study, out, workers=0, progress=False)
+    first, second = (out / "cells" / cell.spec.key for cell in expand(study, out))
+    assert (first / RESULT_FILE).exists() and not (second / RESULT_FILE).exists() and (second / CHECKPOINT).exists()
+    finished_at = (first / RESULT_FILE).stat().st_mtime_ns
+
+    monkeypatch.setattr(FirstFrameFit, "_prune", original)
+    result = run_study(study, out, workers=0, progress=False)
+    assert (result.ran, result.reused) == (1, 1)
+    assert (first / RESULT_FILE).stat().st_mtime_ns == finished_at
+    outcome = next(row.outcome for row in result.rows if row.cell.fold == "cam_2")
+    assert outcome.status == "complete" and outcome.resumed_at == 1 and outcome.iterations == 3
+
+
+def test_a_dynamics_cell_tracks_and_charts_frame_by_frame(tmp_path):
+    write_session(tmp_path / "moving.zarr", frames=3)
+    write_ground_truth(tmp_path / "truth.zarr", frames=3)
+    write_config(tmp_path / "fit.toml", iterations=2, checkpoint_every=2)
+    # Initial points dense around the subject: some sit within the tracking evaluation's follow radius.
+    study = load_study(write_study(tmp_path, 'folds = ["cam_0"]\n' + variant(
+        "iterative", 'set = { "initializer.random" = { num_points = 400, half_size = 0.15 } }\ndynamics = { name = "iterative", iterations = 1, neighbours = 4 }'),
+        session='path = "moving.zarr"\nground_truth = "truth.zarr"'))
+    result = run_study(study, tmp_path / "out", workers=0, progress=False)
+    outcome = result.rows[0].outcome
+    assert outcome.status == "complete", outcome.error
+    assert outcome.track_method == "iterative" and outcome.tracking_median_mm is not None
+    assert len(outcome.per_frame_val_masked_psnr) == 3 and len(outcome.tracking_per_frame_median_mm) == 3
+    assert (tmp_path / "out" / "charts" / "dynamics.svg").stat().st_size > 0
+    assert "## Dynamics" in (tmp_path / "out" / "results.md").read_text()
+
+
+def test_a_synthetic_session_is_synthesized_ingested_and_segmented_once(tmp_path):
+    study = load_study(write_study(tmp_path, 'folds = ["cam_1"]\nset = { fit.iterations = 1, "initializer.random.num_points" = 200 }\n'
+                                   '[[variant]]\nname = "masked"\nconfig = "paper-masked"\nrenderer = { name = "torch-reference" }',
+                                   session="synthetic = { frames = 1, cameras = 4, width = 32, height = 24, samples = 1, adult_leg = false }"))
+    result = run_study(study, tmp_path / "out", workers=0, progress=False)
+    assert result.rows[0].outcome.status == "complete", result.rows[0].outcome.error
+    plan = result.rows[0].cell.plan
+    assert plan.identity["synthetic"]["cameras"] == 4 and plan.identity["segmenter"]["name"] == "precomputed"
+    assert SessionReader(plan.url).has("mask") and plan.url.startswith(str(tmp_path / "out" / "sessions" / "scene"))
+    capture = tmp_path / "out" / "sessions" / "scene" / "capture" / "calibration.toml"
+    made = capture.stat().st_mtime_ns
+    prepare_session(plan, progress=False)  # ready: nothing is made again
+    assert capture.stat().st_mtime_ns == made
+    other = attrs.evolve(plan.spec, synthetic={**plan.spec.synthetic, "cameras": 5})
+    changed = attrs.evolve(plan, spec=other, url=plan.url.replace(".zarr", "-other.zarr"), identity={**plan.identity, "synthetic": other.synthetic})
+    with pytest.raises(StudyError, match="synthesized with other settings"):
+        prepare_session(changed, progress=False)
+
+
+def test_study_runs_as_ray_tasks(scene, tmp_path):
+    ray = pytest.importorskip("ray", reason="Ray is not installed (pip install 'mmcsplat[distributed]')")
+    study = load_study(write_study(scene, 'folds = ["cam_0"]\nseeds = [3]\n' + variant("a"), "ray.toml"))
+    ray.init(num_cpus=1, include_dashboard=False)
+    try:
+        result = run_study(study, tmp_path / "out", executor="ray", progress=False)
+    finally:
+        ray.shutdown()
+    assert [row.outcome.status for row in result.rows] == ["complete"]
+    assert (tmp_path / "out" / "results.md").stat().st_size > 0
