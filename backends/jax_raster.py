@@ -213,7 +213,7 @@ def _bin(proj: _Projected, counts: jax.Array, spec: RasterSpec) -> tuple[jax.Arr
     sentinel = num_cameras * per_camera
     slots = spec.max_blocks * spec.block_size
     # Enumerate pairs Gaussian by Gaussian in depth order, then sort them stably by cell.
-    order = jnp.argsort(jnp.where(proj.valid, proj.depths, jnp.inf), axis=1, stable=True)  # [C, N]
+    order = jnp.argsort(jnp.where(proj.valid, proj.depths, jnp.inf), axis=1, stable=True).astype(jnp.int32)  # [C, N]
     x0, x1, y0, y1 = jnp.take_along_axis(proj.cells, order[..., None], axis=1).reshape(-1, 4).T
     flat = (order + jnp.arange(num_cameras, dtype=order.dtype)[:, None] * n).reshape(-1)
     camera = jnp.repeat(jnp.arange(num_cameras, dtype=jnp.int32), n)
