@@ -124,17 +124,20 @@ class JaxRasterizer:
         """Render C cameras; differentiable with ``jax.grad``/``jax.vjp`` with respect to the Gaussians,
         ``background`` ([3] or [C, 3], black when omitted) and ``means2d`` ([C, N, 2], zeros when
         omitted). Returns a :class:`RasterResult` with radii [C, N] for the caller's N."""
-        return self.render_prepared(self.prepare(gaussians, cameras, background, means2d), cameras, width, height)
+        prepared = self.prepare(gaussians, cameras, background, means2d)
+        result = self.render_prepared(prepared, cameras, width, height)
+        with self._watch():
+            return attrs.evolve(result, radii=result.radii[:, : prepared.count])
 
     def render_prepared(self, prepared: Prepared, cameras: CameraArrays, width: int, height: int) -> RasterResult:
-        """Render inputs made by :meth:`prepare`; radii are cut back to the real Gaussian count."""
+        """Render inputs made by :meth:`prepare`; radii [C, N_pad] (the first ``prepared.count`` are the
+        real Gaussians')."""
         with self._watch():
-            result = self._with_capacity(
+            return self._with_capacity(
                 cameras, width, height, prepared,
                 lambda spec: self._render(prepared.gaussians, cameras, prepared.background, prepared.means2d, prepared.kept, spec=spec),
                 lambda result: result.needed_blocks,
             )
-        return attrs.evolve(result, radii=result.radii[:, : prepared.count])
 
     def forward_with_vjp(
         self, prepared: Prepared, cameras: CameraArrays, width: int, height: int

@@ -86,20 +86,26 @@ class _JaxRender(torch.autograd.Function):
     def forward(ctx, rasterizer: JaxRasterizer, cameras: RenderCameras, dtype: torch.dtype, background, means2d, *params):
         device = params[0].device
         ctx.dtypes = (background.dtype, means2d.dtype, *(p.dtype for p in params))
+        # JAX may read the inputs' memory until backward (DLPack shares it): saving them lets torch's version
+        # counters reject an in-place change in between, as for any autograd input.
+        ctx.save_for_backward(background, means2d, *params)
         prepared, jax_cameras = _jax_inputs(rasterizer, cameras, dtype, background, means2d, list(params))
         images, vjp, radii = rasterizer.forward_with_vjp(prepared, jax_cameras, int(cameras.width), int(cameras.height))
         ctx.rasterizer, ctx.vjp, ctx.count = rasterizer, vjp, prepared.count
-        radii = to_torch(radii[:, : prepared.count], device)
+        radii = to_torch(radii, device)[:, : prepared.count]  # sliced in torch: no JAX program per N
         ctx.mark_non_differentiable(radii)
-        return (*(to_torch(image, device) for image in images), radii)
+        # Copies, because the vjp may hold the same buffers (alpha, for the depth's gradient) and an in-place
+        # edit of an output must not change the gradient.
+        return (*(to_torch(image, device).clone() for image in images), radii)
 
     @staticmethod
     def backward(ctx, grad_rgb, grad_features, grad_depth, grad_alpha, _grad_radii):
+        _ = ctx.saved_tensors  # raises if an input was modified in place since forward
         cotangents = tuple(to_jax(g) for g in (grad_rgb, grad_features, grad_depth, grad_alpha))
         gaussians, background, means2d = ctx.rasterizer.backward(ctx.vjp, cotangents)
         device, n = grad_rgb.device, ctx.count
-        grads = [to_torch(background, device), to_torch(means2d[:, :n], device)]
-        grads += [to_torch(getattr(gaussians, field)[:n], device) for field in _FIELDS]
+        grads = [to_torch(background, device), to_torch(means2d, device)[:, :n]]
+        grads += [to_torch(getattr(gaussians, field), device)[:n] for field in _FIELDS]
         return None, None, None, *(g.to(dtype) for g, dtype in zip(grads, ctx.dtypes, strict=True))
 
 
@@ -133,4 +139,5 @@ class JaxRenderer(Renderer):
             rgb, features, depth, alpha, radii = (
                 to_torch(x, means.device) for x in (result.rgb, result.features, result.depth, result.alpha, result.radii)
             )
+            radii = radii[:, : gaussians.count]
         return RenderOutput(rgb=rgb, features=features, depth=depth, alpha=alpha, radii=radii, means2d=means2d)
