@@ -16,7 +16,7 @@ from typing import Any
 import attrs
 
 from .atomic import write_json_atomic
-from .study import CellSpec, StudyError
+from .study import CellSpec
 
 CELL_FILE = "cell.json"
 RESULT_FILE = "result.json"
@@ -124,11 +124,9 @@ def _fit(spec: CellSpec, cell_dir: Path) -> tuple[dict[str, Any], int | None]:
 def _track(cell_dir: Path) -> dict[str, Any]:
     """track.json of the cell's dynamics step, run unless done (a ``tracks.zarr`` without its
     ``track.json`` was cut short between the two and is replaced)."""
-    try:
-        from .track import TRACK_INFO, track_run
-        from .tracks import TRACKS_DIR
-    except ImportError as error:
-        raise StudyError(f"dynamics cells are not supported yet: the tracking step (mmcsplat.track) is unavailable ({error})") from error
+    from .track import TRACK_INFO, track_run
+    from .tracks import TRACKS_DIR
+
     if (cell_dir / TRACK_INFO).exists():
         return json.loads((cell_dir / TRACK_INFO).read_text())
     return track_run(cell_dir, progress=False, overwrite=(cell_dir / TRACKS_DIR).exists())

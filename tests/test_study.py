@@ -4,6 +4,7 @@ Ray), resuming an interrupted study, and the tables and charts it writes."""
 from __future__ import annotations
 
 import json
+import sys
 
 import attrs
 import pytest
@@ -242,6 +243,14 @@ def test_a_synthetic_session_is_synthesized_ingested_and_segmented_once(tmp_path
     changed = attrs.evolve(plan, spec=other, url=plan.url.replace(".zarr", "-other.zarr"), identity={**plan.identity, "synthetic": other.synthetic})
     with pytest.raises(StudyError, match="synthesized with other settings"):
         prepare_session(changed, progress=False)
+
+
+def test_the_ray_executor_without_ray_is_a_clear_error(scene, tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "ray", None)  # as if not installed
+    study = load_study(write_study(scene, 'folds = ["cam_0"]\n' + variant("a"), "noray.toml"))
+    with pytest.raises(StudyError, match=r"needs Ray, which is not installed here: pip install 'mmcsplat\[distributed\]'"):
+        run_study(study, tmp_path / "out", executor="ray", progress=False)
+    assert not list((tmp_path / "out").glob("cells/*"))
 
 
 def test_study_runs_as_ray_tasks(scene, tmp_path):
