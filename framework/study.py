@@ -46,8 +46,9 @@ class StudyError(MmcsplatError, ValueError):
 @attrs.frozen
 class SessionSpec:
     """One ``[sessions.NAME]`` table: a stored session (``path``: a path or URL) or one to synthesize
-    (``synthetic``: :class:`~mmcsplat.datasets.synthetic.synthesize.SynthConfig` fields), the segmenter
-    to run on a copy of it, its folds when they differ from the study's, and ground truth for tracking."""
+    (``synthetic``: :class:`~mmcsplat.datasets.synthetic.synthesize.SynthConfig` fields, and the cameras
+    held out at its ingest), the segmenter to run on a copy of it, its folds when they differ from the
+    study's, and ground truth for tracking."""
 
     name: str
     path: str | None = None
@@ -225,7 +226,7 @@ def _session(name: str, table: Mapping[str, Any], source: str, folder: Path | No
     if not isinstance(path, str) or not path:
         raise StudyError(f"{where} path must be a non-empty string")
     url = path if "://" in path else _resolve_path(path, folder, f"{where} path")
-    return SessionSpec(name, url, None, SYNTHETIC_HELDOUT, segmenter, folds, ground_truth)
+    return SessionSpec(name, url, None, (), segmenter, folds, ground_truth)
 
 
 def synthetic_settings(table: Mapping[str, Any], where: str) -> dict[str, Any]:

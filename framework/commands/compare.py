@@ -31,6 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..study import expand, load_study
     from ..study_cells import CellOutcome
+    from ..study_results import SMALLEST_WITHIN_DB
     from ..study_runner import CELLS_DIR, publish, run_study
 
     study = load_study(args.study)
@@ -46,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
         publish(result, args.publish, f"mmcsplat compare {args.study} --out {args.out} --publish {args.publish}")
     print(f"study {study.name}: {len(result.rows)} cells, {result.ran} run now, {result.reused} reused; results in {args.out / 'results.md'}")
     if result.findings.best:
-        print(f"best held-out masked PSNR: {result.findings.best}; smallest model within 0.5 dB: {result.findings.smallest_within}")
+        print(f"best held-out masked PSNR: {result.findings.best}; smallest model within {SMALLEST_WITHIN_DB} dB: {result.findings.smallest_within}")
     for row in result.failed:
         print(f"failed: {row.cell.variant} | {row.cell.session} | fold {row.cell.fold} | seed {row.cell.seed}: {row.outcome.error}")
     return 1 if result.failed else 0
