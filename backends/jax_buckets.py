@@ -1,6 +1,6 @@
 """Bucketed, cached front end of the JAX rasterizer: static shapes that change rarely.
 
-A training run's Gaussian count drifts every densification step and its tile lists with it. Compiling
+A training run's Gaussian count drifts every densification step and its Gaussian lists with it. Compiling
 :func:`~mmcsplat.backends.jax_raster.rasterize_fixed` for every exact shape would recompile each step, so
 :class:`JaxRasterizer` pads the Gaussians to a geometric ladder of sizes (×1.25 by default; padding is
 culled through the ``kept`` mask) and sizes the capacity of the Gaussian lists on the same kind of
@@ -24,7 +24,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .jax_raster import CameraArrays, GaussianArrays, RasterResult, RasterSpec, count_blocks, rasterize_fixed
+from .jax_raster import (
+    GAUSSIAN_FIELDS,
+    CameraArrays,
+    GaussianArrays,
+    RasterResult,
+    RasterSpec,
+    count_blocks,
+    rasterize_fixed,
+)
 
 _COMPILE_EVENTS = (
     "/jax/core/compile/jaxpr_trace_duration",
@@ -46,7 +54,7 @@ def bucket(n: int, minimum: int, ratio: float) -> int:
 class CompileStats:
     """XLA compilations observed during the rasterizer's calls (including small eager ops, such as the
     padding of a new Gaussian count), their total time (tracing, lowering and compiling), and the renders
-    repeated because the tile lists overflowed their capacity."""
+    repeated because the Gaussian lists overflowed their capacity."""
 
     compiles: int = 0
     compile_seconds: float = 0.0
@@ -65,11 +73,14 @@ class Prepared:
     count: int
 
 
-def _forward_vjp(gaussians, cameras, background, means2d, kept, spec):
+def _forward_vjp(
+    gaussians: GaussianArrays, cameras: CameraArrays, background: jax.Array, means2d: jax.Array, kept: jax.Array,
+    spec: RasterSpec,
+) -> tuple[tuple[jax.Array, ...], Callable, tuple[jax.Array, jax.Array]]:
     """The images and a ``vjp`` function for them (a pytree, so it crosses ``jax.jit``), plus the
     non-differentiable radii and capacity report as auxiliary outputs."""
 
-    def images(gaussians, background, means2d):
+    def images(gaussians: GaussianArrays, background: jax.Array, means2d: jax.Array):
         result = rasterize_fixed(gaussians, cameras, background, means2d, kept, spec)
         return (result.rgb, result.features, result.depth, result.alpha), (result.radii, result.needed_blocks)
 
@@ -77,6 +88,7 @@ def _forward_vjp(gaussians, cameras, background, means2d, kept, spec):
 
 
 def _apply_vjp(vjp: Callable, cotangents: tuple[jax.Array, ...]) -> tuple[Any, ...]:
+    """The gradients of :func:`_forward_vjp`'s inputs for the images' cotangents (jitted on its own)."""
     return vjp(cotangents)
 
 
@@ -86,7 +98,8 @@ class JaxRasterizer:
     Call it eagerly, inside ``jax.grad`` or ``jax.vjp`` if you like (the capacity check needs concrete
     values, so not inside ``jax.jit``: there, call :func:`rasterize_fixed` with a fixed
     :class:`RasterSpec` and check ``overflow`` yourself). ``ratio`` is the growth factor of the ladders,
-    ``block_size`` the slots per tile-list block.
+    ``block_size`` the slots per list block, ``cell_size`` the side of the pixel cells lists are made for,
+    ``min_gaussians`` and ``min_blocks`` the lowest rungs.
     """
 
     def __init__(
@@ -186,7 +199,7 @@ class JaxRasterizer:
             with self._watch():
                 gaussians = GaussianArrays(**{
                     name: _pad_rows(getattr(gaussians, name), padded, fill.get(name))
-                    for name in ("means", "quats", "log_scales", "opacity_logits", "colors", "features")
+                    for name in GAUSSIAN_FIELDS
                 })
                 if means2d is not None:
                     means2d = jnp.pad(means2d, ((0, 0), (0, padded - rows), (0, 0)))
@@ -201,7 +214,9 @@ class JaxRasterizer:
 
     # -- capacity ---------------------------------------------------------------------------------------
 
-    def _with_capacity(self, cameras: CameraArrays, width: int, height: int, prepared: Prepared, run: Callable, needed_of: Callable):
+    def _with_capacity(
+        self, cameras: CameraArrays, width: int, height: int, prepared: Prepared, run: Callable, needed_of: Callable
+    ) -> Any:
         """Run at the remembered capacity; on overflow grow it to the needed rung and run again."""
         padded = prepared.kept.shape[0]
         key = (padded, cameras.K.shape[0], width, height)
@@ -227,9 +242,10 @@ class JaxRasterizer:
         return out
 
     def _rung(self, needed: float) -> int:
+        """The capacity rung for a load of ``needed`` blocks."""
         capacity = bucket(math.ceil(needed), self.min_blocks, self.ratio)
         if capacity * self.block_size >= 2**31:
-            raise ValueError(f"the tile lists need {needed} blocks of {self.block_size}: beyond int32 indexing")
+            raise ValueError(f"the Gaussian lists need {needed:.0f} blocks of {self.block_size}: beyond int32 indexing")
         return capacity
 
     @contextmanager
@@ -283,7 +299,9 @@ def _concrete(value: jax.Array) -> int:
         ) from error
 
 
-_DEFAULT: JaxRasterizer | None = None
+@functools.cache
+def _default_rasterizer() -> JaxRasterizer:
+    return JaxRasterizer()
 
 
 def rasterize(
@@ -295,7 +313,4 @@ def rasterize(
     means2d: jax.Array | None = None,
 ) -> RasterResult:
     """Render with a process-wide :class:`JaxRasterizer` (see its ``__call__``)."""
-    global _DEFAULT
-    if _DEFAULT is None:
-        _DEFAULT = JaxRasterizer()
-    return _DEFAULT(gaussians, cameras, width, height, background, means2d)
+    return _default_rasterizer()(gaussians, cameras, width, height, background, means2d)

@@ -17,9 +17,8 @@ import torch
 from mmcsplat.benchmark import build_scene
 from mmcsplat.rendering import Gaussians
 
+from .jax_raster import GAUSSIAN_FIELDS
 from .jax_renderer import JaxRenderer
-
-FIELDS = ("means", "quats", "log_scales", "opacity_logits", "colors", "features")
 
 
 def grow(gaussians: Gaussians, fraction: float, generator: torch.Generator) -> Gaussians:
@@ -27,7 +26,7 @@ def grow(gaussians: Gaussians, fraction: float, generator: torch.Generator) -> G
     n = gaussians.count
     picked = torch.randint(n, (max(1, round(n * fraction)),), generator=generator)
     jitter = torch.randn(len(picked), 3, generator=generator) * 0.002
-    old = [getattr(gaussians, f) for f in FIELDS]
+    old = [getattr(gaussians, f) for f in GAUSSIAN_FIELDS]
     new = [old[0][picked] + jitter, *(value[picked] for value in old[1:])]
     return Gaussians(*(torch.cat([a, b]) for a, b in zip(old, new)))
 
@@ -43,7 +42,7 @@ def main(argv: list[str] | None = None) -> int:
     gaussians, generator = scene.gaussians, torch.Generator().manual_seed(0)
     start = time.perf_counter()
     for step in range(args.steps):
-        leaves = Gaussians(*(getattr(gaussians, f).detach().clone().requires_grad_() for f in FIELDS))
+        leaves = Gaussians(*(getattr(gaussians, f).detach().clone().requires_grad_() for f in GAUSSIAN_FIELDS))
         tic = time.perf_counter()
         out = renderer.render(leaves, scene.cameras)
         (out.rgb**2).mean().backward()

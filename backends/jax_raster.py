@@ -1,12 +1,14 @@
 """The 3DGS rasterizer of docs/rendering.md as one pure, jit-compilable JAX function with static shapes.
 
 :func:`rasterize_fixed` projects, bins and composites C cameras; its shapes are fixed by the Gaussian
-count it is given and by a :class:`RasterSpec` (image size and the capacity ``max_blocks`` of the tile
-lists). Every (tile, Gaussian) pair lands in a block of ``block_size`` slots; a tile's depth-sorted list
-spans consecutive blocks, so no per-tile list length is imposed and the cost follows the real load. When
-the lists need more blocks than the capacity, the result says so (``overflow``, ``needed_blocks``) and its
-images are NaN: a truncated image is never returned as if it were right. :mod:`mmcsplat.backends.jax_buckets`
-picks capacities, grows them and re-renders, so callers normally never see an overflow.
+count it is given and by a :class:`RasterSpec` (image size and the capacity ``max_blocks`` of the
+Gaussian lists). Each Gaussian is listed in the pixel cells (8 × 8 by default) of its 16-pixel tiles where
+it can reach α ≥ 1/255; every (cell, Gaussian) pair lands in a block of ``block_size`` slots, and a cell's
+depth-sorted list spans consecutive blocks, so no per-tile list length is imposed and the cost follows the
+real load. When the lists need more blocks than the capacity, the result says so (``overflow``,
+``needed_blocks``) and its images are NaN: a truncated image is never returned as if it were right.
+:mod:`mmcsplat.backends.jax_buckets` picks capacities, grows them and re-renders, so callers normally never
+see an overflow. docs/jax-backend.md explains the design and its measurements.
 """
 
 from __future__ import annotations
@@ -40,6 +42,10 @@ class GaussianArrays:
     features: jax.Array
 
 
+#: The Gaussian fields, in the order of :class:`GaussianArrays` (and of :class:`mmcsplat.rendering.Gaussians`).
+GAUSSIAN_FIELDS = tuple(field.name for field in attrs.fields(GaussianArrays))
+
+
 @attrs.frozen(eq=False)
 class CameraArrays:
     """C pinhole cameras: K [C, 3, 3] and world-to-camera viewmats [C, 4, 4] (OpenCV axes); the image size
@@ -52,8 +58,8 @@ class CameraArrays:
 @attrs.frozen(eq=False)
 class RasterResult:
     """rgb [C, H, W, 3], features [C, H, W, F], depth [C, H, W], alpha [C, H, W], radii [C, N] int32;
-    ``needed_blocks`` the tile-list blocks this scene needs and ``overflow`` whether that exceeded the
-    capacity (the images are then NaN)."""
+    ``needed_blocks`` the list blocks this scene needs and ``overflow`` whether that exceeded the capacity
+    (the images are then NaN)."""
 
     rgb: jax.Array
     features: jax.Array
@@ -64,7 +70,7 @@ class RasterResult:
     overflow: jax.Array
 
 
-_pytree(GaussianArrays, ("means", "quats", "log_scales", "opacity_logits", "colors", "features"))
+_pytree(GaussianArrays, GAUSSIAN_FIELDS)
 _pytree(CameraArrays, ("K", "viewmats"))
 _pytree(RasterResult, ("rgb", "features", "depth", "alpha", "radii", "needed_blocks", "overflow"))
 
@@ -316,7 +322,7 @@ def rasterize_fixed(
 
 
 def count_blocks(gaussians: GaussianArrays, cameras: CameraArrays, kept: jax.Array, spec: RasterSpec) -> jax.Array:
-    """The blocks :func:`rasterize_fixed` would need (projection and tile counts only; cheap)."""
+    """The blocks :func:`rasterize_fixed` would need (projection and cell counts only; cheap)."""
     means2d = jnp.zeros((cameras.K.shape[0], gaussians.means.shape[0], 2), gaussians.means.dtype)
     proj = project(gaussians, cameras, means2d, kept, spec)
     return needed_blocks(cell_counts(proj.cells, spec), spec.block_size)

@@ -21,13 +21,13 @@ from mmcsplat.interfaces import Renderer
 from mmcsplat.rendering import Gaussians, RenderCameras, RenderOutput, validate_render_inputs
 
 from .jax_buckets import JaxRasterizer, Prepared
-from .jax_raster import CameraArrays, GaussianArrays
+from .jax_raster import GAUSSIAN_FIELDS, CameraArrays, GaussianArrays
 
-_FIELDS = ("means", "quats", "log_scales", "opacity_logits", "colors", "features")
 _warned: set[str] = set()
 
 
 def _warn_once(message: str) -> None:
+    """Warn about a fallback once per distinct message, not at every render."""
     if message not in _warned:
         _warned.add(message)
         warnings.warn(message, RuntimeWarning, stacklevel=3)
@@ -73,7 +73,7 @@ def _jax_inputs(
     count = params[0].shape[0]
     rows = rasterizer.padded_size(count)
     fills = {"quats": (1.0, 0.0, 0.0, 0.0)}  # an identity rotation keeps the padding's projection finite
-    gaussians = GaussianArrays(*(to_jax(_pad_rows(p.to(dtype), rows, fills.get(f))) for f, p in zip(_FIELDS, params)))
+    gaussians = GaussianArrays(*(to_jax(_pad_rows(p.to(dtype), rows, fills.get(f))) for f, p in zip(GAUSSIAN_FIELDS, params)))
     offsets = to_jax(_pad_rows(means2d.to(dtype).transpose(0, 1), rows).transpose(0, 1))
     jax_cameras = CameraArrays(to_jax(cameras.K.to(dtype)), to_jax(cameras.viewmats.to(dtype)))
     return rasterizer.prepare(gaussians, jax_cameras, to_jax(background.to(dtype)), offsets, count=count), jax_cameras
@@ -105,7 +105,7 @@ class _JaxRender(torch.autograd.Function):
         gaussians, background, means2d = ctx.rasterizer.backward(ctx.vjp, cotangents)
         device, n = grad_rgb.device, ctx.count
         grads = [to_torch(background, device), to_torch(means2d, device)[:, :n]]
-        grads += [to_torch(getattr(gaussians, field), device)[:n] for field in _FIELDS]
+        grads += [to_torch(getattr(gaussians, field), device)[:n] for field in GAUSSIAN_FIELDS]
         return None, None, None, *(g.to(dtype) for g, dtype in zip(grads, ctx.dtypes, strict=True))
 
 
@@ -121,7 +121,7 @@ class JaxRenderer(Renderer):
         """Render every camera; differentiable with respect to every Gaussian parameter, the background
         and ``RenderOutput.means2d``."""
         validate_render_inputs(gaussians, cameras, background)
-        params = [getattr(gaussians, field) for field in _FIELDS]
+        params = [getattr(gaussians, field) for field in GAUSSIAN_FIELDS]
         means = gaussians.means
         x64 = means.dtype == torch.float64 and jax.config.jax_enable_x64
         dtype = torch.float64 if x64 else torch.float32
