@@ -9,7 +9,6 @@ on storage every node sees).
 from __future__ import annotations
 
 import os
-import re
 import shutil
 from collections.abc import Iterator, Sequence
 from pathlib import Path
@@ -17,6 +16,7 @@ from pathlib import Path
 import attrs
 
 from .atomic import write_text_atomic
+from .markdown_sections import replace_section
 from .registry import Registry, default_registry
 from .study import Cell, CellSpec, Study, StudyError, expand
 from .study_cells import COMPLETE, FAILED, CellOutcome, run_cell
@@ -118,11 +118,7 @@ def publish(run: StudyRun, target: Path, command: str) -> None:
             shutil.copyfile(run.out / CHARTS_DIR / Path(png).with_suffix(suffix), charts / Path(png).with_suffix(suffix).name)
     body = markdown(run.study, run.rows, run.aggregates, run.findings,
                     [(title, f"results/{name}/{png}") for title, png in run.charts], heading="##")
-    section = f"<!-- study: {name} -->\n{body}\nRegenerate with `{command}`.\n<!-- /study: {name} -->"
-    existing = target.read_text(encoding="utf-8") if target.exists() else "# Results\n"
-    pattern = re.compile(rf"<!-- study: {re.escape(name)} -->.*?<!-- /study: {re.escape(name)} -->", re.DOTALL)
-    text = pattern.sub(lambda _: section, existing) if pattern.search(existing) else existing.rstrip("\n") + "\n\n" + section + "\n"
-    write_text_atomic(target, text)
+    replace_section(target, f"study: {name}", f"{body}\nRegenerate with `{command}`.", "# Results")
 
 
 def _check_folds(cells: Sequence[Cell]) -> None:

@@ -2,7 +2,7 @@
 
 Each backend runs once as warm-up (compilation included, reported apart), then --repeats timed runs,
 interleaved between backends so that speed-ups (against torch-reference) compare runs under the same
-machine load. Prints a table, or JSON with --json; --write saves the markdown report (docs/performance.md).
+machine load. Prints a table, or JSON with --json; --write puts the markdown report into its section of a page (docs/performance.md).
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import json
 import sys
 from pathlib import Path
 
-from ..atomic import write_text_atomic
+from ..markdown_sections import replace_section
 from ..cli import CommandError
 from ..registry import default_registry
 
@@ -24,7 +24,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="renderer backends to time (default: every available one)")
     parser.add_argument("--repeats", type=int, default=7, help="timed runs per backend and scene (default 7)")
     parser.add_argument("--json", action="store_true", help="print the results as JSON")
-    parser.add_argument("--write", type=Path, metavar="PATH", help="write the markdown report here")
+    parser.add_argument("--write", type=Path, metavar="PATH", help="put the markdown report into its section of this page")
 
 
 def _renderers(names: list[str] | None) -> dict:
@@ -58,8 +58,7 @@ def run(args: argparse.Namespace) -> int:
 
         report = run_benchmark(scenes, renderers, repeats=args.repeats, progress=progress)
     markdown = to_markdown(report)
-    if args.write:
-        args.write.parent.mkdir(parents=True, exist_ok=True)
-        write_text_atomic(args.write, markdown + "\n")
+    if args.write:  # the bench owns its section of the page; other sections are left as they are
+        replace_section(args.write, "bench", markdown, "# Performance")
     print(json.dumps(to_json(report), indent=2) if args.json else markdown)
     return 0
