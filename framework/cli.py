@@ -15,6 +15,7 @@ COMMANDS = {
     "ingest": "ingest",
     "segment": "segment",
     "fit": "fit",
+    "track": "track",
     "evaluate": "evaluate",
     "compare": "compare",
     "render": "render",

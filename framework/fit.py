@@ -68,13 +68,25 @@ class FitSettings:
 
 @attrs.frozen(eq=False)
 class TrainingView:
-    """One training camera's first-frame data as tensors."""
+    """One training camera's data of one frame as tensors."""
 
     camera: Camera
     index: int
     image: torch.Tensor  # [H, W, 3] float, the loss target (after initializers' prepare_target)
     mask: torch.Tensor | None  # [H, W] bool
     seg_target: torch.Tensor | None  # [H, W, 1] float
+
+
+def load_view(session: SessionReader, t: int, camera: Camera, index: int, initializers: Sequence[Initializer]) -> TrainingView:
+    """Frame ``t`` of ``camera`` (training camera number ``index``) as loss targets, shaped by the
+    initializers' ``prepare_target`` (masking zeroes the outside of the subject)."""
+    data = session.frame(t, camera.name)
+    image = torch.from_numpy(data.rgb.astype(np.float32) / 255.0)
+    mask = torch.from_numpy(data.mask.copy()) if data.mask is not None else None
+    for initializer in initializers:
+        image = initializer.prepare_target(image, mask)
+    seg = mask[..., None].float() if mask is not None else None
+    return TrainingView(camera, index, image, mask, seg)
 
 
 class CameraSchedule:
@@ -135,15 +147,7 @@ class FirstFrameFit:
 
     def _load_views(self) -> list[TrainingView]:
         frame = self.settings.frame
-        views = []
-        for index, camera in enumerate(self.train_cameras):
-            data = self.session.frame(frame, camera.name)
-            image = torch.from_numpy(data.rgb.astype(np.float32) / 255.0)
-            mask = torch.from_numpy(data.mask.copy()) if data.mask is not None else None
-            for initializer in self.initializers:
-                image = initializer.prepare_target(image, mask)
-            seg = mask[..., None].float() if mask is not None else None
-            views.append(TrainingView(camera, index, image, mask, seg))
+        views = [load_view(self.session, frame, camera, index, self.initializers) for index, camera in enumerate(self.train_cameras)]
         if self.settings.lambda_seg > 0 and any(view.seg_target is None for view in views):
             missing = [view.camera.name for view in views if view.seg_target is None]
             raise ValueError(

@@ -42,3 +42,20 @@ def quat_to_rotmat(quats: torch.Tensor) -> torch.Tensor:
         2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
     )
     return torch.stack(rows, dim=-1).reshape(-1, 3, 3)
+
+
+def quat_multiply(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Hamilton product of [..., 4] (w, x, y, z) quaternions: the rotation ``b`` followed by ``a``."""
+    aw, ax, ay, az = a.unbind(-1)
+    bw, bx, by, bz = b.unbind(-1)
+    return torch.stack((
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    ), dim=-1)
+
+
+def quat_conjugate(quats: torch.Tensor) -> torch.Tensor:
+    """The conjugate of [..., 4] (w, x, y, z) quaternions: the inverse rotation of unit quaternions."""
+    return quats * quats.new_tensor([1.0, -1.0, -1.0, -1.0])

@@ -22,6 +22,7 @@ if TYPE_CHECKING:  # heavy imports only for type checkers
     from .model import GaussianModel
     from .rendering import Gaussians, RenderCameras, RenderOutput
     from .store import SessionReader
+    from .track import TrackingContext
 
 
 # ----------------------------------------------------------------------------------------------- readers
@@ -176,9 +177,12 @@ class Dynamics(ABC):
     """Carries the first-frame Gaussians through the sequence."""
 
     @abstractmethod
-    def track(self, session: SessionReader, first_frame: Gaussians, out: Path, config: dict[str, Any]) -> None:
-        """Fit every frame of ``session`` from ``first_frame``, streaming frames, and write per-frame
-        Gaussian states to the run's ``tracks`` group at ``out``."""
+    def track(self, context: TrackingContext, out: Path) -> dict[str, Any]:
+        """Fit every frame of ``context.frames`` from the first-frame fit ``context.params``, streaming frames
+        from ``context.session`` (``context.views(t)``), and write the per-frame Gaussian states to the run
+        directory ``out`` with a :class:`~mmcsplat.tracks.TrackWriter` (tracks frame ``k`` is session frame
+        ``context.frames[k]``; frame 0 is the first-frame fit). Returns a JSON-serialisable summary (per-frame
+        losses, timings) that ``RUN/track.json`` records."""
 
 
 # ----------------------------------------------------------------------------------------------- metrics

@@ -68,6 +68,27 @@ class GaussianModel:
         }
         self.optimizers["camera"] = torch.optim.Adam([self.camera_scale, self.camera_offset], lr=lrs.camera_color, eps=1e-15)
 
+    @classmethod
+    def from_params(
+        cls,
+        params: Mapping[str, torch.Tensor],
+        camera_names: tuple[str, ...],
+        lrs: LearningRates,
+        scene_scale: float,
+        camera_scale: torch.Tensor | None = None,
+        camera_offset: torch.Tensor | None = None,
+    ) -> GaussianModel:
+        """A model holding exactly the stored ``params`` (and colour terms), with fresh optimisers: to go on
+        from a fitted frame (logits are kept as they are, not round-tripped through a sigmoid)."""
+        model = cls(gaussians_from_params(params), camera_names, lrs, scene_scale)
+        state = model.state_dict()
+        state["params"] = {name: params[name].detach().float() for name in GAUSSIAN_PARAMETERS}
+        for key, value in (("camera_scale", camera_scale), ("camera_offset", camera_offset)):
+            if value is not None:
+                state[key] = value.detach().float()
+        model.load_state_dict(state)
+        return model
+
     @property
     def count(self) -> int:
         return int(self.params["means"].shape[0])

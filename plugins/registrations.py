@@ -32,6 +32,14 @@ def mmcsplat_densifiers() -> list[Registration]:
 
 
 @hookimpl
+def mmcsplat_dynamics() -> list[Registration]:
+    return [
+        Registration("iterative", "mmcsplat.plugins.dynamics.iterative:IterativeDynamics",
+                     "per-frame optimisation from the previous frame with local-rigidity priors (Luiten et al.)"),
+    ]
+
+
+@hookimpl
 def mmcsplat_metrics() -> list[Registration]:
     return [
         Registration("psnr", "mmcsplat.plugins.metrics:PSNR", "peak signal-to-noise ratio (dB), optionally inside a mask"),

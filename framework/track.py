@@ -1,0 +1,157 @@
+"""Dynamic tracking of a first-frame fit: a ``dynamics`` plugin carries the fitted Gaussians through the
+rest of the session and writes ``RUN/tracks.zarr``; ``RUN/track.json`` records what ran and how long.
+
+The configuration is the one the run was fitted with (``run.json``), or another one given explicitly;
+its ``[dynamics]`` table (or ``--dynamics NAME``) chooses the method and its parameters, and its ``[fit]``
+table and initializers give the image loss (weights, background, masked targets) the frames are fitted
+with, so tracking sees the same targets as the first frame did.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import attrs
+import torch
+
+from .atomic import write_json_atomic
+from .camera import Camera
+from .config import Config, PluginChoice, apply_override, load_config
+from .fit import RUN_INFO, FitSettings, TrainingView, load_fitted, load_view
+from .interfaces import Dynamics, Initializer, Renderer
+from .registry import Registry, default_registry
+from .store import SessionReader
+from .tracks import TRACKS_DIR
+
+TRACK_INFO = "track.json"
+
+
+@attrs.frozen(eq=False)
+class TrackingContext:
+    """What a dynamics method works from: the session, the first-frame fit and how it was fitted.
+
+    ``cameras`` are the fit's training cameras, in the order of its per-camera colour terms
+    (``camera_scale``/``camera_offset`` [C, 3]); ``params`` the fitted ``GAUSSIAN_PARAMETERS`` at session
+    frame ``frames[0]``. Tracks frame ``k`` is session frame ``frames[k]``.
+    """
+
+    session: SessionReader
+    cameras: tuple[Camera, ...]
+    heldout: tuple[Camera, ...]
+    frames: range
+    params: Mapping[str, torch.Tensor]
+    camera_scale: torch.Tensor
+    camera_offset: torch.Tensor
+    renderer: Renderer
+    settings: FitSettings
+    initializers: tuple[Initializer, ...]
+    scene_center: Sequence[float]
+    scene_scale: float
+    config: Config
+    registry: Registry
+    progress: bool = True
+    overwrite: bool = False
+
+    def views(self, t: int) -> list[TrainingView]:
+        """The training views of session frame ``t`` whose camera holds that frame (absent ones skipped),
+        as loss targets prepared like the first frame's."""
+        views = []
+        for index, camera in enumerate(self.cameras):
+            if not self.session.present(camera.name)[t]:
+                continue
+            view = load_view(self.session, t, camera, index, self.initializers)
+            if self.settings.lambda_seg > 0 and view.seg_target is None:
+                raise ValueError(
+                    f"fit.lambda_seg = {self.settings.lambda_seg} needs subject masks, but session {self.session.url!r} "
+                    f"has none for camera {camera.name!r} at frame {t}: run `mmcsplat segment` or set fit.lambda_seg=0"
+                )
+            views.append(view)
+        return views
+
+
+def tracking_config(
+    run: Path, info: Mapping[str, Any], config: str | Path | None, overrides: Iterable[str], dynamics: str | None
+) -> tuple[Config, PluginChoice]:
+    """The configuration to track with (``config``, else the one ``run`` was fitted with, from its run.json
+    ``info``) after ``overrides``, and its dynamics choice; ``dynamics`` names the method instead of the
+    ``[dynamics]`` table (whose parameters are kept when it names the same method or none)."""
+    if config is not None:
+        loaded = load_config(config, overrides)
+    else:
+        values: Mapping[str, Any] = info["config_values"]
+        source = f"the configuration of {Path(run) / RUN_INFO}"
+        for override in overrides:
+            values = apply_override(values, override, source)
+        loaded = Config(source, values)
+    if dynamics is not None:
+        table = loaded.values.get("dynamics")
+        table = table if isinstance(table, Mapping) and table.get("name", dynamics) == dynamics else {}
+        return loaded, PluginChoice("dynamics", dynamics, {key: value for key, value in table.items() if key != "name"})
+    if not loaded.plugins("dynamics"):
+        raise ValueError(f"{loaded.source} has no [dynamics] table: choose a method with --dynamics (e.g. iterative)")
+    return loaded, loaded.plugin("dynamics")
+
+
+def track_run(
+    run: Path,
+    *,
+    config: str | Path | None = None,
+    overrides: Iterable[str] = (),
+    dynamics: str | None = None,
+    backend: str | None = None,
+    registry: Registry | None = None,
+    progress: bool = True,
+    overwrite: bool = False,
+) -> dict[str, Any]:
+    """Track the first-frame fit in ``run`` through its session; writes RUN/tracks.zarr and RUN/track.json
+    (returned)."""
+    run = Path(run)
+    registry = registry or default_registry()
+    info, params, camera_scale, camera_offset = load_fitted(run)
+    if info.get("status") != "complete":
+        raise ValueError(f"{run / RUN_INFO}: the first-frame fit is {info.get('status')!r}, not complete: finish it with `mmcsplat fit` first")
+    if (run / TRACKS_DIR).exists() and not overwrite:
+        raise FileExistsError(f"{run / TRACKS_DIR} already exists (use --overwrite to replace it)")
+    loaded, choice = tracking_config(run, info, config, overrides, dynamics)
+    method: Dynamics = choice.build(registry)
+    session = SessionReader(info["session"])
+    first = int(info["frame"])
+    if first >= session.num_frames - 1:
+        raise ValueError(f"{run}: the fit is of frame {first}, the last of session {session.url!r}: nothing to track")
+    renderer_name = backend or info["renderer"]
+    context = TrackingContext(
+        session=session,
+        cameras=tuple(session.camera(name) for name in info["train_cameras"]),
+        heldout=tuple(session.camera(name) for name in info["heldout_cameras"]),
+        frames=range(first, session.num_frames),
+        params=params,
+        camera_scale=camera_scale,
+        camera_offset=camera_offset,
+        renderer=registry.create("renderer", renderer_name),
+        settings=FitSettings.from_config(loaded),
+        initializers=tuple(c.build(registry) for c in loaded.plugins("initializer")),
+        scene_center=tuple(info["scene_center"]),
+        scene_scale=float(info["scene_scale"]),
+        config=loaded,
+        registry=registry,
+        progress=progress,
+        overwrite=overwrite,
+    )
+    began = time.perf_counter()
+    summary = method.track(context, run)
+    wall = time.perf_counter() - began
+    record = {
+        "method": choice.name,
+        "params": dict(choice.params),
+        "config": loaded.source,
+        "renderer": renderer_name,
+        "frames": [context.frames.start, context.frames.stop],
+        "wall_s": round(wall, 3),
+        "wall_s_per_frame": round(wall / (len(context.frames) - 1), 3),
+        "summary": summary,
+    }
+    write_json_atomic(run / TRACK_INFO, record)
+    return record

@@ -1,0 +1,201 @@
+"""The ``iterative`` dynamics (Luiten et al. 2023, as the reference study used it): every frame is fitted
+from the previous one, moved ahead at constant velocity, with local-rigidity priors holding the
+foreground together.
+
+Per frame: ``iterations`` Adam steps, each on one training camera (a fresh random order per pass over
+the cameras present in that frame), of L_im + λ_seg·L_seg + λ_rigid·L_rigid + λ_rot·L_rot + λ_iso·L_iso.
+After the first frame opacities, scales and the per-camera colour terms are frozen; means, rotations
+and (as Luiten's) colours keep learning, and Adam forgets the means' and rotations' moments at each new
+frame. Only the current frame's images are held.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+import attrs
+import numpy as np
+import torch
+
+from mmcsplat import losses
+from mmcsplat.fit import CameraSchedule, FirstFrameFit, NonFiniteError, TrainingView
+from mmcsplat.interfaces import Dynamics
+from mmcsplat.model import GAUSSIAN_PARAMETERS, GaussianModel
+from mmcsplat.rendering import RenderCameras
+from mmcsplat.track import TrackingContext
+from mmcsplat.tracks import TrackWriter
+
+from .rigidity import NeighbourGraph, RigidityPrior
+
+FROZEN = ("opacity_logits", "log_scales")
+COLORS = ("color_logits", "seg_logits")
+RESET_EACH_FRAME = ("means", "quats")
+
+
+@attrs.frozen
+class FrameResult:
+    """How one frame's fit ended: the mean over its cameras of each one's last loss and PSNR (``None``
+    when no training camera holds the frame), and its time."""
+
+    frame: int
+    loss: float | None
+    psnr: float | None
+    cameras: int
+    wall_s: float
+
+
+class IterativeDynamics(Dynamics):
+    """Per-frame optimisation with constant-velocity prediction and local-rigidity priors.
+
+    ``iterations`` per frame; ``neighbours`` (k) and ``lambda_w`` (weights exp(−λ_w·d²), d in metres)
+    define the neighbour graph over foreground Gaussians (segmentation colour > ``foreground``) built
+    once after the first frame; ``lambda_rigid``, ``lambda_rot``, ``lambda_iso`` weight the priors
+    (``lambda_seg`` the segmentation loss: the fit's when ``None``); ``means_lr``/``quats_lr`` override
+    the fit's learning rates (means are scaled by the scene scale); ``learn_colors`` keeps colours
+    trainable after the first frame.
+    """
+
+    def __init__(
+        self,
+        iterations: int = 2000,
+        neighbours: int = 20,
+        lambda_w: float = 2000.0,
+        lambda_rigid: float = 4.0,
+        lambda_rot: float = 4.0,
+        lambda_iso: float = 2.0,
+        lambda_seg: float | None = None,
+        foreground: float = 0.5,
+        means_lr: float | None = None,
+        quats_lr: float | None = None,
+        learn_colors: bool = True,
+        seed: int = 0,
+    ) -> None:
+        if iterations < 0 or neighbours < 1 or lambda_w < 0:
+            raise ValueError(f"iterative: iterations ({iterations}) must be ≥ 0, neighbours ({neighbours}) ≥ 1, lambda_w ({lambda_w}) ≥ 0")
+        self.iterations = iterations
+        self.neighbours = neighbours
+        self.lambda_w = lambda_w
+        self.weights = (lambda_rigid, lambda_rot, lambda_iso)
+        self.lambda_seg = lambda_seg
+        self.foreground = foreground
+        self.means_lr = means_lr
+        self.quats_lr = quats_lr
+        self.learn_colors = learn_colors
+        self.seed = seed
+
+    # ------------------------------------------------------------------------------------------ setup
+
+    def _model(self, context: TrackingContext) -> GaussianModel:
+        lrs = context.settings.lrs
+        lrs = attrs.evolve(lrs, means=self.means_lr if self.means_lr is not None else lrs.means,
+                           quats=self.quats_lr if self.quats_lr is not None else lrs.quats)
+        model = GaussianModel.from_params(context.params, tuple(c.name for c in context.cameras), lrs, context.scene_scale,
+                                          context.camera_scale, context.camera_offset)
+        for name in self._static_names():
+            model.params[name].requires_grad_(False)
+        model.camera_scale.requires_grad_(False)
+        model.camera_offset.requires_grad_(False)
+        return model
+
+    def _static_names(self) -> tuple[str, ...]:
+        return FROZEN if self.learn_colors else FROZEN + COLORS
+
+    def _dynamic(self, model: GaussianModel) -> dict[str, torch.Tensor]:
+        return {name: model.params[name].detach() for name in GAUSSIAN_PARAMETERS if name not in self._static_names()}
+
+    # --------------------------------------------------------------------------------------- tracking
+
+    def track(self, context: TrackingContext, out: Path) -> dict[str, Any]:
+        """Fit every frame after the first; returns per-frame results and the neighbour graph's size."""
+        from tqdm import tqdm
+
+        model = self._model(context)
+        params = model.params
+        foreground = torch.sigmoid(params["seg_logits"].detach()[:, 0]) > self.foreground
+        graph = NeighbourGraph.build(params["means"], foreground, self.neighbours, self.lambda_w)
+        prior = RigidityPrior(graph)
+        cameras = RenderCameras.from_cameras(context.cameras)
+        generator = torch.Generator().manual_seed(self.seed)
+        static = {name: params[name].detach() for name in self._static_names()}
+        attributes = {"first_frame": context.frames.start, "foreground_gaussians": len(graph.foreground),
+                      "neighbours": int(graph.neighbours.shape[1]), "lambda_w": self.lambda_w}
+        results: list[FrameResult] = []
+        with TrackWriter(out, num_frames=len(context.frames), static=static, method="iterative", attrs=attributes,
+                         overwrite=context.overwrite) as writer:
+            writer.write_frame(0, **self._dynamic(model))
+            previous = (params["means"].detach().clone(), self._unit(params["quats"].detach()))
+            frames = tqdm(list(enumerate(context.frames))[1:], desc="track", unit="frame", disable=not context.progress)
+            for k, t in frames:
+                prior.remember(params["means"], params["quats"])
+                previous = self._predict(model, previous)
+                model.reset_moments(RESET_EACH_FRAME)
+                result = self._fit_frame(model, prior, context, cameras, t, generator)
+                results.append(result)
+                writer.write_frame(k, **self._dynamic(model))
+                if result.loss is not None:
+                    frames.set_postfix(loss=f"{result.loss:.4f}", psnr=f"{result.psnr:.2f}")
+        return {
+            "iterations_per_frame": self.iterations,
+            "foreground_gaussians": len(graph.foreground),
+            "neighbour_distance_median_m": float(graph.distances.median()),
+            "frames": [attrs.asdict(result) for result in results],
+        }
+
+    @staticmethod
+    def _unit(quats: torch.Tensor) -> torch.Tensor:
+        return quats / quats.norm(dim=-1, keepdim=True)
+
+    def _predict(self, model: GaussianModel, previous: tuple[torch.Tensor, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+        """Move means and rotations ahead by their last frame-to-frame change; returns the current state
+        (the "previous" of the next prediction)."""
+        params = model.params
+        means, quats = params["means"].detach().clone(), self._unit(params["quats"].detach())
+        prev_means, prev_quats = previous
+        # q and −q are one rotation: take the previous one on the current one's side before extrapolating.
+        prev_quats = torch.where((prev_quats * quats).sum(-1, keepdim=True) < 0, -prev_quats, prev_quats)
+        with torch.no_grad():
+            params["means"].copy_(2 * means - prev_means)
+            params["quats"].copy_(self._unit(2 * quats - prev_quats))
+        return means, quats
+
+    def _fit_frame(self, model: GaussianModel, prior: RigidityPrior, context: TrackingContext, cameras: RenderCameras,
+                   t: int, generator: torch.Generator) -> FrameResult:
+        from tqdm import tqdm
+
+        began = time.perf_counter()
+        views = context.views(t)
+        if not views:
+            return FrameResult(t, None, None, 0, time.perf_counter() - began)
+        settings = context.settings
+        lambda_seg = settings.lambda_seg if self.lambda_seg is None else self.lambda_seg
+        background = torch.tensor(settings.background, dtype=torch.float32)
+        schedule = CameraSchedule(len(views), generator)
+        lambda_rigid, lambda_rot, lambda_iso = self.weights
+        recent: dict[int, tuple[float, float]] = {}
+        bar = tqdm(range(self.iterations), desc=f"frame {t}", unit="it", leave=False, disable=not context.progress)
+        for step in bar:
+            view: TrainingView = views[schedule.next()]
+            render = context.renderer.render(model.gaussians(), cameras.select([view.index]), background)
+            image = model.correct_color(render.rgb[0], view.index)
+            loss = settings.lambda_image * losses.photometric_loss(image, view.image, settings.ssim_weight)
+            if lambda_seg > 0:
+                loss = loss + lambda_seg * losses.photometric_loss(render.features[0, ..., :1], view.seg_target, settings.ssim_weight)
+            rigid, rot, iso = prior.losses(model.params["means"], model.params["quats"])
+            loss = loss + lambda_rigid * rigid + lambda_rot * rot + lambda_iso * iso
+            loss.backward()
+            try:
+                FirstFrameFit._check_finite(loss, model, step, "gradient")
+                model.step()
+                FirstFrameFit._check_finite(loss, model, step, "parameter")
+            except NonFiniteError as error:
+                raise NonFiniteError(f"frame {t}: {error}") from error
+            if step >= self.iterations - len(views) or step % 10 == 0:
+                psnr = float(losses.psnr(image.detach().clamp(0, 1), view.image))
+                recent[view.index] = (float(loss.detach()), psnr)
+                bar.set_postfix(loss=f"{recent[view.index][0]:.4f}", psnr=f"{psnr:.2f}")
+        bar.close()
+        last = np.array(list(recent.values())).reshape(-1, 2)
+        mean = last.mean(axis=0).tolist() if len(last) else [None, None]
+        return FrameResult(t, mean[0], mean[1], len(views), time.perf_counter() - began)
