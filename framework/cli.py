@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 
 from . import __version__
@@ -20,9 +21,9 @@ COMMANDS = {
     "compare": "compare",
     "render": "render",
     "export": "export",
+    "bench": "bench",
     "plugins": "plugins",
     "configs": "configs",
-    "bench": "bench",
 }
 
 
@@ -43,6 +44,25 @@ def build_parser() -> argparse.ArgumentParser:
         module.add_arguments(sub)
         sub.set_defaults(_run=module.run)
     return parser
+
+
+def reference_markdown() -> str:
+    """The text of docs/cli.md: every command's ``--help`` at a fixed width (a test keeps the page equal
+    to this; regenerate with ``python -c "from mmcsplat.cli import reference_markdown as r; print(r(), end='')" > docs/cli.md``)."""
+    previous = os.environ.get("COLUMNS")
+    os.environ["COLUMNS"] = "100"  # argparse wraps to the terminal width
+    try:
+        parser = build_parser()
+        sections = ["# Command-line reference", "", "Generated from the commands' own `--help`.", "", "```", parser.format_help().rstrip(), "```"]
+        subparsers = next(action for action in parser._actions if isinstance(action, argparse._SubParsersAction))
+        for name, sub in subparsers.choices.items():
+            sections += ["", f"## mmcsplat {name}", "", "```", sub.format_help().rstrip(), "```"]
+        return "\n".join(sections) + "\n"
+    finally:
+        if previous is None:
+            del os.environ["COLUMNS"]
+        else:
+            os.environ["COLUMNS"] = previous
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,5 +1,7 @@
-"""Export a run's Gaussians: --ply DIR writes one PLY per frame (frame_NNNN.ply, by session frame) in the
-layout common 3DGS viewers read (position, SH degree-0 colour, logit opacity, log scales, quaternion).
+"""Export a run's Gaussians per frame, in the PLY layout common 3DGS viewers read.
+
+--ply DIR writes one PLY per frame (frame_NNNN.ply, by session frame): position, SH degree-0 colour,
+logit opacity, log scales, quaternion.
 
 A run with tracks exports every tracked frame; without tracks, its first-frame fit.
 """
