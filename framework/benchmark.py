@@ -333,8 +333,6 @@ def to_markdown(report: BenchReport) -> str:
     threads = ", ".join(f"{k} {v}" for k, v in env["threads"].items())
     versions = ", ".join(f"{k} {v}" for k, v in env["versions"].items())
     lines = [
-        "# Renderer performance",
-        "",
         "Written by `mmcsplat bench`. Forward + backward of `loss = (rgb ** 2).mean()` (black background) on",
         "the scenes of ../shared/bench/README.md, float32 on the CPU. Each backend first runs once (warm-up,",
         f"compilation included, reported apart); then {report.repeats} timed runs per backend, interleaved (the",
@@ -350,7 +348,7 @@ def to_markdown(report: BenchReport) -> str:
         "",
     ]
     for result in report.results:
-        lines += [f"## Scene {result.description}", "",
+        lines += [f"### Scene {result.description}", "",
                   "| backend | warm-up (s) | median (s) | min–max (s) | peak memory (MiB) | speed-up | target |",
                   "|---|---|---|---|---|---|---|"]
         for t in result.timings:
