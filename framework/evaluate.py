@@ -10,11 +10,14 @@ import numpy as np
 import torch
 
 from .atomic import write_json_atomic
+from .drift import detect_drift
 from .fit import RUN_INFO, load_fitted
 from .model import gaussians_from_params
 from .registry import Registry, default_registry
 from .rendering import RenderCameras
 from .store import SessionReader
+from .tracking import evaluate_tracks
+from .tracks import TRACKS_DIR, TrackReader
 
 METRICS_FILE = "metrics.json"
 
@@ -23,8 +26,11 @@ def _mean(values: list[float]) -> float | None:
     return float(np.mean(values)) if values else None
 
 
-def evaluate_run(run: Path, registry: Registry | None = None, backend: str | None = None) -> dict[str, Any]:
-    """Score one run directory and write its metrics.json; returns the metrics."""
+def evaluate_run(run: Path, registry: Registry | None = None, backend: str | None = None, ground_truth: Path | None = None) -> dict[str, Any]:
+    """Score one run directory and write its metrics.json; returns the metrics. A run with tracks
+    (``mmcsplat track``) also gets the tracking metrics of :mod:`mmcsplat.tracking` (against
+    ``ground_truth``, or the one found beside the session's source) and the drift report of
+    :mod:`mmcsplat.drift`."""
     registry = registry or default_registry()
     info, params, camera_scale, camera_offset = load_fitted(run)
     session = SessionReader(info["session"])
@@ -66,6 +72,10 @@ def evaluate_run(run: Path, registry: Registry | None = None, backend: str | Non
         "heldout_cameras": info["heldout_cameras"],
         "per_camera": per_camera,
     }
+    if (Path(run) / TRACKS_DIR).exists():
+        metrics.update(evaluate_tracks(Path(run), session, info["heldout_cameras"], ground_truth, renderer, psnr))
+        report = detect_drift(TrackReader(run), session, info["train_cameras"])
+        metrics.update(drift=report.drift, drift_per_frame=report.counts, drift_foreground=report.foreground)
     write_json_atomic(Path(run) / METRICS_FILE, metrics)
     return metrics
 
@@ -81,12 +91,12 @@ def fold_runs(run: Path) -> list[Path]:
     return folds
 
 
-def evaluate(run: Path, registry: Registry | None = None, backend: str | None = None) -> dict[str, Any]:
+def evaluate(run: Path, registry: Registry | None = None, backend: str | None = None, ground_truth: Path | None = None) -> dict[str, Any]:
     """Evaluate a run or every fold of a leave-one-camera-out run; folds are averaged into RUN/metrics.json."""
     runs = fold_runs(run)
     if runs == [Path(run)]:
-        return evaluate_run(Path(run), registry, backend)
-    folds = {path.name: evaluate_run(path, registry, backend) for path in runs}
+        return evaluate_run(Path(run), registry, backend, ground_truth)
+    folds = {path.name: evaluate_run(path, registry, backend, ground_truth) for path in runs}
     summary: dict[str, Any] = {}
     for key in ("val_masked_psnr", "val_psnr", "val_ssim", "train_masked_psnr", "train_psnr", "num_gaussians", "iterations", "wall_s"):
         values = [m[key] for m in folds.values() if m[key] is not None]

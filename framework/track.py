@@ -105,9 +105,10 @@ def track_run(
     registry: Registry | None = None,
     progress: bool = True,
     overwrite: bool = False,
+    frames: int | None = None,
 ) -> dict[str, Any]:
-    """Track the first-frame fit in ``run`` through its session; writes RUN/tracks.zarr and RUN/track.json
-    (returned)."""
+    """Track the first-frame fit in ``run`` through its session (only its first ``frames`` frames, the
+    fitted one included, when given); writes RUN/tracks.zarr and RUN/track.json (returned)."""
     run = Path(run)
     registry = registry or default_registry()
     info, params, camera_scale, camera_offset = load_fitted(run)
@@ -119,14 +120,15 @@ def track_run(
     method: Dynamics = choice.build(registry)
     session = SessionReader(info["session"])
     first = int(info["frame"])
-    if first >= session.num_frames - 1:
-        raise ValueError(f"{run}: the fit is of frame {first}, the last of session {session.url!r}: nothing to track")
+    stop = session.num_frames if frames is None else min(session.num_frames, first + frames)
+    if stop - first < 2:
+        raise ValueError(f"{run}: frames {first}–{stop - 1} of session {session.url!r} leave nothing to track after the fitted frame")
     renderer_name = backend or info["renderer"]
     context = TrackingContext(
         session=session,
         cameras=tuple(session.camera(name) for name in info["train_cameras"]),
         heldout=tuple(session.camera(name) for name in info["heldout_cameras"]),
-        frames=range(first, session.num_frames),
+        frames=range(first, stop),
         params=params,
         camera_scale=camera_scale,
         camera_offset=camera_offset,

@@ -1,5 +1,7 @@
 """A tiny self-consistent capture for trainer tests: known Gaussians rendered by torch-reference into a
-ring of cameras and written to a session store (masks from alpha, depth from the renderer)."""
+ring of cameras and written to a session store (masks from alpha, depth from the renderer). With
+``frames`` > 1 the subject moves (see :func:`moved`), and :func:`write_ground_truth` stores its Gaussians'
+centres as the surface points a tracking evaluation compares against."""
 
 from __future__ import annotations
 
@@ -15,43 +17,106 @@ from mmcsplat.store import SessionWriter
 WIDTH, HEIGHT, FOCAL = 48, 36, 40.0
 
 
-def ring_camera(name: str, angle: float, radius: float = 1.2, height: float = 0.8) -> Camera:
+def ring_camera(name: str, angle: float, radius: float = 1.2, height: float = 0.8, zoom: int = 1) -> Camera:
+    """A camera on a ring around the origin, looking at it; ``zoom`` multiplies its resolution."""
     center = np.array([radius * np.cos(angle), radius * np.sin(angle), height])
     forward = -center / np.linalg.norm(center)
     right = np.cross(forward, [0.0, 0.0, 1.0])
     right /= np.linalg.norm(right)
     down = np.cross(forward, right)
     R = np.stack([right, down, forward])
-    K = [[FOCAL, 0, WIDTH / 2 - 0.5], [0, FOCAL, HEIGHT / 2 - 0.5], [0, 0, 1]]
-    return Camera(name, WIDTH, HEIGHT, K, R, -R @ center)
+    width, height, focal = WIDTH * zoom, HEIGHT * zoom, FOCAL * zoom
+    K = [[focal, 0, width / 2 - 0.5], [0, focal, height / 2 - 0.5], [0, 0, 1]]
+    return Camera(name, width, height, K, R, -R @ center)
 
 
-def subject(count: int = 150, seed: int = 0) -> Gaussians:
+def subject(count: int = 150, seed: int = 0, scale: float = 0.03) -> Gaussians:
+    """``count`` Gaussians of ``scale`` metres with random colours and rotations in a 24 × 12 × 8 cm cloud."""
     g = torch.Generator().manual_seed(seed)
     means = torch.randn(count, 3, generator=g, dtype=torch.float64) * torch.tensor([0.12, 0.06, 0.04], dtype=torch.float64)
     quats = torch.randn(count, 4, generator=g, dtype=torch.float64)
-    log_scales = torch.full((count, 3), float(np.log(0.03)), dtype=torch.float64)
+    log_scales = torch.full((count, 3), float(np.log(scale)), dtype=torch.float64)
     opacity_logits = torch.full((count,), 2.0, dtype=torch.float64)
     colors = torch.rand(count, 3, generator=g, dtype=torch.float64)
     return Gaussians(means, quats, log_scales, opacity_logits, colors, torch.ones(count, 1, dtype=torch.float64))
 
 
-def write_session(path: Path, cameras: int = 5, heldout: tuple[str, ...] = ("cam_0",), blank: tuple[str, ...] = ()) -> Path:
-    """Render ``subject()`` into ``cameras`` ring cameras; cameras in ``blank`` get an empty image/mask."""
+def moved(gaussians: Gaussians, t: int, step: float = 0.005, bend: float = 0.04) -> Gaussians:
+    """The subject at frame ``t``: translated ``step`` metres per frame along x, its x > 0 half bent
+    ``t·bend`` radians about the y axis through the origin, smoothly (an articulated limb on a body)."""
+    from mmcsplat.geometry import quat_multiply
+
+    means = gaussians.means
+    angle = t * bend * torch.clamp(means[:, 0] / 0.05, 0, 1)
+    cos, sin = torch.cos(angle), torch.sin(angle)
+    x, y, z = means.unbind(-1)
+    bent = torch.stack([cos * x + sin * z, y, -sin * x + cos * z], dim=-1)
+    half = torch.stack([torch.cos(angle / 2), torch.zeros_like(angle), torch.sin(angle / 2), torch.zeros_like(angle)], dim=-1)
+    quats = quat_multiply(half, gaussians.quats / gaussians.quats.norm(dim=-1, keepdim=True))
+    shift = torch.tensor([step * t, 0.0, 0.0], dtype=means.dtype)
+    return Gaussians(bent + shift, quats, gaussians.log_scales, gaussians.opacity_logits, gaussians.colors, gaussians.features)
+
+
+def write_session(path: Path, cameras: int = 5, heldout: tuple[str, ...] = ("cam_0",), blank: tuple[str, ...] = (),
+                  frames: int = 1, absent: tuple[tuple[str, int], ...] = (), zoom: int = 1, truth: Gaussians | None = None) -> Path:
+    """Render ``truth`` (default ``subject()``), moving over ``frames``, into ``cameras`` ring cameras of ``zoom`` times the
+    base resolution; cameras in ``blank`` get an empty image/mask; the (camera, frame) pairs in ``absent``
+    are left out of the session."""
     from mmcsplat.backends.torch_reference import rasterize
 
-    rig = [ring_camera(f"cam_{i}", 2 * np.pi * i / cameras) for i in range(cameras)]
-    gaussians = subject()
-    with SessionWriter(path, cameras=rig, num_frames=1, fps=30.0, heldout=heldout, source="fitting-scene") as writer:
-        for camera in rig:
-            out = rasterize(gaussians, RenderCameras.from_cameras([camera], dtype=torch.float64))
-            rgb = (out.rgb[0].clamp(0, 1).numpy() * 255).round().astype(np.uint8)
-            mask = out.alpha[0].numpy() > 0.5
-            if camera.name in blank:
-                rgb[:] = 0
-                mask[:] = False
-            writer.write_frame(camera.name, 0, rgb, mask=mask, depth=out.depth[0].numpy().astype(np.float32))
+    rig = [ring_camera(f"cam_{i}", 2 * np.pi * i / cameras, zoom=zoom) for i in range(cameras)]
+    with SessionWriter(path, cameras=rig, num_frames=frames, fps=30.0, heldout=heldout, source="fitting-scene") as writer:
+        for t in range(frames):
+            gaussians = moved(subject() if truth is None else truth, t)
+            for camera in (camera for camera in rig if (camera.name, t) not in absent):
+                out = rasterize(gaussians, RenderCameras.from_cameras([camera], dtype=torch.float64))
+                rgb = (out.rgb[0].clamp(0, 1).numpy() * 255).round().astype(np.uint8)
+                mask = out.alpha[0].numpy() > 0.5
+                if camera.name in blank:
+                    rgb[:] = 0
+                    mask[:] = False
+                writer.write_frame(camera.name, t, rgb, mask=mask, depth=out.depth[0].numpy().astype(np.float32))
     return path
+
+
+def write_ground_truth(path: Path, frames: int, truth: Gaussians | None = None) -> Path:
+    """A ground-truth group with ``surface_points`` [T, P, 3]: the moving subject's Gaussian centres."""
+    truth = subject() if truth is None else truth
+    import zarr
+
+    points = np.stack([moved(truth, t).means.numpy() for t in range(frames)]).astype(np.float32)
+    zarr.open_group(str(path), mode="w", zarr_format=3).create_array("surface_points", data=points)
+    return path
+
+
+def write_fitted_run(run: Path, session: Path, truth: Gaussians | None = None) -> Path:
+    """A completed first-frame "fit" of ``session`` that is the true subject (default ``subject()``) at
+    frame 0: tracking tests start from it, so what they measure is the dynamics alone. Its configuration
+    has no segmentation loss: the true Gaussians' soft edges are not the optimum of one against binary
+    masks, so it would move them even where nothing moves."""
+    import json
+
+    from mmcsplat.geometry import rig_center, rig_scale
+    from mmcsplat.model import GaussianModel, LearningRates
+    from mmcsplat.store import SessionReader
+
+    reader = SessionReader(session)
+    train = list(reader.train_cameras)
+    truth = subject() if truth is None else truth
+    gaussians = Gaussians(*(getattr(truth, field).float() for field in ("means", "quats", "log_scales", "opacity_logits", "colors", "features")))
+    center = rig_center(reader.cameras)
+    model = GaussianModel(gaussians, tuple(train), LearningRates(), rig_scale(reader.cameras, center))
+    run.mkdir(parents=True, exist_ok=True)
+    torch.save({"model": model.state_dict()}, run / "checkpoint.pt")
+    config = {"fit": {"lambda_seg": 0.0}, "renderer": {"name": "torch-cpu"}, "initializer": [{"name": "masked"}]}
+    info = {
+        "status": "complete", "session": str(Path(session).resolve()), "config": "test", "config_values": config,
+        "renderer": "torch-cpu", "frame": 0, "train_cameras": train, "heldout_cameras": list(reader.heldout),
+        "iterations": 0, "num_gaussians": gaussians.count, "wall_s": 0.0,
+        "scene_center": center.tolist(), "scene_scale": rig_scale(reader.cameras, center),
+    }
+    (run / "run.json").write_text(json.dumps(info))
+    return run
 
 
 CONFIG = """

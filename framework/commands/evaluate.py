@@ -1,4 +1,7 @@
-"""Evaluate a fit run (or every fold of one) on its held-out cameras; writes RUN/metrics.json."""
+"""Evaluate a fit run (or every fold of one) on its held-out cameras; writes RUN/metrics.json.
+
+A run with tracks (`mmcsplat track`) also gets tracking errors against ground truth, the held-out masked
+PSNR of every frame and a drift report."""
 
 from __future__ import annotations
 
@@ -10,17 +13,23 @@ from pathlib import Path
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("run", type=Path, help="run directory written by `mmcsplat fit`")
     parser.add_argument("--backend", help="renderer backend to render with (default: the one that fitted)")
+    parser.add_argument("--ground-truth", type=Path, metavar="PATH",
+                        help="ground truth of a tracked run (a zarr group with surface_points [T, P, 3]; default: "
+                             "ground_truth.zarr beside the session's source capture, as `mmcsplat synth` writes)")
     parser.add_argument("--json", action="store_true", help="print the metrics as JSON")
 
 
 def run(args: argparse.Namespace) -> int:
     from ..evaluate import evaluate
 
-    metrics = evaluate(args.run, backend=args.backend)
+    metrics = evaluate(args.run, backend=args.backend, ground_truth=args.ground_truth)
     if args.json:
         print(json.dumps(metrics, indent=2))
         return 0
-    for key in ("val_masked_psnr", "val_psnr", "val_ssim", "train_masked_psnr", "num_gaussians", "iterations", "wall_s"):
+    for key in ("val_masked_psnr", "val_psnr", "val_ssim", "train_masked_psnr", "num_gaussians", "iterations", "wall_s",
+                "tracking_median_mm", "tracking_p90_mm", "tracking_2d_median_px", "drift"):
+        if key not in metrics:
+            continue
         value = metrics.get(key)
-        print(f"{key:<18} {value:.3f}" if isinstance(value, float) else f"{key:<18} {value}")
+        print(f"{key:<22} {value:.3f}" if isinstance(value, float) else f"{key:<22} {value}")
     return 0

@@ -17,6 +17,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                         help="override a configuration value, e.g. --set dynamics.iterations=300 (repeatable)")
     parser.add_argument("--backend", help="renderer backend by name (default: the one that fitted)")
+    parser.add_argument("--frames", type=int, metavar="N", help="track only the first N frames (the fitted one included; default: all)")
     parser.add_argument("--overwrite", action="store_true", help="replace existing RUN/tracks.zarr")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
 
@@ -25,7 +26,7 @@ def run(args: argparse.Namespace) -> int:
     from ..track import track_run
 
     record = track_run(args.run, config=args.config, overrides=args.overrides, dynamics=args.dynamics,
-                       backend=args.backend, progress=not args.no_progress, overwrite=args.overwrite)
+                       backend=args.backend, progress=not args.no_progress, overwrite=args.overwrite, frames=args.frames)
     start, stop = record["frames"]
     print(f"{args.run}: tracked frames {start}–{stop - 1} with {record['method']} in {record['wall_s']:.1f} s "
           f"({record['wall_s_per_frame']:.2f} s per frame)")

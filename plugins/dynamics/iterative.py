@@ -37,13 +37,15 @@ RESET_EACH_FRAME = ("means", "quats")
 @attrs.frozen
 class FrameResult:
     """How one frame's fit ended: the mean over its cameras of each one's last loss and PSNR (``None``
-    when no training camera holds the frame), and its time."""
+    when no training camera holds the frame), and its wall-clock and CPU time (on a shared machine the
+    CPU time is the steadier measure)."""
 
     frame: int
     loss: float | None
     psnr: float | None
     cameras: int
     wall_s: float
+    cpu_s: float
 
 
 class IterativeDynamics(Dynamics):
@@ -164,10 +166,10 @@ class IterativeDynamics(Dynamics):
                    t: int, generator: torch.Generator) -> FrameResult:
         from tqdm import tqdm
 
-        began = time.perf_counter()
+        began, cpu = time.perf_counter(), time.process_time()
         views = context.views(t)
         if not views:
-            return FrameResult(t, None, None, 0, time.perf_counter() - began)
+            return FrameResult(t, None, None, 0, time.perf_counter() - began, time.process_time() - cpu)
         settings = context.settings
         lambda_seg = settings.lambda_seg if self.lambda_seg is None else self.lambda_seg
         background = torch.tensor(settings.background, dtype=torch.float32)
@@ -198,4 +200,4 @@ class IterativeDynamics(Dynamics):
         bar.close()
         last = np.array(list(recent.values())).reshape(-1, 2)
         mean = last.mean(axis=0).tolist() if len(last) else [None, None]
-        return FrameResult(t, mean[0], mean[1], len(views), time.perf_counter() - began)
+        return FrameResult(t, mean[0], mean[1], len(views), time.perf_counter() - began, time.process_time() - cpu)
