@@ -36,6 +36,8 @@ def mmcsplat_dynamics() -> list[Registration]:
     return [
         Registration("iterative", "mmcsplat.plugins.dynamics.iterative:IterativeDynamics",
                      "per-frame optimisation from the previous frame with local-rigidity priors (Luiten et al.)"),
+        Registration("deformation", "mmcsplat.plugins.dynamics.deformation:DeformationDynamics",
+                     "one MLP deformation field over (x, y, z, t) for the whole sequence (Yang et al.)"),
     ]
 
 

@@ -1,0 +1,266 @@
+"""``deformation``: one deformation field over the whole sequence (Yang et al. 2023, the reference study's
+second method). Canonical Gaussians (starting as the first-frame fit) are moved, turned and rescaled at
+time t by an MLP over sinusoidal encodings of (x, y, z, t); canonical parameters and the MLP train together
+on images drawn at random (t, camera) from the session, one per iteration, through the session's bounded
+frame cache, so memory does not grow with the length of the sequence.
+
+Conventions (docs/deformation.md): time is normalised to [0, 1] over the sequence's frame times; the time
+noise is Gaussian with ``time_noise`` frame intervals of standard deviation (Yang et al.: 0.1 × 1/T),
+annealed linearly to zero at ``noise_until`` iterations — 20 000 of the study's 40 000, scaled by
+``iterations / 40 000`` for shorter runs so the last half always trains without noise; the MLP's learning
+rate decays exponentially from ``lr`` to ``lr_final``; densification continues in canonical space with the
+configured densifier (default: ``default``, no opacity reset, densifying until half-way).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import attrs
+import numpy as np
+import torch
+
+from mmcsplat import losses
+from mmcsplat.atomic import atomic_path
+from mmcsplat.fit import FirstFrameFit, load_view
+from mmcsplat.interfaces import Densifier, Dynamics
+from mmcsplat.model import GaussianModel, gaussians_from_params
+from mmcsplat.rendering import RenderCameras
+from mmcsplat.store import SessionReader
+from mmcsplat.track import TrackingContext
+from mmcsplat.tracks import TrackWriter
+
+from .deformation_field import DeformationField
+
+#: The study's sequence length and the iteration by which its time noise had faded.
+REFERENCE_ITERATIONS = 40_000
+#: The run's training state, kept after the run (the field can be evaluated at any time later).
+CHECKPOINT = "deformation.pt"
+#: Deformed parameters; the others are static over the sequence.
+DEFORMED = ("means", "quats", "log_scales")
+STATIC = ("opacity_logits", "color_logits", "seg_logits")
+
+
+@attrs.frozen
+class DeformationSettings:
+    """The ``[dynamics]`` parameters of ``deformation`` (module docstring; docs/deformation.md).
+
+    ``iterations`` over the whole sequence, one (frame, camera) image each; the field's ``depth`` × ``width``,
+    ``skip`` connection and encoding ``frequencies``; the MLP's learning rate ``lr`` → ``lr_final``; the
+    time noise; ``cache_bytes`` bounds the decoded frames held (``None``: the session's default);
+    ``densifier`` is the densifier's table (``name`` and parameters) over :meth:`densifier_params`' defaults.
+    """
+
+    iterations: int = 2000
+    depth: int = 4
+    width: int = 128
+    skip: bool = True
+    frequencies: int = 10
+    lr: float = 8e-4
+    lr_final: float = 8e-6
+    time_noise: float = 0.1
+    noise_until: int = 20_000
+    cache_bytes: int | None = None
+    seed: int = 0
+    checkpoint_every: int = 500
+    densifier: Mapping[str, Any] = attrs.field(factory=dict, converter=dict)
+
+    def __attrs_post_init__(self) -> None:
+        if self.iterations < 1 or self.depth < 1 or self.width < 1 or self.frequencies < 0:
+            raise ValueError(f"deformation: iterations, depth and width must be ≥ 1 and frequencies ≥ 0, got {self}")
+
+    def noise_std(self, step: int, frames: int) -> float:
+        """Standard deviation of the time noise at ``step``, in normalised time (``frames`` frames span 1)."""
+        until = self.noise_until * min(1.0, self.iterations / REFERENCE_ITERATIONS)
+        return self.time_noise / max(frames - 1, 1) * max(0.0, 1.0 - step / max(until, 1.0))
+
+    def mlp_lr(self, step: int) -> float:
+        """The MLP's learning rate at ``step``: exponential decay from ``lr`` to ``lr_final``."""
+        fraction = min(step / self.iterations, 1.0)
+        return math.exp((1 - fraction) * math.log(self.lr) + fraction * math.log(self.lr_final))
+
+    def densifier_params(self) -> dict[str, Any]:
+        """The densifier's table (``name`` and parameters): ``densifier`` over, when it names ``default`` or
+        nothing, ``default`` every 100 iterations from 500 to half-way without opacity resets (a reset
+        would undo the first-frame fit mid-sequence)."""
+        table = dict(self.densifier)
+        if table.get("name", "default") != "default":
+            return table
+        defaults = {"name": "default", "start": 500, "stop": self.iterations // 2, "every": 100, "reset_every": self.iterations + 1}
+        return defaults | table
+
+
+def normalised_times(session: SessionReader, frames: range) -> torch.Tensor:
+    """[len(frames)] times of ``frames`` mapped onto [0, 1] (0 for a single frame)."""
+    seconds = np.asarray(session.frame_times, dtype=np.float64)[frames.start : frames.stop]
+    span = seconds[-1] - seconds[0]
+    return torch.as_tensor((seconds - seconds[0]) / span if span > 0 else np.zeros_like(seconds), dtype=torch.float32)
+
+
+class DeformationDynamics(Dynamics):
+    """A deformation field over space and time trained with the canonical Gaussians on random (frame,
+    camera) images of the whole sequence; writes every frame's deformed means, quaternions and log-scales."""
+
+    def __init__(self, **params: Any) -> None:
+        known = {field.name for field in attrs.fields(DeformationSettings)}
+        unknown = sorted(set(params) - known)
+        if unknown:
+            raise ValueError(f"deformation: unknown parameter(s) {unknown}; known: {sorted(known)}")
+        self.settings = DeformationSettings(**params)
+
+    def track(self, context: TrackingContext, out: Path) -> dict[str, Any]:
+        """Train the field and the canonical Gaussians (resuming from ``out/deformation.pt`` unless
+        overwriting), then write every frame's state; returns the run's size, timings and cache use."""
+        settings = self.settings
+        session = context.session if settings.cache_bytes is None else SessionReader(context.session.url, cache_bytes=settings.cache_bytes)
+        run = _Run(settings, context, session, Path(out))
+        run.train()
+        run.write_tracks()
+        return run.summary()
+
+
+class _Run:
+    """One training run of :class:`DeformationDynamics`: model, field, optimiser, sampling and checkpoints."""
+
+    def __init__(self, settings: DeformationSettings, context: TrackingContext, session: SessionReader, out: Path) -> None:
+        self.settings = settings
+        self.context = context
+        self.session = session
+        self.out = out
+        self.model = GaussianModel.from_params(context.params, tuple(c.name for c in context.cameras), context.settings.lrs,
+                                               context.scene_scale, context.camera_scale, context.camera_offset)
+        with torch.random.fork_rng():  # the field's initial weights, without touching the global generator
+            torch.manual_seed(settings.seed)
+            self.field = DeformationField(settings.depth, settings.width, settings.frequencies, settings.skip)
+        self.optimizer = torch.optim.Adam(self.field.parameters(), lr=settings.lr, eps=1e-15)
+        table = settings.densifier_params()
+        self.densifier: Densifier = context.registry.create("densifier", table.pop("name"), **table)
+        self.densify_state = self.densifier.initialize_state(context.scene_scale)
+        self.generator = torch.Generator().manual_seed(settings.seed)
+        self.times = normalised_times(session, context.frames)
+        # Every (frame, training camera) the session holds; images are drawn from these uniformly.
+        present = np.stack([session.present(c.name)[context.frames.start : context.frames.stop] for c in context.cameras])
+        self.pairs = torch.as_tensor(np.argwhere(present.T))  # [P, 2]: (tracks frame k, camera index)
+        self.cameras = RenderCameras.from_cameras(context.cameras)
+        self.step = 0
+        self.elapsed = 0.0
+        self.recent: list[tuple[float, float]] = []
+
+    # ------------------------------------------------------------------------------------- the field
+
+    def deformed(self, k: int | torch.Tensor, noise: float = 0.0) -> dict[str, torch.Tensor]:
+        """Every Gaussian parameter at tracks frame ``k`` (its normalised time plus ``noise``)."""
+        params = self.model.params
+        d_means, d_quats, d_scales = self.field(params["means"], self.times[k] + noise)
+        deformed = {"means": params["means"] + d_means, "quats": params["quats"] + d_quats, "log_scales": params["log_scales"] + d_scales}
+        return {**params, **deformed}
+
+    # -------------------------------------------------------------------------------------- training
+
+    def train(self) -> None:
+        """Run to ``settings.iterations``, checkpointing atomically every ``checkpoint_every``."""
+        from tqdm import tqdm
+
+        settings, context, model = self.settings, self.context, self.model
+        fit = context.settings
+        checkpoint = self.out / CHECKPOINT
+        if checkpoint.exists() and not context.overwrite:
+            self._resume(checkpoint)
+        background = torch.tensor(fit.background, dtype=torch.float32)
+        frames = len(context.frames)
+        bar = tqdm(range(self.step, settings.iterations), initial=self.step, total=settings.iterations, desc="deformation",
+                   unit="it", disable=not context.progress)
+        began = time.perf_counter() - self.elapsed
+        for step in bar:
+            k, index = self.pairs[int(torch.randint(len(self.pairs), (1,), generator=self.generator))].tolist()
+            view = load_view(self.session, context.frames[k], context.cameras[index], index, context.initializers)
+            noise = float(torch.randn((), generator=self.generator)) * settings.noise_std(step, frames)
+            render = context.renderer.render(gaussians_from_params(self.deformed(k, noise)), self.cameras.select([index]), background)
+            image = model.correct_color(render.rgb[0], index)
+            loss = fit.lambda_image * losses.photometric_loss(image, view.image, fit.ssim_weight)
+            if fit.lambda_seg > 0:
+                loss = loss + fit.lambda_seg * losses.photometric_loss(render.features[0, ..., :1], view.seg_target, fit.ssim_weight)
+            self.densifier.step_pre_backward(model, self.densify_state, step, render)
+            loss.backward()
+            FirstFrameFit._check_finite(loss, model, step, "gradient")
+            for group in self.optimizer.param_groups:
+                group["lr"] = settings.mlp_lr(step)
+            self.optimizer.step()
+            self.optimizer.zero_grad(set_to_none=True)
+            model.step()
+            self.densifier.step_post_backward(model, self.densify_state, step, render)
+            FirstFrameFit._check_finite(loss, model, step, "parameter")
+            if step % 10 == 0 or step >= settings.iterations - 100:
+                psnr = float(losses.psnr(image.detach().clamp(0, 1), view.image))
+                self.recent = [*self.recent[-99:], (loss.item(), psnr)]
+                bar.set_postfix(loss=f"{loss.item():.4f}", psnr=f"{psnr:.2f}", n=model.count)
+            self.step = step + 1
+            self.elapsed = time.perf_counter() - began
+            if self.step % settings.checkpoint_every == 0 or self.step == settings.iterations:
+                self._checkpoint(checkpoint)
+        bar.close()
+
+    def _key(self) -> dict[str, Any]:
+        """What a checkpoint must have been written with to be resumed."""
+        settings = attrs.asdict(self.settings, filter=lambda field, _: field.name not in ("checkpoint_every", "cache_bytes"))
+        return {"settings": settings, "frames": [self.context.frames.start, self.context.frames.stop],
+                "cameras": [c.name for c in self.context.cameras]}
+
+    def _checkpoint(self, path: Path) -> None:
+        payload = {
+            "key": self._key(), "step": self.step, "elapsed": self.elapsed, "recent": self.recent,
+            "model": self.model.state_dict(), "field": self.field.state_dict(), "optimizer": self.optimizer.state_dict(),
+            "generator": self.generator.get_state(), "densifier": self.densify_state,
+        }
+        with atomic_path(path) as temporary:
+            torch.save(payload, temporary)
+
+    def _resume(self, path: Path) -> None:
+        payload = torch.load(path, weights_only=False)
+        if payload["key"] != self._key():
+            raise ValueError(f"{path} was written with other deformation settings or frames; use --overwrite to start afresh")
+        self.model.load_state_dict(payload["model"])
+        self.field.load_state_dict(payload["field"])
+        self.optimizer.load_state_dict(payload["optimizer"])
+        self.generator.set_state(payload["generator"])
+        self.densify_state.clear()
+        self.densify_state.update(payload["densifier"])
+        self.step, self.elapsed, self.recent = int(payload["step"]), float(payload["elapsed"]), list(payload["recent"])
+
+    # --------------------------------------------------------------------------------------- output
+
+    def write_tracks(self) -> None:
+        """Every frame's deformed means, quaternions and log-scales; the other parameters are static."""
+        from tqdm import tqdm
+
+        static = {name: self.model.params[name].detach() for name in STATIC}
+        attributes = {"first_frame": self.context.frames.start, "depth": self.settings.depth, "width": self.settings.width,
+                      "iterations": self.settings.iterations, "checkpoint": CHECKPOINT}
+        with TrackWriter(self.out, num_frames=len(self.context.frames), static=static, method="deformation",
+                         attrs=attributes, overwrite=self.context.overwrite) as writer, torch.no_grad():
+            for k in tqdm(range(len(self.context.frames)), desc="write tracks", unit="frame", disable=not self.context.progress):
+                state = self.deformed(k)
+                writer.write_frame(k, **{name: state[name] for name in DEFORMED})
+
+    def summary(self) -> dict[str, Any]:
+        """The run's size, time per iteration, last losses and frame-cache use (for RUN/track.json)."""
+        recent = np.array(self.recent).reshape(-1, 2)
+        cache = self.session.cache
+        return {
+            "iterations": self.step,
+            "depth": self.settings.depth,
+            "width": self.settings.width,
+            "field_parameters": sum(p.numel() for p in self.field.parameters()),
+            "num_gaussians": self.model.count,
+            "train_wall_s": round(self.elapsed, 3),
+            "s_per_iteration": round(self.elapsed / max(self.step, 1), 4),
+            "last_loss": float(recent[:, 0].mean()) if len(recent) else None,
+            "last_psnr": float(recent[:, 1].mean()) if len(recent) else None,
+            "cache_bytes": cache.max_bytes,
+            "cache_hits": cache.hits,
+            "cache_misses": cache.misses,
+        }
