@@ -178,6 +178,9 @@ class _Run:
         for step in bar:
             k, index = self.pairs[int(torch.randint(len(self.pairs), (1,), generator=self.generator))].tolist()
             view = load_view(self.session, context.frames[k], context.cameras[index], index, context.initializers)
+            if fit.lambda_seg > 0 and view.seg_target is None:
+                raise ValueError(f"fit.lambda_seg = {fit.lambda_seg} needs subject masks, but session {self.session.url!r} has none for "
+                                 f"camera {view.camera.name!r} at frame {context.frames[k]}: run `mmcsplat segment` or set fit.lambda_seg=0")
             noise = float(torch.randn((), generator=self.generator)) * settings.noise_std(step, frames)
             render = context.renderer.render(gaussians_from_params(self.deformed(k, noise)), self.cameras.select([index]), background)
             image = model.correct_color(render.rgb[0], index)
