@@ -93,12 +93,18 @@ def write_video(path: str | os.PathLike, frames: Iterable[np.ndarray], fps: floa
     return attrs.evolve(info, frames=count)
 
 
-def write_png(path: str | os.PathLike, image: np.ndarray) -> None:
-    """Write a uint8 [H, W, 3] RGB image as a PNG at ``path``, atomically."""
+def encode_png(image: np.ndarray) -> bytes:
+    """A uint8 [H, W, 3] RGB image as PNG bytes."""
     import cv2
 
     ok, encoded = cv2.imencode(".png", np.ascontiguousarray(image[..., ::-1]))
     if not ok:
-        raise RuntimeError(f"{path}: PNG encoding failed")
+        raise RuntimeError(f"PNG encoding of a {list(image.shape)} {image.dtype} image failed")
+    return encoded.tobytes()
+
+
+def write_png(path: str | os.PathLike, image: np.ndarray) -> None:
+    """Write a uint8 [H, W, 3] RGB image as a PNG at ``path``, atomically."""
+    payload = encode_png(image)
     with atomic_path(path) as temporary:
-        temporary.write_bytes(encoded.tobytes())
+        temporary.write_bytes(payload)
