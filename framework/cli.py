@@ -19,7 +19,6 @@ COMMANDS = {
     "track": "track",
     "evaluate": "evaluate",
     "compare": "compare",
-    "stability": "stability",
     "render": "render",
     "export": "export",
     "report": "report",
