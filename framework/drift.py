@@ -22,6 +22,7 @@ import numpy as np
 from .camera import Camera
 from .store import SessionReader
 from .tracks import TrackReader
+from .visual_hull import dilated, mask_votes
 
 VIEW_FRACTION = 0.5
 MARGIN_PX = 2
@@ -46,28 +47,11 @@ class DriftReport:
     max_fraction: float
 
 
-def _dilated(mask: np.ndarray, margin: int) -> np.ndarray:
-    if margin <= 0:
-        return mask
-    import cv2
-
-    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin + 1, 2 * margin + 1))
-    return cv2.dilate(mask.astype(np.uint8), kernel) > 0
-
-
 def off_subject(points: np.ndarray, views: Sequence[tuple[Camera, np.ndarray]], view_fraction: float = VIEW_FRACTION) -> np.ndarray:
     """[N] bool: ``points`` [N, 3] outside the (camera, mask) ``views``' masks in at least
     ``view_fraction`` of the views that see them (never for points no view sees)."""
-    seen = np.zeros(len(points), dtype=int)
-    outside = np.zeros(len(points), dtype=int)
-    for camera, mask in views:
-        depth = (points @ camera.R.T + camera.t)[:, 2]
-        pixels = np.round(camera.project(points)).astype(int) if len(points) else np.zeros((0, 2), int)
-        sees = (depth > 0) & np.all((pixels >= 0) & (pixels < [camera.width, camera.height]), axis=1)
-        inside = np.zeros(len(points), dtype=bool)
-        inside[sees] = mask[pixels[sees, 1], pixels[sees, 0]]
-        seen += sees
-        outside += sees & ~inside
+    seen, inside = mask_votes(points, views)
+    outside = seen - inside
     return (seen > 0) & (outside >= view_fraction * seen)
 
 
@@ -97,7 +81,7 @@ def detect_drift(
                 mask = session.frame(t, name).mask
                 if mask is None:
                     raise ValueError(f"drift detection needs subject masks: session {session.url!r} has none for camera {name!r} at frame {t}")
-                views.append((session.camera(name), _dilated(mask, margin_px)))
+                views.append((session.camera(name), dilated(mask, margin_px)))
         off = off_subject(tracks.means(k)[index].astype(np.float64), views, view_fraction)
         at_first = off if at_first is None else at_first
         ever |= off & ~at_first

@@ -18,6 +18,7 @@ from .rendering import RenderCameras
 from .store import SessionReader
 from .tracking import evaluate_tracks
 from .tracks import TRACKS_DIR, TrackReader
+from .visual_hull import FLOATER_MARGIN_PX, dilated, floater_share
 
 METRICS_FILE = "metrics.json"
 
@@ -26,11 +27,27 @@ def _mean(values: list[float]) -> float | None:
     return float(np.mean(values)) if values else None
 
 
+def _floater_share(session: SessionReader, frame: int, params: dict[str, torch.Tensor]) -> float | None:
+    """:func:`~mmcsplat.visual_hull.floater_share` of the fitted Gaussians against the hull of every
+    camera's mask at ``frame`` (dilated by :data:`~mmcsplat.visual_hull.FLOATER_MARGIN_PX`); ``None``
+    for a session without masks there."""
+    views = []
+    for name in session.camera_names:
+        mask = session.frame(frame, name).mask if session.present(name)[frame] else None
+        if mask is not None:
+            views.append((session.camera(name), dilated(mask, FLOATER_MARGIN_PX)))
+    if not views:
+        return None
+    opacities = torch.sigmoid(params["opacity_logits"].detach()).double().numpy()
+    return floater_share(params["means"].detach().double().numpy(), opacities, views)
+
+
 def evaluate_run(run: Path, registry: Registry | None = None, backend: str | None = None, ground_truth: Path | None = None) -> dict[str, Any]:
     """Score one run directory and write its metrics.json; returns the metrics. A run with tracks
     (``mmcsplat track``) also gets the tracking metrics of :mod:`mmcsplat.tracking` (against
     ``ground_truth``, or the one found beside the session's source) and the drift report of
-    :mod:`mmcsplat.drift`."""
+    :mod:`mmcsplat.drift`. ``floater_share`` is the share of opacity mass outside the visual hull of the
+    session's masks at the fitted frame (:mod:`mmcsplat.visual_hull`)."""
     registry = registry or default_registry()
     info, params, camera_scale, camera_offset = load_fitted(run)
     session = SessionReader(info["session"])
@@ -66,6 +83,7 @@ def evaluate_run(run: Path, registry: Registry | None = None, backend: str | Non
         "train_masked_psnr": _mean(scores["train"].get("masked_psnr", [])),
         "train_psnr": _mean(scores["train"].get("psnr", [])),
         "num_gaussians": int(params["means"].shape[0]),
+        "floater_share": _floater_share(session, frame, params),
         "iterations": info["iterations"],
         "wall_s": info["wall_s"],
         "status": info["status"],
@@ -98,7 +116,7 @@ def evaluate(run: Path, registry: Registry | None = None, backend: str | None = 
         return evaluate_run(Path(run), registry, backend, ground_truth)
     folds = {path.name: evaluate_run(path, registry, backend, ground_truth) for path in runs}
     summary: dict[str, Any] = {}
-    for key in ("val_masked_psnr", "val_psnr", "val_ssim", "train_masked_psnr", "train_psnr", "num_gaussians", "iterations", "wall_s"):
+    for key in ("val_masked_psnr", "val_psnr", "val_ssim", "train_masked_psnr", "train_psnr", "num_gaussians", "floater_share", "iterations", "wall_s"):
         values = [m[key] for m in folds.values() if m[key] is not None]
         summary[key] = _mean(values)
     summary["val_masked_psnr_std"] = float(np.std([m["val_masked_psnr"] for m in folds.values() if m["val_masked_psnr"] is not None] or [np.nan]))

@@ -13,6 +13,7 @@ from scipy.spatial import cKDTree
 
 from mmcsplat.interfaces import Initializer, SceneContext
 from mmcsplat.rendering import Gaussians, RenderOutput
+from mmcsplat.visual_hull import in_hull, mask_hits
 
 INITIAL_OPACITY = 0.1
 INITIAL_SEG = 0.5
@@ -133,22 +134,15 @@ class VisualHullInitializer(Initializer):
         return gaussians_at(points, colors, generator)
 
     def _carve(self, points: np.ndarray, views) -> tuple[np.ndarray, np.ndarray]:
-        outside = np.zeros(len(points), dtype=int)
         color_sum = np.zeros((len(points), 3))
-        color_count = np.zeros(len(points))
-        for camera, mask, rgb in views:
-            camera_points = points @ camera.R.T + camera.t
-            pixels = camera.project(points)
-            u = np.round(pixels[:, 0]).astype(int)
-            v = np.round(pixels[:, 1]).astype(int)
-            seen = (camera_points[:, 2] > 0) & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
-            in_mask = np.zeros(len(points), dtype=bool)
-            in_mask[seen] = mask[v[seen], u[seen]]
-            outside += seen & ~in_mask
-            color_sum[in_mask] += rgb[v[in_mask], u[in_mask]] / 255.0
-            color_count += in_mask
-        inside = (outside <= self.tolerance) & (color_count > 0)
-        colors = color_sum / np.maximum(color_count, 1)[:, None]
+        seen = np.zeros(len(points), dtype=int)
+        on_masks = np.zeros(len(points), dtype=int)
+        for (_, _, rgb), (pixels, sees, on_mask) in zip(views, mask_hits(points, [(camera, mask) for camera, mask, _ in views])):
+            seen += sees
+            on_masks += on_mask
+            color_sum[on_mask] += rgb[pixels[on_mask, 1], pixels[on_mask, 0]] / 255.0
+        inside = in_hull(seen, on_masks, self.tolerance)
+        colors = color_sum / np.maximum(on_masks, 1)[:, None]
         return inside, colors
 
 

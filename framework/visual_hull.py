@@ -1,0 +1,66 @@
+"""The visual hull of subject masks: which points project inside the masks of the views that see them.
+
+One projection test serves three users: the ``visual-hull`` initializer carves its starting points with
+it, the drift detector finds foreground Gaussians that left the subject, and the held-out evaluation
+measures floaters — the share of opacity mass whose Gaussians lie outside the hull of the session's masks.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+
+import numpy as np
+
+from .camera import Camera
+
+#: Masks are dilated by this many pixels before the floater test (their own edge errors are no floaters).
+FLOATER_MARGIN_PX = 2
+
+View = tuple[Camera, np.ndarray]
+
+
+def mask_hits(points: np.ndarray, views: Sequence[View]) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Per (camera, [H, W] bool mask) view: (pixels [N, 2] int, seen [N] bool — in front of the camera and
+    inside its image —, inside [N] bool — seen and on the mask) of ``points`` [N, 3]."""
+    for camera, mask in views:
+        depth = (points @ camera.R.T + camera.t)[:, 2]
+        pixels = np.round(camera.project(points)).astype(int) if len(points) else np.zeros((0, 2), dtype=int)
+        seen = (depth > 0) & np.all((pixels >= 0) & (pixels < [camera.width, camera.height]), axis=1)
+        inside = np.zeros(len(points), dtype=bool)
+        inside[seen] = mask[pixels[seen, 1], pixels[seen, 0]]
+        yield pixels, seen, inside
+
+
+def mask_votes(points: np.ndarray, views: Sequence[View]) -> tuple[np.ndarray, np.ndarray]:
+    """(seen, inside) [N] int: how many views see each point, and in how many it is on the mask."""
+    seen = np.zeros(len(points), dtype=int)
+    inside = np.zeros(len(points), dtype=int)
+    for _, sees, on_mask in mask_hits(points, views):
+        seen += sees
+        inside += on_mask
+    return seen, inside
+
+
+def in_hull(seen: np.ndarray, inside: np.ndarray, tolerance: int = 0) -> np.ndarray:
+    """[N] bool: on the mask of every view that sees the point but ``tolerance``, and of at least one."""
+    return (seen - inside <= tolerance) & (inside > 0)
+
+
+def dilated(mask: np.ndarray, margin_px: int) -> np.ndarray:
+    """``mask`` grown by ``margin_px`` pixels (a disc)."""
+    if margin_px <= 0:
+        return mask
+    import cv2
+
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin_px + 1, 2 * margin_px + 1))
+    return cv2.dilate(mask.astype(np.uint8), kernel) > 0
+
+
+def floater_share(means: np.ndarray, opacities: np.ndarray, views: Sequence[View], tolerance: int = 0) -> float:
+    """The share of opacity mass (sum of opacities, in [0, 1] each) of Gaussians whose centres ``means``
+    [N, 3] lie outside the visual hull of ``views`` (masks already dilated); 0 for no opacity at all."""
+    total = float(np.sum(opacities))
+    if total <= 0:
+        return 0.0
+    outside = ~in_hull(*mask_votes(np.asarray(means, dtype=np.float64), views), tolerance)
+    return float(np.sum(opacities[outside]) / total)
