@@ -13,7 +13,7 @@ import io
 import json
 import shlex
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -23,6 +23,10 @@ from .fit import CHECKPOINT, RUN_INFO
 from .registry import Registry
 from .report_html import esc, image, markdown_html, page, table, video
 from .video import encode_png
+
+if TYPE_CHECKING:  # torch-heavy modules are imported only when a run is reported
+    from .render_outputs import RunRenderer
+    from .run_states import RunStates
 
 REPORT_FILE = "report.html"
 RENDERS_DIR = "renders"
@@ -95,7 +99,7 @@ def command(*words: object) -> str:
     return f"<code>{esc(shlex.join(str(word) for word in words))}</code>"
 
 
-def run_summary(states: Any) -> str:
+def run_summary(states: RunStates) -> str:
     """What was fitted: session, configuration, renderer, cameras, frames."""
     info = states.info
     tracked = f"{states.num_frames} frames from session frame {states.first_frame}" if states.tracks is not None else "no (first-frame fit only)"
@@ -105,7 +109,7 @@ def run_summary(states: Any) -> str:
     return "<h2>Run</h2>" + table(None, rows)
 
 
-def views_section(renderer: Any, backend: str) -> str:
+def views_section(renderer: RunRenderer, backend: str) -> str:
     """The held-out cameras (else the first training camera) at the run's first frame: colour, depth and
     segmentation, rendered beside the session's ground truth."""
     states = renderer.states
@@ -117,7 +121,7 @@ def views_section(renderer: Any, backend: str) -> str:
     return "\n".join(parts)
 
 
-def camera_views(renderer: Any, name: str) -> str:
+def camera_views(renderer: RunRenderer, name: str) -> str:
     """One camera's comparison table: rows colour, depth, segmentation; columns rendered, ground truth."""
     from .render_outputs import colorize_depth, depth_range, to_uint8
 
@@ -201,7 +205,7 @@ def per_frame_chart(metrics: dict[str, Any]) -> bytes:
     return buffer.getvalue()
 
 
-def renders_section(run: Path, states: Any) -> str:
+def renders_section(run: Path, states: RunStates) -> str:
     """What ``mmcsplat render`` wrote into RUN/renders/, embedded; the command for what is missing."""
     folder = Path(run) / RENDERS_DIR
     parts = ["<h2>Figures and videos</h2>"]
