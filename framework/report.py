@@ -41,7 +41,8 @@ RENDER_OUTPUTS = (
 RUN_METRICS = (  # (metrics.json key, label)
     ("val_masked_psnr", "held-out masked PSNR (dB)"), ("val_psnr", "held-out PSNR (dB)"), ("val_ssim", "held-out SSIM"),
     ("train_masked_psnr", "training masked PSNR (dB)"), ("train_psnr", "training PSNR (dB)"),
-    ("num_gaussians", "Gaussians"), ("iterations", "iterations"), ("wall_s", "fit wall time (s)"), ("status", "status"),
+    ("num_gaussians", "Gaussians"), ("floater_share", "opacity share outside the masks' hull (floaters)"),
+    ("iterations", "iterations"), ("wall_s", "fit wall time (s)"), ("status", "status"),
 )
 TRACKING_METRICS = (
     ("tracking_method", "dynamics method"), ("tracking_median_mm", "3D error, median (mm)"),
