@@ -14,31 +14,34 @@ SSIM_C2 = 0.03**2
 
 
 @functools.cache
-def _gaussian_window(size: int, sigma: float, dtype: torch.dtype) -> torch.Tensor:
+def _gaussian_taps(size: int, sigma: float, dtype: torch.dtype) -> torch.Tensor:
+    """The 1D normalised Gaussian whose outer product with itself is the SSIM window."""
     coords = torch.arange(size, dtype=torch.float64) - (size - 1) / 2
     g = torch.exp(-(coords**2) / (2 * sigma**2))
-    g = g / g.sum()
-    return (g[:, None] * g[None, :]).to(dtype)
+    return (g / g.sum()).to(dtype)
 
 
 def ssim_map(image: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """Per-pixel SSIM of two [H, W, C] images in [0, 1] (Gaussian window 11, σ 1.5, zero padding as 3DGS)."""
+    """Per-pixel SSIM of two [H, W, C] images in [0, 1] (Gaussian window 11, σ 1.5, zero padding as 3DGS).
+
+    The window is separable and zero padding commutes with that, so the five local moments are blurred
+    together by two 1D convolutions: the same values as the 11×11 window at a fifth of the cost, which
+    matters because the fit computes SSIM twice per iteration."""
     channels = image.shape[-1]
-    window = _gaussian_window(SSIM_WINDOW, SSIM_SIGMA, image.dtype).to(image.device)
-    window = window.expand(channels, 1, SSIM_WINDOW, SSIM_WINDOW)
-    x = image.permute(2, 0, 1)[None]
-    y = target.permute(2, 0, 1)[None]
-
-    def blur(z: torch.Tensor) -> torch.Tensor:
-        return F.conv2d(z, window, padding=SSIM_WINDOW // 2, groups=channels)
-
-    mu_x, mu_y = blur(x), blur(y)
-    sigma_x = blur(x * x) - mu_x**2
-    sigma_y = blur(y * y) - mu_y**2
-    sigma_xy = blur(x * y) - mu_x * mu_y
+    taps = _gaussian_taps(SSIM_WINDOW, SSIM_SIGMA, image.dtype).to(image.device)
+    x = image.permute(2, 0, 1)
+    y = target.permute(2, 0, 1)
+    moments = torch.cat([x, y, x * x, y * y, x * y])[None]  # [1, 5C, H, W]
+    rows = taps.view(1, 1, SSIM_WINDOW, 1).expand(5 * channels, 1, SSIM_WINDOW, 1)
+    blurred = F.conv2d(moments, rows, padding=(SSIM_WINDOW // 2, 0), groups=5 * channels)
+    blurred = F.conv2d(blurred, rows.transpose(2, 3), padding=(0, SSIM_WINDOW // 2), groups=5 * channels)
+    mu_x, mu_y, xx, yy, xy = blurred[0].split(channels)
+    sigma_x = xx - mu_x**2
+    sigma_y = yy - mu_y**2
+    sigma_xy = xy - mu_x * mu_y
     numerator = (2 * mu_x * mu_y + SSIM_C1) * (2 * sigma_xy + SSIM_C2)
     denominator = (mu_x**2 + mu_y**2 + SSIM_C1) * (sigma_x + sigma_y + SSIM_C2)
-    return (numerator / denominator)[0].permute(1, 2, 0)
+    return (numerator / denominator).permute(1, 2, 0)
 
 
 def ssim(image: torch.Tensor, target: torch.Tensor) -> torch.Tensor:

@@ -34,6 +34,24 @@ def test_ssim_identity_and_degradation():
     assert ssim(noisy, image) < 0.9
 
 
+def test_ssim_map_equals_the_full_11x11_window():
+    """The separable blur is an optimisation: it must match SSIM computed with the 2D window directly."""
+    generator = torch.Generator().manual_seed(1)
+    image, target = torch.rand(2, 23, 31, 3, generator=generator, dtype=torch.float64)
+    coords = torch.arange(11, dtype=torch.float64) - 5
+    taps = torch.exp(-coords**2 / (2 * 1.5**2))
+    window = (taps[:, None] * taps[None, :] / taps.sum() ** 2).expand(3, 1, 11, 11)
+
+    def blur(z):
+        return torch.nn.functional.conv2d(z.permute(2, 0, 1)[None], window, padding=5, groups=3)[0].permute(1, 2, 0)
+
+    mu_x, mu_y = blur(image), blur(target)
+    var_x, var_y, cov = blur(image**2) - mu_x**2, blur(target**2) - mu_y**2, blur(image * target) - mu_x * mu_y
+    c1, c2 = 0.01**2, 0.03**2
+    expected = (2 * mu_x * mu_y + c1) * (2 * cov + c2) / ((mu_x**2 + mu_y**2 + c1) * (var_x + var_y + c2))
+    torch.testing.assert_close(losses.ssim_map(image, target), expected, rtol=1e-10, atol=1e-12)
+
+
 def test_photometric_loss_gradient_points_to_target():
     target = torch.rand(16, 16, 3, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
     image = (target + 0.1).clamp(0, 1).requires_grad_()
