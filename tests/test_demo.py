@@ -1,0 +1,86 @@
+"""mmcsplat demo: the main job end to end at a tiny size, its summary, and its resume on a rerun."""
+
+from __future__ import annotations
+
+import json
+import re
+from contextlib import redirect_stdout
+from io import StringIO
+
+import pytest
+
+from mmcsplat.cli import main
+from mmcsplat.config import load_config
+from mmcsplat.demo import TRACK_ITERATIONS, DemoPaths, tracking_choice
+
+TINY = ["--frames", "3", "--width", "64", "--height", "48", "--track-iterations", "2", "--no-progress",
+        "--set", "fit.iterations=10"]  # fmt: skip
+STEPS = ("synthesize", "ingest + segment", "first-frame fit", "track (iterative)", "evaluate",
+         "render trajectories", "render novel view", "report")  # fmt: skip
+
+
+def ran(output: str) -> dict[str, bool]:
+    """Step name → whether this run did it (False: already done)."""
+    return {name: status == "done" for name, status in re.findall(r"^\[demo\] (.+?) (already done|done) \(", output, flags=re.M)}
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory):
+    """(output folder, the first run's stdout)."""
+    out = tmp_path_factory.mktemp("demo") / "out"
+    with redirect_stdout(StringIO()) as captured:
+        assert main(["demo", "--out", str(out), *TINY]) == 0
+    return out, captured.getvalue()
+
+
+def test_demo_writes_every_output_and_names_it(demo):
+    out, output = demo
+    assert ran(output) == dict.fromkeys(STEPS, True)
+    paths = DemoPaths.under(out.resolve())
+    outputs = [paths.capture / "calibration.toml", paths.capture / "ground_truth.zarr", paths.session, paths.run / "run.json",
+               paths.tracks, paths.track_info, paths.metrics, paths.trajectories_video, paths.trajectories_strip, paths.novel,
+               paths.report]  # fmt: skip
+    assert [path for path in outputs if not path.exists()] == []
+    summary = output[output.index("mmcsplat demo finished"):]
+    for path in (paths.capture, paths.session, paths.run, paths.tracks, paths.metrics, paths.trajectories_video,
+                 paths.trajectories_strip, paths.novel, paths.report):  # fmt: skip
+        assert f" {path}\n" in summary + "\n", path
+    assert "iterative, 2 iterations per frame" in summary
+    metrics = json.loads(paths.metrics.read_text())
+    assert metrics["tracking_method"] == "iterative" and len(metrics["per_frame_val_masked_psnr"]) == 3
+    assert f"masked PSNR {metrics['val_masked_psnr']:.2f} dB" in summary
+    assert f"median {metrics['tracking_median_mm']:.2f} mm" in summary and f"90th percentile {metrics['tracking_p90_mm']:.2f} mm" in summary
+    for name in STEPS:
+        assert f"    {name} " in summary
+    assert json.loads(paths.track_info.read_text())["params"]["iterations"] == 2
+
+
+def test_rerun_skips_done_steps_and_redoes_stale_ones(demo, capsys):
+    out, _ = demo
+    assert main(["demo", "--out", str(out), *TINY]) == 0
+    assert ran(capsys.readouterr().out) == dict.fromkeys(STEPS, False)
+    paths = DemoPaths.under(out.resolve())
+    paths.novel.unlink()  # the report embeds it: both are made again, nothing else
+    assert main(["demo", "--out", str(out), *TINY]) == 0
+    assert ran(capsys.readouterr().out) == {name: name in ("render novel view", "report") for name in STEPS}
+    assert paths.novel.exists()
+
+
+def test_rerun_with_other_settings_is_refused(demo, capsys):
+    out, _ = demo
+    assert main(["demo", "--out", str(out), *TINY, "--track-iterations", "3"]) == 2
+    error = capsys.readouterr().err
+    assert "demo.json" in error and "track_iterations 2, now 3" in error
+
+
+def test_tracking_iterations_come_from_option_then_table_then_default():
+    bare = load_config("paper-masked")
+    assert tracking_choice(bare, None) == ("iterative", [f"dynamics.iterations={TRACK_ITERATIONS}"])
+    assert tracking_choice(bare, 7) == ("iterative", ["dynamics.iterations=7"])
+    table = load_config("paper-masked", ["dynamics.name=iterative", "dynamics.iterations=40"])
+    assert tracking_choice(table, None) == ("iterative", ["dynamics.iterations=40"])
+    assert tracking_choice(table, 7) == ("iterative", ["dynamics.iterations=7"])
+    other = load_config("paper-masked", ["dynamics.name=deformation"])
+    assert tracking_choice(other, None) == ("deformation", [])
+    with pytest.raises(ValueError, match="chooses 'deformation'"):
+        tracking_choice(other, 7)
