@@ -32,11 +32,14 @@ KEY_VERSION = 1
 VARIANT_PLUGIN_TABLES = ("renderer", "initializer", "densifier", "dynamics")
 STUDY_KEYS = {"study", "sessions", "variant"}
 HEADER_KEYS = {"name", "description", "folds", "seeds", "backends", "set"}
-SESSION_KEYS = {"path", "synthetic", "segmenter", "heldout", "folds", "ground_truth"}
+SESSION_KEYS = {"path", "synthetic", "segmenter", "heldout", "folds", "ground_truth", "cameras", "perturb"}
 VARIANT_KEYS = {"name", "config", "set", "grid", "segmenter", *VARIANT_PLUGIN_TABLES}
 #: A synthetic session's default: the masks it ships, largest component kept (as ``mmcsplat demo`` does).
 SYNTHETIC_SEGMENTER = "precomputed"
 SYNTHETIC_HELDOUT = ("cam_0",)
+#: Synthesis settings added after studies were first keyed: left out of identities at these defaults,
+#: so that existing study directories keep their cells.
+LATER_SYNTHETIC_DEFAULTS = {"slide": 0.0}
 
 
 class StudyError(MmcsplatError, ValueError):
@@ -44,11 +47,22 @@ class StudyError(MmcsplatError, ValueError):
 
 
 @attrs.frozen
+class Perturbation:
+    """Wrong extrinsics for one camera: ``camera`` turned by ``degrees`` about its own vertical (image y)
+    axis through its centre, as a calibration that is off by that much would store it."""
+
+    camera: str
+    degrees: float
+
+
+@attrs.frozen
 class SessionSpec:
     """One ``[sessions.NAME]`` table: a stored session (``path``: a path or URL) or one to synthesize
     (``synthetic``: :class:`~mmcsplat.datasets.synthetic.synthesize.SynthConfig` fields, and the cameras
     held out at its ingest), the segmenter to run on a copy of it, its folds when they differ from the
-    study's, and ground truth for tracking."""
+    study's, and ground truth for tracking. ``cameras`` (the only cameras kept) and ``perturb`` (one
+    camera's extrinsics rotated: :class:`Perturbation`) make the study read a modified copy of it —
+    failure regimes for ``mmcsplat stability``."""
 
     name: str
     path: str | None = None
@@ -57,6 +71,18 @@ class SessionSpec:
     segmenter: PluginChoice | None = None
     folds: tuple[str, ...] | None = None
     ground_truth: str | None = None
+    cameras: tuple[str, ...] | None = None
+    perturb: Perturbation | None = None
+
+    @property
+    def modifications(self) -> dict[str, Any]:
+        """What the study changes in its copy of the session (empty: none), as part of its identity."""
+        changes: dict[str, Any] = {}
+        if self.cameras is not None:
+            changes["cameras"] = list(self.cameras)
+        if self.perturb is not None:
+            changes["perturb"] = attrs.asdict(self.perturb)
+        return changes
 
 
 @attrs.frozen
@@ -87,9 +113,9 @@ class Study:
 @attrs.frozen
 class SessionPlan:
     """Where a cell reads a session (``url``) and what identifies it in cell keys (``identity``: the
-    stored session's address, or the synthesis settings, and the segmenter). With a segmenter the
-    study writes the session under OUT/sessions (synthesized, or copied, then segmented); without one
-    (a stored session only) it is read in place."""
+    stored session's address, or the synthesis settings, the modifications and the segmenter). With a
+    segmenter or modifications the study writes the session under OUT/sessions (synthesized, or
+    copied, then modified and segmented); without them (a stored session only) it is read in place."""
 
     spec: SessionSpec
     segmenter: PluginChoice | None
@@ -218,15 +244,25 @@ def _session(name: str, table: Mapping[str, Any], source: str, folder: Path | No
     segmenter = _segmenter(table["segmenter"], where) if "segmenter" in table else None
     folds = _strings(table["folds"], f"{where} folds") if "folds" in table else None
     ground_truth = _resolve_path(table["ground_truth"], folder, f"{where} ground_truth") if "ground_truth" in table else None
+    cameras = _strings(table["cameras"], f"{where} cameras") if "cameras" in table else None
+    perturb = _perturbation(table["perturb"], where) if "perturb" in table else None
     if "synthetic" in table:
         settings = synthetic_settings(_table(table["synthetic"], f"{where} synthetic"), where)
         return SessionSpec(name, None, settings, _strings(table.get("heldout", list(SYNTHETIC_HELDOUT)), f"{where} heldout"),
-                           segmenter or PluginChoice("segmenter", SYNTHETIC_SEGMENTER), folds, ground_truth)
+                           segmenter or PluginChoice("segmenter", SYNTHETIC_SEGMENTER), folds, ground_truth, cameras, perturb)
     path = table["path"]
     if not isinstance(path, str) or not path:
         raise StudyError(f"{where} path must be a non-empty string")
     url = path if "://" in path else _resolve_path(path, folder, f"{where} path")
-    return SessionSpec(name, url, None, (), segmenter, folds, ground_truth)
+    return SessionSpec(name, url, None, (), segmenter, folds, ground_truth, cameras, perturb)
+
+
+def _perturbation(value: Any, where: str) -> Perturbation:
+    table = _table(value, f"{where} perturb")
+    degrees = table.get("degrees")
+    if set(table) != {"camera", "degrees"} or not isinstance(table["camera"], str) or not isinstance(degrees, (int, float)) or isinstance(degrees, bool):
+        raise StudyError(f"{where} perturb must be a table {{ camera = NAME, degrees = ANGLE }}, got {dict(table)!r}")
+    return Perturbation(table["camera"], float(degrees))
 
 
 def synthetic_settings(table: Mapping[str, Any], where: str) -> dict[str, Any]:
@@ -234,7 +270,8 @@ def synthetic_settings(table: Mapping[str, Any], where: str) -> dict[str, Any]:
     from .datasets.synthetic.synthesize import SynthConfig
 
     try:
-        return attrs.asdict(SynthConfig(**table))
+        settings = attrs.asdict(SynthConfig(**table))
+        return {key: value for key, value in settings.items() if key not in LATER_SYNTHETIC_DEFAULTS or value != LATER_SYNTHETIC_DEFAULTS[key]}
     except (TypeError, ValueError) as error:
         known = [field.name for field in attrs.fields(SynthConfig)]
         raise StudyError(f"{where} synthetic: {error} (settings: {known})") from error
@@ -344,11 +381,13 @@ def plan_sessions(study: Study, out: Path) -> dict[tuple[str, str], SessionPlan]
         for variant in study.variants:
             segmenter = variant.segmenter or spec.segmenter
             identity: dict[str, Any] = {"synthetic": dict(spec.synthetic), "heldout": list(spec.heldout)} if spec.synthetic else {"path": spec.path}
+            identity.update(spec.modifications)
             url = spec.path
-            if segmenter is not None:
-                identity["segmenter"] = {"name": segmenter.name, "params": dict(segmenter.params)}
+            if segmenter is not None or spec.modifications:
+                if segmenter is not None:
+                    identity["segmenter"] = {"name": segmenter.name, "params": dict(segmenter.params)}
                 digest = hashlib.sha256(json.dumps(identity, sort_keys=True, default=str).encode()).hexdigest()[:8]
-                url = str(Path(out).resolve() / "sessions" / spec.name / f"{segmenter.name}-{digest}.zarr")
+                url = str(Path(out).resolve() / "sessions" / spec.name / f"{segmenter.name if segmenter else 'copy'}-{digest}.zarr")
             plans[spec.name, segmenter_key(variant.segmenter)] = SessionPlan(spec, segmenter, str(url), identity)
     return plans
 

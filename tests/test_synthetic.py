@@ -256,19 +256,29 @@ def test_existing_output_needs_overwrite(tmp_path):
 @pytest.mark.parametrize(
     "field, value, message",
     [("frames", 0, "frames"), ("cameras", 0, "cameras"), ("width", 8, "width"), ("height", 2.5, "height"),
-     ("seed", -1, "seed"), ("fps", 0.0, "fps"), ("samples", 0, "samples")],
+     ("seed", -1, "seed"), ("fps", 0.0, "fps"), ("samples", 0, "samples"), ("slide", float("nan"), "slide")],
 )  # fmt: skip
 def test_bad_configuration_is_refused(field, value, message):
     with pytest.raises(ValueError, match=message):
         SynthConfig(**{field: value})
 
 
+def test_slide_moves_the_whole_infant_along_x(tmp_path):
+    still = SynthConfig(frames=2, cameras=1, width=32, height=24, fps=2.0, samples=1, adult_leg=False)
+    sliding = attrs.evolve(still, slide=0.5)
+    points = [SynthGroundTruth(synthesize(tmp_path / name, config, progress=False).out_dir).surface_points(1)
+              for name, config in (("still", still), ("sliding", sliding))]
+    # Half a second later at 0.5 m/s: every surface point 0.25 m further along +x, nothing else moved.
+    np.testing.assert_allclose(points[1] - points[0], np.broadcast_to([0.25, 0.0, 0.0], points[0].shape), atol=1e-6)
+
+
 def test_cli(tmp_path, capsys):
     out = tmp_path / "cap"
-    assert main(["synth", str(out), "--frames", "2", "--cameras", "2", "--width", "32", "--height", "24", "--no-adult-leg", "--quiet", "--seed", "7"]) == 0
+    assert main(["synth", str(out), "--frames", "2", "--cameras", "2", "--width", "32", "--height", "24", "--no-adult-leg", "--quiet", "--seed", "7",
+                 "--slide", "0.5"]) == 0
     assert "2 cameras × 2 frames" in capsys.readouterr().out
     truth = SynthGroundTruth(out)
-    assert truth.seed == 7 and truth.group.attrs["config"]["adult_leg"] is False
+    assert truth.seed == 7 and truth.group.attrs["config"]["adult_leg"] is False and truth.group.attrs["config"]["slide"] == 0.5
     assert main(["synth", str(out), "--quiet"]) == 2
     assert "not empty" in capsys.readouterr().err
     assert main(["synth", str(tmp_path / "bad"), "--frames", "0", "--quiet"]) == 2

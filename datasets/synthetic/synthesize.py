@@ -32,12 +32,18 @@ def _positive(instance: SynthConfig, attribute: attrs.Attribute, value: float) -
         raise ValueError(f"{attribute.name} must be a positive number, got {value!r}")
 
 
+def _finite(instance: SynthConfig, attribute: attrs.Attribute, value: float) -> None:
+    if not np.isfinite(value):
+        raise ValueError(f"{attribute.name} must be a finite number, got {value!r}")
+
+
 @attrs.frozen
 class SynthConfig:
     """What to synthesise: ``frames`` frames at ``fps`` from ``cameras`` cameras of ``width`` × ``height``
     pixels; ``seed`` fixes the rig's small variations and the motion; ``adult_leg`` adds an adult's leg
     standing beside the mat (in some views, never in the subject mask); ``samples``² rays per pixel
-    anti-alias the colour."""
+    anti-alias the colour; ``slide`` moves the whole infant along +x at that many metres per second
+    (at about 1 m/s it leaves some cameras' views within a second: a failure regime for studies)."""
 
     frames: int = attrs.field(default=30, validator=_at_least(1))
     cameras: int = attrs.field(default=8, validator=_at_least(1))
@@ -47,6 +53,7 @@ class SynthConfig:
     fps: float = attrs.field(default=30.0, converter=float, validator=_positive)
     adult_leg: bool = True
     samples: int = attrs.field(default=2, validator=_at_least(1))
+    slide: float = attrs.field(default=0.0, converter=float, validator=_finite)
 
 
 @attrs.frozen(eq=False)
@@ -82,6 +89,8 @@ def synthesize(out_dir: str | Path, config: SynthConfig = SynthConfig(), *, over
 
     times = np.arange(config.frames) / config.fps
     poses = forward_kinematics(parts, motion.rotvecs(times))
+    if config.slide:
+        poses = BodyPose(poses.rotations, poses.origins + config.slide * times[:, None, None] * np.array([1.0, 0.0, 0.0]))
     point_local, point_part = surface_points(parts)
     with CaptureWriter(out_dir, cameras, config.frames, config.fps, overwrite) as writer:
         writer.write_array("surface_points", poses.to_world(point_part, point_local).astype(np.float32),

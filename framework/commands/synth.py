@@ -23,6 +23,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fps", type=float, default=30.0, help="frame rate (default: 30)")
     parser.add_argument("--adult-leg", action=argparse.BooleanOptionalAction, default=True,
                         help="an adult's leg standing beside the mat, at the edge of some views (default: on)")  # fmt: skip
+    parser.add_argument("--slide", type=float, default=0.0, metavar="M_PER_S",
+                        help="move the whole infant along +x at this speed in m/s (default: 0); at about 1 m/s it leaves "
+                             "some views within a second — a failure regime for `mmcsplat stability`")  # fmt: skip
     parser.add_argument("--overwrite", action="store_true", help="replace an existing OUT_DIR")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
 
@@ -32,7 +35,7 @@ def run(args: argparse.Namespace) -> int:
 
     config = SynthConfig(
         frames=args.frames, cameras=args.cameras, width=args.width, height=args.height,
-        seed=args.seed, fps=args.fps, adult_leg=args.adult_leg,
+        seed=args.seed, fps=args.fps, adult_leg=args.adult_leg, slide=args.slide,
     )  # fmt: skip
     result = synthesize(args.out_dir, config, overwrite=args.overwrite, progress=not args.quiet)
     print(f"wrote {result.out_dir}: {len(result.cameras)} cameras × {result.num_frames} frames of "
