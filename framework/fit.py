@@ -2,7 +2,8 @@
 
 Every choice comes from the configuration through the registry: the renderer, the composed initializers,
 the densifier. The run directory holds an atomic checkpoint (a killed run resumes from it), ``run.json``
-(what was fitted, how long it took, how it ended) and the final Gaussians.
+(what was fitted, how long it took, how it ended, the loss record of :class:`BlockLosses`, warnings)
+and the final Gaussians.
 """
 
 from __future__ import annotations
@@ -32,6 +33,10 @@ from .store import SessionReader
 
 CHECKPOINT = "checkpoint.pt"
 RUN_INFO = "run.json"
+#: Fewer training cameras seeing the subject than this under-constrain a frame: the fit warns. On the
+#: synthetic capture (64 × 48, visual-hull start, 1000 iterations) 4 training cameras left no opacity
+#: outside the masks' visual hull and 3 left 10–16 % of it there (docs/studies.md, "Stability").
+MIN_TRAINING_CAMERAS = 4
 
 
 class FitError(MmcsplatError):
@@ -103,6 +108,30 @@ class CameraSchedule:
         return self.queue.pop()
 
 
+@attrs.define
+class BlockLosses:
+    """The loss averaged over each block of ``size`` iterations — one block of the camera schedule, every
+    training camera once — whose lowest (``lowest``) and latest (``last``) complete means run.json
+    records as ``loss_min`` and ``loss_final``. Single iterations each see another camera, so their
+    losses differ by the camera more than by the training; block means compare. A blow-up is a final
+    mean far above the lowest. Saved in the checkpoint, so a resumed fit records the same."""
+
+    size: int
+    total: float = 0.0
+    count: int = 0
+    lowest: float | None = None
+    last: float | None = None
+
+    def add(self, loss: float) -> None:
+        """Count one iteration's loss; the block's mean is taken when it is complete."""
+        self.total += loss
+        self.count += 1
+        if self.count == self.size:
+            self.last = self.total / self.size
+            self.lowest = self.last if self.lowest is None else min(self.lowest, self.last)
+            self.total, self.count = 0.0, 0
+
+
 def select_cameras(session: SessionReader, holdout: Sequence[str] | None) -> tuple[list[Camera], list[Camera]]:
     """(training cameras, held-out cameras): ``holdout`` overrides the session's own held-out list."""
     held = list(session.heldout if holdout is None else holdout)
@@ -158,6 +187,10 @@ class FirstFrameFit:
         if masked and not any(bool(view.mask.any()) for view in masked):
             raise ValueError(f"the subject mask is empty in every training view of frame {frame}: check the segmentation")
         self.warnings = [f"camera {view.camera.name!r} never sees the subject at frame {frame} (empty mask)" for view in masked if not view.mask.any()]
+        seeing = sum(view.mask is None or bool(view.mask.any()) for view in views)
+        if seeing < MIN_TRAINING_CAMERAS:
+            self.warnings.insert(0, f"only {seeing} training cameras see the subject at frame {frame}: it is under-constrained "
+                                    f"(expect floaters; at least {MIN_TRAINING_CAMERAS} are advised)")
         for warning in self.warnings:
             warnings.warn(warning, stacklevel=2)
         return views
@@ -189,14 +222,14 @@ class FirstFrameFit:
         generator = torch.Generator().manual_seed(settings.seed)
         model = self._initial_model(generator)
         schedule = CameraSchedule(len(self.views), generator)
+        record = BlockLosses(len(self.views))
         densify_state = self.densifier.initialize_state(self.scene.scale) if self.densifier else {}
         start, elapsed = 0, 0.0
         checkpoint = self.out / CHECKPOINT
         if checkpoint.exists():
-            start, elapsed = self._resume(checkpoint, model, generator, schedule, densify_state)
+            start, elapsed, record = self._resume(checkpoint, model, generator, schedule, densify_state)
         cameras = self._render_cameras()
         background = torch.tensor(settings.background, dtype=torch.float32)
-        info = self._info(model, start, elapsed, "running")
         bar = tqdm(range(start, settings.iterations), initial=start, total=settings.iterations, desc="fit", disable=not self.progress, unit="it")
         began = time.perf_counter() - elapsed
         try:
@@ -221,18 +254,19 @@ class FirstFrameFit:
                     self.densifier.step_post_backward(model, densify_state, step, render)
                 self._prune(model, step)
                 self._check_finite(loss, model, step, "parameter")
+                record.add(loss.item())
                 if step % 10 == 0:
                     bar.set_postfix(loss=f"{loss.item():.4f}", psnr=f"{float(losses.psnr(image.detach().clamp(0, 1), view.image)):.2f}", n=model.count)
                 done = step + 1
                 if done % settings.checkpoint_every == 0 or done == settings.iterations:
-                    self._checkpoint(checkpoint, model, generator, schedule, densify_state, done, time.perf_counter() - began)
+                    self._checkpoint(checkpoint, model, generator, schedule, record, densify_state, done, time.perf_counter() - began)
         except FitError as error:
-            info = self._info(model, step, time.perf_counter() - began, "diverged", str(error))
+            info = self._info(model, record, step, time.perf_counter() - began, "diverged", str(error))
             write_json_atomic(self.out / RUN_INFO, info)
             raise
         finally:
             bar.close()
-        info = self._info(model, settings.iterations, time.perf_counter() - began, "complete")
+        info = self._info(model, record, settings.iterations, time.perf_counter() - began, "complete")
         write_json_atomic(self.out / RUN_INFO, info)
         return info
 
@@ -260,21 +294,22 @@ class FirstFrameFit:
 
     # -------------------------------------------------------------------------------- checkpointing
 
-    def _checkpoint(self, path: Path, model, generator, schedule, densify_state, step: int, elapsed: float) -> None:
+    def _checkpoint(self, path: Path, model, generator, schedule, record: BlockLosses, densify_state, step: int, elapsed: float) -> None:
         payload = {
             "step": step,
             "elapsed": elapsed,
             "model": model.state_dict(),
             "generator": generator.get_state(),
             "schedule": list(schedule.queue),
+            "losses": attrs.asdict(record),
             "densifier": densify_state,
             "config": self.config.values,
         }
         with atomic_path(path) as temporary:
             torch.save(payload, temporary)
-        write_json_atomic(self.out / RUN_INFO, self._info(model, step, elapsed, "running" if step < self.settings.iterations else "complete"))
+        write_json_atomic(self.out / RUN_INFO, self._info(model, record, step, elapsed, "running" if step < self.settings.iterations else "complete"))
 
-    def _resume(self, path: Path, model, generator, schedule, densify_state) -> tuple[int, float]:
+    def _resume(self, path: Path, model, generator, schedule, densify_state) -> tuple[int, float, BlockLosses]:
         payload = torch.load(path, weights_only=False)
         if payload["config"] != self.config.values:
             raise ValueError(f"{path} was written by a different configuration; use a new --out or delete the checkpoint")
@@ -283,9 +318,11 @@ class FirstFrameFit:
         schedule.queue = list(payload["schedule"])
         densify_state.clear()
         densify_state.update(payload["densifier"])
-        return int(payload["step"]), float(payload["elapsed"])
+        # A checkpoint written before losses were recorded: the record starts at the resumed iteration.
+        record = BlockLosses(**payload["losses"]) if "losses" in payload else BlockLosses(len(self.views))
+        return int(payload["step"]), float(payload["elapsed"]), record
 
-    def _info(self, model: GaussianModel, step: int, elapsed: float, status: str, error: str | None = None) -> dict[str, Any]:
+    def _info(self, model: GaussianModel, record: BlockLosses, step: int, elapsed: float, status: str, error: str | None = None) -> dict[str, Any]:
         return {
             "status": status,
             "error": error,
@@ -300,6 +337,8 @@ class FirstFrameFit:
             "iterations": step,
             "num_gaussians": model.count,
             "wall_s": round(elapsed, 3),
+            "loss_min": record.lowest,
+            "loss_final": record.last,
             "scene_center": np.asarray(self.scene.center).tolist(),
             "scene_scale": self.scene.scale,
         }

@@ -39,14 +39,15 @@ def test_killed_run_resumes_to_the_same_parameters(session, tmp_path, monkeypatc
 
     original = FirstFrameFit._prune
 
-    def killed_at_25(self, model, step):
+    def killed_at_15(self, model, step):
         original(self, model, step)
-        if step == 24:
+        if step == 14:
             raise KeyboardInterrupt  # as a kill between checkpoints
-    monkeypatch.setattr(FirstFrameFit, "_prune", killed_at_25)
+    monkeypatch.setattr(FirstFrameFit, "_prune", killed_at_15)
     with pytest.raises(KeyboardInterrupt):
         FirstFrameFit(session, config, tmp_path / "resumed", progress=False).run()
-    assert torch.load(tmp_path / "resumed" / CHECKPOINT, weights_only=False)["step"] == 20
+    # Checkpointed at 10 iterations: in the middle of the third block of the 4 training cameras.
+    assert torch.load(tmp_path / "resumed" / CHECKPOINT, weights_only=False)["step"] == 10
     monkeypatch.setattr(FirstFrameFit, "_prune", original)
     FirstFrameFit(session, config, tmp_path / "resumed", progress=False).run()
 
@@ -54,6 +55,10 @@ def test_killed_run_resumes_to_the_same_parameters(session, tmp_path, monkeypatc
     resumed = torch.load(tmp_path / "resumed" / CHECKPOINT, weights_only=False)["model"]["params"]
     for name, tensor in straight.items():
         torch.testing.assert_close(resumed[name], tensor, rtol=0, atol=0, msg=name)
+    # The loss record (block means over 7 complete blocks of 4 iterations) is the same too.
+    straight_info, resumed_info = (json.loads((tmp_path / run / "run.json").read_text()) for run in ("straight", "resumed"))
+    assert straight_info["loss_min"] is not None and straight_info["loss_min"] <= straight_info["loss_final"]
+    assert (resumed_info["loss_min"], resumed_info["loss_final"]) == (straight_info["loss_min"], straight_info["loss_final"])
 
 
 def test_nan_stops_cleanly_keeping_the_last_good_checkpoint(session, tmp_path, monkeypatch):
@@ -97,6 +102,8 @@ def test_camera_that_never_sees_the_subject_is_flagged(tmp_path):
         fit = FirstFrameFit(session, config, tmp_path / "run", progress=False)
     info = fit.run()
     assert any("cam_2" in warning for warning in info["warnings"])
+    # Three of its four training cameras see the subject: under-constrained.
+    assert info["warnings"][0].startswith("only 3 training cameras see the subject at frame 0")
 
 
 def test_unknown_holdout_and_missing_masks(session, tmp_path):
