@@ -10,6 +10,7 @@ import numpy as np
 import torch
 
 from .atomic import write_json_atomic
+from .camera import Camera
 from .drift import detect_drift
 from .fit import RUN_INFO, load_fitted
 from .model import gaussians_from_params
@@ -18,7 +19,7 @@ from .rendering import RenderCameras
 from .store import SessionReader
 from .tracking import evaluate_tracks
 from .tracks import TRACKS_DIR, TrackReader
-from .visual_hull import FLOATER_MARGIN_PX, dilated, floater_share
+from .visual_hull import FLOATER_MARGIN_PX, dilated, floater_share, mask_agreement
 
 METRICS_FILE = "metrics.json"
 
@@ -27,19 +28,37 @@ def _mean(values: list[float]) -> float | None:
     return float(np.mean(values)) if values else None
 
 
-def _floater_share(session: SessionReader, frame: int, params: dict[str, torch.Tensor]) -> float | None:
-    """:func:`~mmcsplat.visual_hull.floater_share` of the fitted Gaussians against the hull of every
-    camera's mask at ``frame`` (dilated by :data:`~mmcsplat.visual_hull.FLOATER_MARGIN_PX`); ``None``
-    for a session without masks there."""
+def _mask_views(session: SessionReader, frame: int) -> list[tuple[Camera, np.ndarray]]:
+    """(camera, mask) of every camera with a mask at ``frame``."""
     views = []
     for name in session.camera_names:
         mask = session.frame(frame, name).mask if session.present(name)[frame] else None
         if mask is not None:
-            views.append((session.camera(name), dilated(mask, FLOATER_MARGIN_PX)))
+            views.append((session.camera(name), mask))
+    return views
+
+
+def _floater_share(views: list[tuple[Camera, np.ndarray]], params: dict[str, torch.Tensor]) -> float | None:
+    """:func:`~mmcsplat.visual_hull.floater_share` of the fitted Gaussians against the hull of the
+    ``views``' masks (dilated by :data:`~mmcsplat.visual_hull.FLOATER_MARGIN_PX`); ``None`` without masks."""
     if not views:
         return None
     opacities = torch.sigmoid(params["opacity_logits"].detach()).double().numpy()
-    return floater_share(params["means"].detach().double().numpy(), opacities, views)
+    return floater_share(params["means"].detach().double().numpy(), opacities, [(camera, dilated(mask, FLOATER_MARGIN_PX)) for camera, mask in views])
+
+
+def _mask_agreement(views: list[tuple[Camera, np.ndarray]], center: np.ndarray, radius: float) -> dict[str, float]:
+    """Per camera with a non-empty mask, :func:`~mmcsplat.visual_hull.mask_agreement` with the hull of
+    the others' masks (dilated by :data:`~mmcsplat.visual_hull.FLOATER_MARGIN_PX`), forgiving one other
+    view that disagrees when at least three others see a point — so that one camera's wrong extrinsics
+    or wrong mask lower its own score, not everyone's. Needs two other cameras at least."""
+    grown = [(camera, dilated(mask, FLOATER_MARGIN_PX)) for camera, mask in views]
+    scores = {}
+    for index, (camera, mask) in enumerate(views):
+        others = grown[:index] + grown[index + 1:]
+        if len(others) >= 2 and (score := mask_agreement(camera, mask, others, center, radius, tolerance=1 if len(others) >= 3 else 0)) is not None:
+            scores[camera.name] = score
+    return scores
 
 
 def evaluate_run(run: Path, registry: Registry | None = None, backend: str | None = None, ground_truth: Path | None = None) -> dict[str, Any]:
@@ -47,7 +66,8 @@ def evaluate_run(run: Path, registry: Registry | None = None, backend: str | Non
     (``mmcsplat track``) also gets the tracking metrics of :mod:`mmcsplat.tracking` (against
     ``ground_truth``, or the one found beside the session's source) and the drift report of
     :mod:`mmcsplat.drift`. ``floater_share`` is the share of opacity mass outside the visual hull of the
-    session's masks at the fitted frame (:mod:`mmcsplat.visual_hull`)."""
+    session's masks at the fitted frame, ``mask_agreement`` per camera the share of its mask on the hull
+    of the other cameras' masks (:mod:`mmcsplat.visual_hull`; low for a camera with wrong extrinsics)."""
     registry = registry or default_registry()
     info, params, camera_scale, camera_offset = load_fitted(run)
     session = SessionReader(info["session"])
@@ -56,6 +76,7 @@ def evaluate_run(run: Path, registry: Registry | None = None, backend: str | Non
     ssim = registry.create("metric", "ssim")
     gaussians = gaussians_from_params(params)
     frame = info["frame"]
+    views = _mask_views(session, frame)
     scores: dict[str, dict[str, list[float]]] = {"val": {}, "train": {}}
     per_camera = {}
     names = [*info["train_cameras"], *info["heldout_cameras"]]
@@ -83,7 +104,8 @@ def evaluate_run(run: Path, registry: Registry | None = None, backend: str | Non
         "train_masked_psnr": _mean(scores["train"].get("masked_psnr", [])),
         "train_psnr": _mean(scores["train"].get("psnr", [])),
         "num_gaussians": int(params["means"].shape[0]),
-        "floater_share": _floater_share(session, frame, params),
+        "floater_share": _floater_share(views, params),
+        "mask_agreement": _mask_agreement(views, np.asarray(info["scene_center"]), float(info["scene_scale"])),
         "iterations": info["iterations"],
         "wall_s": info["wall_s"],
         "status": info["status"],

@@ -1,8 +1,10 @@
 """The visual hull of subject masks: which points project inside the masks of the views that see them.
 
-One projection test serves three users: the ``visual-hull`` initializer carves its starting points with
+One projection test serves four users: the ``visual-hull`` initializer carves its starting points with
 it, the drift detector finds foreground Gaussians that left the subject, and the held-out evaluation
-measures floaters — the share of opacity mass whose Gaussians lie outside the hull of the session's masks.
+measures floaters — the share of opacity mass whose Gaussians lie outside the hull of the session's masks
+— and each camera's agreement with the others — the share of its mask whose rays meet the hull of the
+other cameras' masks (a camera with wrong extrinsics sees the subject where the others do not).
 """
 
 from __future__ import annotations
@@ -15,6 +17,11 @@ from .camera import Camera
 
 #: Masks are dilated by this many pixels before the floater test (their own edge errors are no floaters).
 FLOATER_MARGIN_PX = 2
+#: :func:`mask_agreement` tests this many depths along each pixel's ray …
+RAY_SAMPLES = 64
+#: … of at most this many of the mask's pixels (evenly spread over it): on the synthetic capture at
+#: 256 × 192 its scores are within 0.03 of 128 depths × 2000 pixels, in a tenth of the time.
+AGREEMENT_PIXELS = 500
 
 View = tuple[Camera, np.ndarray]
 
@@ -64,3 +71,33 @@ def floater_share(means: np.ndarray, opacities: np.ndarray, views: Sequence[View
         return 0.0
     outside = ~in_hull(*mask_votes(np.asarray(means, dtype=np.float64), views), tolerance)
     return float(np.sum(opacities[outside]) / total)
+
+
+def pixel_rays(camera: Camera, pixels: np.ndarray, depths: np.ndarray) -> np.ndarray:
+    """[P, D, 3] world points on the rays of ``camera``'s ``pixels`` [P, 2] at ``depths`` [D] (metres
+    along its optical axis), its lens distortion undone."""
+    import cv2
+
+    normalized = cv2.undistortPoints(np.asarray(pixels, dtype=np.float64).reshape(-1, 1, 2), camera.K,
+                                     camera.distortion if camera.distortion.size else None).reshape(-1, 2)
+    directions = np.concatenate([normalized, np.ones((len(normalized), 1))], axis=1)
+    local = directions[:, None, :] * np.asarray(depths, dtype=np.float64)[None, :, None]
+    return (local - camera.t) @ camera.R  # R^T (x - t): camera to world
+
+
+def mask_agreement(camera: Camera, mask: np.ndarray, others: Sequence[View], center: np.ndarray, radius: float,
+                   samples: int = RAY_SAMPLES, max_pixels: int = AGREEMENT_PIXELS, tolerance: int = 0) -> float | None:
+    """The share of ``camera``'s ``mask`` [H, W] bool pixels whose ray, sampled at ``samples`` depths
+    through the sphere of ``radius`` about ``center``, meets the visual hull of the ``others`` views
+    (masks already dilated; ``tolerance`` as for :func:`in_hull`); ``None`` for an empty mask. The hull
+    of the others contains the subject, so a camera consistent with them scores about 1; one whose
+    calibration (or mask) is off sees the subject where the others see none, and scores less."""
+    ys, xs = np.nonzero(mask)
+    if not len(xs):
+        return None
+    pick = np.unique(np.linspace(0, len(xs) - 1, min(len(xs), max_pixels)).round().astype(int))
+    distance = float(np.linalg.norm(camera.center - np.asarray(center, dtype=np.float64)))
+    depths = np.linspace(max(distance - radius, 1e-3 * distance), distance + radius, samples)
+    points = pixel_rays(camera, np.stack([xs[pick], ys[pick]], axis=1), depths).reshape(-1, 3)
+    met = in_hull(*mask_votes(points, others), tolerance).reshape(len(pick), samples).any(axis=1)
+    return float(met.mean())

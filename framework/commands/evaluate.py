@@ -1,6 +1,8 @@
 """Evaluate a fit run (or every fold of one) on its held-out cameras; writes RUN/metrics.json.
 
-A run with tracks (`mmcsplat track`) also gets tracking errors against ground truth, the held-out masked
+Besides the scores it records the share of opacity mass outside the masks' visual hull (floaters) and,
+per camera, the share of its mask on the other cameras' visual hull (low: wrong extrinsics or mask). A
+run with tracks (`mmcsplat track`) also gets tracking errors against ground truth, the held-out masked
 PSNR of every frame and a drift report."""
 
 from __future__ import annotations
