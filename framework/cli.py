@@ -19,6 +19,7 @@ COMMANDS = {
     "track": "track",
     "evaluate": "evaluate",
     "compare": "compare",
+    "stability": "stability",
     "render": "render",
     "export": "export",
     "report": "report",

@@ -20,7 +20,7 @@ from .study import CellSpec
 
 CELL_FILE = "cell.json"
 RESULT_FILE = "result.json"
-COMPLETE, FAILED = "complete", "failed"
+COMPLETE, FAILED, DIVERGED = "complete", "failed", "diverged"
 
 
 @attrs.frozen
@@ -30,6 +30,11 @@ class CellOutcome:
     ``wall_s`` and ``iterations_per_s`` are the first-frame fit's (time spent training, over resumes);
     ``track_*`` the dynamics step's; ``per_frame_val_masked_psnr`` and ``tracking_per_frame_median_mm``
     are per tracked frame; ``resumed_at`` the fit iteration a restarted cell went on from.
+    ``status`` is ``diverged`` for a fit stopped by a NaN/Inf (its message in ``error``), ``failed`` for
+    any other error. ``floater_share`` is evaluate's share of opacity mass outside the masks' visual
+    hull, ``mask_agreement`` its per-camera agreement of each mask with the other cameras' hull,
+    ``drift`` its drift verdict (tracked cells), ``loss_min``/``loss_final`` and ``warnings`` the fit's
+    (run.json).
     """
 
     key: str
@@ -41,6 +46,12 @@ class CellOutcome:
     train_masked_psnr: float | None = None
     train_psnr: float | None = None
     num_gaussians: int | None = None
+    floater_share: float | None = None
+    mask_agreement: dict[str, float] | None = None
+    drift: bool | None = None
+    loss_min: float | None = None
+    loss_final: float | None = None
+    warnings: list[str] | None = None
     iterations: int | None = None
     wall_s: float | None = None
     iterations_per_s: float | None = None
@@ -70,6 +81,8 @@ def run_cell(spec: CellSpec, cell_dir: str | Path) -> CellOutcome:
     exception, so one failing cell never stops a study. Interruptions propagate."""
     import traceback
 
+    from .fit import NonFiniteError
+
     cell_dir = Path(cell_dir)
     cell_dir.mkdir(parents=True, exist_ok=True)
     (cell_dir / RESULT_FILE).unlink(missing_ok=True)  # a retried cell is not done until it ends again
@@ -80,7 +93,8 @@ def run_cell(spec: CellSpec, cell_dir: str | Path) -> CellOutcome:
         outcome = CellOutcome(spec.key, COMPLETE, **fields, cell_wall_s=round(time.perf_counter() - began, 3))
     except Exception as error:  # the study reports it; the traceback goes to the cell's own record
         (cell_dir / "error.txt").write_text(traceback.format_exc())
-        outcome = CellOutcome(spec.key, FAILED, f"{type(error).__name__}: {error}", cell_wall_s=round(time.perf_counter() - began, 3))
+        status = DIVERGED if isinstance(error, NonFiniteError) else FAILED
+        outcome = CellOutcome(spec.key, status, f"{type(error).__name__}: {error}", cell_wall_s=round(time.perf_counter() - began, 3))
     write_json_atomic(cell_dir / RESULT_FILE, attrs.asdict(outcome))
     return outcome
 
@@ -94,8 +108,11 @@ def _run(spec: CellSpec, cell_dir: Path) -> dict[str, Any]:
     wall = float(info["wall_s"])
     return {
         **{key: metrics.get(key) for key in ("val_masked_psnr", "val_psnr", "val_ssim", "train_masked_psnr", "train_psnr",
-                                             "num_gaussians", "tracking_median_mm", "tracking_p90_mm",
+                                             "num_gaussians", "floater_share", "mask_agreement", "drift", "tracking_median_mm", "tracking_p90_mm",
                                              "per_frame_val_masked_psnr", "tracking_per_frame_median_mm")},
+        "loss_min": info.get("loss_min"),
+        "loss_final": info.get("loss_final"),
+        "warnings": list(info.get("warnings", [])),
         "iterations": int(info["iterations"]),
         "wall_s": wall,
         "iterations_per_s": info["iterations"] / wall if wall > 0 else None,

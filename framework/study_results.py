@@ -26,9 +26,11 @@ from .study_cells import COMPLETE, CellOutcome
 #: "Model no more than a scene needs": the smallest variant whose held-out PSNR is this close to the best.
 SMALLEST_WITHIN_DB = 0.5
 #: Aggregated per variant (mean, std over its complete cells).
-METRICS = ("val_masked_psnr", "train_masked_psnr", "val_psnr", "val_ssim", "train_psnr", "num_gaussians", "iterations",
+METRICS = ("val_masked_psnr", "train_masked_psnr", "val_psnr", "val_ssim", "train_psnr", "num_gaussians", "floater_share", "iterations",
            "wall_s", "iterations_per_s", "track_wall_s", "track_wall_s_per_frame", "tracking_median_mm", "tracking_p90_mm")
 SERIES = ("per_frame_val_masked_psnr", "tracking_per_frame_median_mm")
+#: Lists and maps (the series, the fit's warnings, per-camera mask agreement): in results.json, not results.csv.
+NESTED = (*SERIES, "warnings", "mask_agreement")
 #: Initializers whose presence the reference study's columns report.
 MASK_INITIALIZER, SPARSE_INITIALIZER = "masked", "sparsity-pruned"
 
@@ -149,10 +151,15 @@ def aggregate(rows: Sequence[Row], several_sessions: bool, several_backends: boo
             mean[key] = float(np.mean(values)) if values else None
             std[key] = float(np.std(values)) if values else None
         series = {key: _mean_series([getattr(outcome, key) for outcome in done]) for key in SERIES}
-        label = variant + (f" @ {session}" if several_sessions else "") + (f" [{backend}]" if several_backends else "")
-        result.append(Aggregate(label, variant, session, backend, members[0].columns, len(members), len(members) - len(done),
+        result.append(Aggregate(group_label(variant, session, backend, several_sessions, several_backends), variant, session, backend, members[0].columns, len(members), len(members) - len(done),
                                 mean, std, {key: value for key, value in series.items() if value}))
     return result
+
+
+def group_label(variant: str, session: str, backend: str, several_sessions: bool, several_backends: bool) -> str:
+    """How tables name a variant's group: ``variant @ session [backend]``, each part only when the study
+    has several."""
+    return variant + (f" @ {session}" if several_sessions else "") + (f" [{backend}]" if several_backends else "")
 
 
 def _mean_series(series: Iterable[list[float | None] | None]) -> list[float | None]:
@@ -208,8 +215,8 @@ def write_tables(out: Path, study: Study, rows: Sequence[Row], aggregates: Seque
         "variants": [a.record() for a in aggregates],
         "cells": [row.record() for row in rows],
     })
-    cell_records = [{"row": "cell", **{k: v for k, v in row.record().items() if k not in SERIES}} for row in rows]
-    variant_records = [{"row": "variant", **{k: v for k, v in a.record().items() if k not in SERIES}} for a in aggregates]
+    cell_records = [{"row": "cell", **{k: v for k, v in row.record().items() if k not in NESTED}} for row in rows]
+    variant_records = [{"row": "variant", **{k: v for k, v in a.record().items() if k not in NESTED}} for a in aggregates]
     fields = list(dict.fromkeys(key for record in cell_records + variant_records for key in record))
     buffer = io.StringIO()
     writer = csv.DictWriter(buffer, fieldnames=fields, lineterminator="\n")
@@ -261,7 +268,7 @@ def markdown(study: Study, rows: Sequence[Row], aggregates: Sequence[Aggregate],
     if failed:
         lines += [f"{heading}# Failed cells", ""]
         lines += [f"- {row.cell.variant}, {row.cell.session}, fold {row.cell.fold}, seed {row.cell.seed} "
-                  f"(`cells/{row.cell.spec.key}`): {row.outcome.error}" for row in failed] + [""]
+                  f"(`cells/{row.cell.spec.key}`), {row.outcome.status}: {row.outcome.error}" for row in failed] + [""]
     return "\n".join(lines)
 
 
