@@ -113,6 +113,21 @@ def test_largest_component_keeps_only_the_biggest_blob_and_dilation_grows_it() -
         PostProcess(dilation=-1)
 
 
+def test_pieces_a_pixel_or_two_apart_are_one_component() -> None:
+    """A hand cut off the body by a background gap of up to 2 × ``bridge`` pixels stays; a farther blob goes."""
+    from mmcsplat.plugins.segmenters.postprocess import PostProcess, largest_component
+
+    mask = np.zeros((12, 30), bool)
+    mask[2:10, 2:12] = True  # the body
+    mask[4:6, 14:17] = True  # a hand 2 background pixels away (columns 12 and 13)
+    mask[4:6, 22:24] = True  # a blob 5 pixels from the hand
+    kept = largest_component(mask, bridge=1)
+    np.testing.assert_array_equal(kept, mask & (np.arange(30) < 20))  # body and hand, only their own pixels
+    np.testing.assert_array_equal(largest_component(mask, bridge=0), mask & (np.arange(30) < 12))
+    np.testing.assert_array_equal(PostProcess()(mask), kept)  # the default bridges 2 px
+    np.testing.assert_array_equal(PostProcess(bridge=0)(mask), mask & (np.arange(30) < 12))
+
+
 # -------------------------------------------------------------------------------------------- onnx-semantic
 
 

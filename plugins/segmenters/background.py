@@ -11,7 +11,7 @@ import numpy as np
 
 from mmcsplat.store import SessionReader
 
-from .postprocess import PostProcessedSegmenter, open_close, present_frames
+from .postprocess import BRIDGE_PX, PostProcessedSegmenter, open_close, present_frames
 
 #: Each method's default threshold: MOG2's squared Mahalanobis distance, KNN's squared distance, and
 #: the median method's largest per-channel difference in grey levels.
@@ -50,8 +50,9 @@ class BackgroundSegmenter(PostProcessedSegmenter):
         close_radius: int = 2,
         largest_component: bool = True,
         dilation: int = 0,
+        bridge: int = BRIDGE_PX,
     ) -> None:
-        super().__init__(largest_component, dilation)
+        super().__init__(largest_component, dilation, bridge)
         if method not in DEFAULT_THRESHOLDS:
             raise ValueError(f"background method must be one of {', '.join(DEFAULT_THRESHOLDS)}, got {method!r}")
         if not 0 < background_ratio <= 1:

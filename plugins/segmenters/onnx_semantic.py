@@ -21,7 +21,7 @@ import numpy as np
 
 from mmcsplat.store import SessionReader
 
-from .postprocess import PostProcessedSegmenter, present_frames
+from .postprocess import BRIDGE_PX, PostProcessedSegmenter, present_frames
 
 #: The reference study's table: toys and playthings count as the person (the infant holding them).
 DEFAULT_REMAP = {"toy": "person", "plaything": "person"}
@@ -142,10 +142,11 @@ class OnnxSemanticSegmenter(PostProcessedSegmenter):
         threads: int | None = None,
         largest_component: bool = True,
         dilation: int = 0,
+        bridge: int = BRIDGE_PX,
     ) -> None:
         import onnxruntime
 
-        super().__init__(largest_component, dilation)
+        super().__init__(largest_component, dilation, bridge)
         path = Path(model).expanduser()
         if not path.is_file():
             raise FileNotFoundError(f"ONNX model {path} does not exist (mmcsplat downloads nothing: point 'model' at a local .onnx file)")
