@@ -13,7 +13,8 @@ On-disk layout (format version 1)::
             heldout: [camera name]       cameras kept for evaluation
             source: str                  what the session was made from
             provenance: {mmcsplat, zarr, created (UTC, ISO 8601), command, ...}
-            fields: {camera: {field: array name}}   where each optional field of a camera lives
+            fields: {camera: {field: array name}}   where each optional field of a camera lives, and
+                                                     source_mask: the replaced masks it was written with
         cameras/<camera>/              one sub-group per camera (images may differ in size between cameras)
             present  [T] bool              which frames exist (D-NeRF is monocular: one camera per frame)
             rgb      [T, H, W, 3] uint8
@@ -25,7 +26,9 @@ Every image array has one frame per chunk (chunk file ``c.<t>.0.0[.0]``), compre
 (it decodes at ~0.9 GB/s here, as fast as level 3, and encodes almost twice as fast). Chunks of absent
 frames are never written: ``present`` is the truth about which frames exist, and a field covers every
 present frame of its camera. After :class:`SessionUpdater` replaced a field, its array is named
-``<field>.<token>``; ``fields`` says which.
+``<field>.<token>``; ``fields`` says which. The masks a session was written with (at ingest: those the
+capture shipped) are never deleted: the first replacement keeps their array as the field ``source_mask``,
+which :meth:`SessionReader.source_mask` reads and :meth:`SessionReader.frame` leaves out.
 
 Atomicity. A local session is written into a hidden sibling directory ``.<name>.partial-<token>`` and
 renamed into place by :meth:`SessionWriter.commit`; an existing target is replaced only then. URLs that
@@ -64,6 +67,8 @@ FORMAT_VERSION = 1
 DEFAULT_CACHE_BYTES = 256 * 2**20
 #: Optional per-frame fields, and the dtype each is stored as.
 FIELDS = {"mask": np.dtype(bool), "labels": np.dtype(np.uint16), "depth": np.dtype(np.float16)}
+#: Where ``fields`` keeps the array of the masks a session was written with once an update replaced them.
+SOURCE_MASK = "source_mask"
 _RGB = np.dtype(np.uint8)
 _URL = re.compile(r"^[A-Za-z][A-Za-z0-9+.-]*://")
 
@@ -511,6 +516,13 @@ class _Session:
         cameras = self.camera_names if camera is None else (self.camera(camera).name,)
         return any(field in self._field_names.get(name, {}) for name in cameras)
 
+    def _source_mask_array(self, camera: str) -> str | None:
+        """The name of the array holding the masks ``camera`` was written with, or ``None``."""
+        names = self._field_names.get(camera, {})
+        if SOURCE_MASK in names:
+            return names[SOURCE_MASK]
+        return "mask" if names.get("mask") == "mask" else None  # the writer names arrays after their field
+
     def _check_frame(self, t: int, camera: str) -> int:
         self.camera(camera)
         t = _check_t(self.url, camera, t, self.num_frames)
@@ -545,10 +557,10 @@ class SessionReader(_Session):
     def __repr__(self) -> str:
         return f"SessionReader({self.url!r}: {len(self.cameras)} cameras, {self.num_frames} frames)"
 
-    def _array(self, camera: str, field: str):
-        key = (camera, field)
+    def _array(self, camera: str, name: str):
+        """The zarr array ``name`` of ``camera`` (opened once)."""
+        key = (camera, name)
         if key not in self._arrays:
-            name = "rgb" if field == "rgb" else self._field_names[camera][field]
             self._arrays[key] = self._group[f"cameras/{camera}/{name}"]
         return self._arrays[key]
 
@@ -560,8 +572,9 @@ class SessionReader(_Session):
         if cached is not None:
             return cached
         arrays = {"rgb": self._array(camera, "rgb")[t]}
-        for field in self._field_names[camera]:
-            arrays[field] = self._array(camera, field)[t]
+        for field, name in self._field_names[camera].items():
+            if field in FIELDS:  # not source_mask
+                arrays[field] = self._array(camera, name)[t]
         if "depth" in arrays:
             arrays["depth"] = arrays["depth"].astype(np.float32)
         for array in arrays.values():
@@ -569,6 +582,23 @@ class SessionReader(_Session):
         frame = SessionFrame(**arrays)
         self.cache.put((camera, t), frame)
         return frame
+
+    def has_source_mask(self, camera: str) -> bool:
+        """Whether ``camera`` has masks from when the session was written (at ingest: the capture's own)."""
+        self.camera(camera)
+        return self._source_mask_array(camera) is not None
+
+    def source_mask(self, t: int, camera: str) -> np.ndarray:
+        """[H, W] bool, read-only: frame ``t``'s mask of ``camera`` as the session was written (at ingest:
+        the capture's own), whatever segmenters stored since; not cached. Errors as :meth:`frame`, and a
+        ValueError for a camera without such masks."""
+        t = self._check_frame(t, camera)
+        name = self._source_mask_array(camera)
+        if name is None:
+            raise ValueError(f"{self.url}: camera {camera!r} has no masks from its capture")
+        mask = self._array(camera, name)[t]
+        mask.setflags(write=False)
+        return mask
 
 
 # ----------------------------------------------------------------------------------------------- updater
@@ -579,9 +609,11 @@ class SessionUpdater(_Session, _Transaction):
 
     New fields are written under fresh array names (``<field>.<token>``) that no reader looks at; one
     write of the group attributes in :meth:`commit` swaps them all in, then the replaced arrays are
-    deleted. A field written for a camera must cover every present frame of it. A context manager like
-    :class:`SessionWriter`. An updater killed before commit leaves only unreferenced arrays behind. One
-    updater at a time: two committing concurrently would each keep only its own fields.
+    deleted — except the masks the session was written with, which the first replacement keeps as the
+    field :data:`SOURCE_MASK` (the ``precomputed`` segmenter starts from them). A field written for a
+    camera must cover every present frame of it. A context manager like :class:`SessionWriter`. An updater
+    killed before commit leaves only unreferenced arrays behind. One updater at a time: two committing
+    concurrently would each keep only its own fields.
     """
 
     def __init__(self, url: str | os.PathLike, *, storage_options: dict | None = None) -> None:
@@ -618,9 +650,12 @@ class SessionUpdater(_Session, _Transaction):
         fields = {camera: dict(names) for camera, names in self._field_names.items()}
         replaced = []
         for camera, field in self._new:
-            if field in fields.setdefault(camera, {}):
-                replaced.append(f"cameras/{camera}/{fields[camera][field]}")
-            fields[camera][field] = f"{field}.{self._token}"
+            names = fields.setdefault(camera, {})
+            if names.get(field) == field == "mask":  # the masks the session was written with: kept
+                names[SOURCE_MASK] = field
+            elif field in names:
+                replaced.append(f"cameras/{camera}/{names[field]}")
+            names[field] = f"{field}.{self._token}"
         self._group.attrs.update({"fields": fields})
         self._field_names = fields
         self._done = True

@@ -262,13 +262,47 @@ def test_precomputed_uses_the_session_masks(tmp_path: Path) -> None:
         list(_segmenter("precomputed").segment(session, "b"))
 
 
+def test_segmenting_again_starts_from_the_ingested_masks(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    import rig_fixtures as rig
+    from mmcsplat.plugins.segmenters.postprocess import dilate, largest_component
+
+    source, path = tmp_path / "capture", tmp_path / "s.zarr"
+    cameras = rig.make_capture(source, frames=4)
+    truth = zarr.open_group(str(source / "ground_truth.zarr"), mode="w")
+    for camera in cameras:  # a body and a separate speck: the largest component drops the speck
+        masks = np.zeros((4, camera.height, camera.width), np.uint8)
+        masks[:, 20:60, 30:90] = 1
+        masks[:, 70:80, 100:110] = 1
+        truth.create_array(f"masks/{camera.name}", data=masks)
+    assert main(["ingest", str(source), str(path)]) == 0
+    shipped = {(c.name, t): SessionReader(path).frame(t, c.name).mask for c in cameras for t in range(4)}
+
+    def segment(*argv: str) -> dict[tuple[str, int], np.ndarray]:
+        assert main(["segment", str(path), "--segmenter", *argv]) == 0, capsys.readouterr().err
+        session = SessionReader(path)
+        return {key: session.frame(key[1], key[0]).mask for key in shipped}
+
+    once = segment("precomputed", "--set", "dilation=2")
+    for key, mask in shipped.items():
+        np.testing.assert_array_equal(once[key], dilate(largest_component(mask, 1), 2))
+    twice = segment("precomputed", "--set", "dilation=2")
+    for key in shipped:
+        np.testing.assert_array_equal(twice[key], once[key])  # not dilated by 4
+    segment("background")
+    restored = segment("precomputed", "--set", "largest_component=false")
+    for key, mask in shipped.items():
+        np.testing.assert_array_equal(restored[key], mask)  # the speck the first passes dropped is back
+
+
 # ------------------------------------------------------------------------------------------ mmcsplat segment
 
 
 def test_segment_command_writes_masks_and_labels(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from mmcsplat.plugins.segmenters.postprocess import dilate
+
     model = _model(tmp_path)
     rgb, regions = _scene()
-    path = _session(tmp_path / "s.zarr", {"a": [rgb] * 3, "b": [rgb] * 3, "c": [rgb] * 3})
+    path = _session(tmp_path / "s.zarr", {"a": [rgb] * 3, "b": [rgb] * 3, "c": [rgb] * 3}, {"a": [regions["small"]] * 3})
     status = main(["segment", str(path), "--segmenter", "onnx-semantic", "--set", f"model={model}", "--set", "dilation=0", "--cameras", "a,b"])
     assert status == 0, capsys.readouterr().err
     assert "a: 3 frames" in capsys.readouterr().out
@@ -278,12 +312,13 @@ def test_segment_command_writes_masks_and_labels(tmp_path: Path, capsys: pytest.
         np.testing.assert_array_equal(session.frame(t, "b").mask, regions["red"] | regions["blue"])
         np.testing.assert_array_equal(session.frame(t, "a").labels == 1, regions["red"] | regions["blue"] | regions["small"])
 
-    # Re-segmenting replaces the fields; precomputed keeps the labels it does not produce.
+    # Re-segmenting replaces the fields: precomputed brings back the masks the session came with and keeps
+    # the labels it does not produce; the onnx masks are gone, the shipped ones kept.
     assert main(["segment", str(path), "--segmenter", "precomputed", "--set", "dilation=1", "--cameras", "a"]) == 0
     session = SessionReader(path)
-    assert session.frame(0, "a").mask.sum() > (regions["red"] | regions["blue"]).sum()
+    np.testing.assert_array_equal(session.frame(0, "a").mask, dilate(regions["small"], 1))
     assert session.has("labels", "a")
-    assert sorted(name.split(".")[0] for name in _arrays(path, "a")) == ["labels", "mask", "present", "rgb"]  # old ones gone
+    assert sorted(name.split(".")[0] for name in _arrays(path, "a")) == ["labels", "mask", "mask", "present", "rgb"]
 
 
 def test_segment_command_refuses_bad_inputs_and_writes_nothing(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

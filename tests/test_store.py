@@ -295,8 +295,36 @@ def test_updater_adds_and_replaces_fields_atomically(url):
         np.testing.assert_array_equal(after.frame(t, "left").labels, fields_of(left, t)["labels"])  # untouched
     import zarr
 
-    names = {name for name, _ in zarr.open_group(url if "://" in url else str(url), mode="r")["cameras/left"].members()}
-    assert "mask" not in names and sum(name.startswith("mask") for name in names) == 1  # the replaced array is gone
+    names = {name for name, _ in zarr.open_group(url, mode="r")["cameras/left"].members()}
+    assert "labels" in names and sum(name.startswith("mask.") for name in names) == 1  # one new mask array
+
+
+def test_updater_keeps_the_masks_the_session_was_written_with(url):
+    import zarr
+
+    cameras = write_session(url)
+    left = cameras[0]
+    written = [fields_of(left, t)["mask"] for t in range(T)]
+    reader = SessionReader(url)
+    assert reader.has_source_mask("left") and not reader.has_source_mask("right")
+    np.testing.assert_array_equal(reader.source_mask(2, "left"), written[2])
+    for replacement in range(2):  # the first update keeps the written masks, the second deletes the first's
+        with SessionUpdater(url) as updater:
+            for t in range(T):
+                updater.write("left", "mask", t, np.full((24, 32), bool(replacement)))
+                updater.write("left", "labels", t, np.full((24, 32), replacement, np.uint16))
+        reader = SessionReader(url)
+        assert reader.frame(1, "left").mask.all() == bool(replacement)
+        assert reader.frame(1, "left").labels[0, 0] == replacement
+        np.testing.assert_array_equal(reader.source_mask(1, "left"), written[1])
+        assert not reader.source_mask(1, "left").flags.writeable
+        names = {name for name, _ in zarr.open_group(url, mode="r")["cameras/left"].members()}
+        assert sorted(name.split(".")[0] for name in names) == ["depth", "labels", "mask", "mask", "present", "rgb"]
+    assert zarr.open_group(url, mode="r").attrs["fields"]["left"]["source_mask"] == "mask"
+    with pytest.raises(ValueError, match="camera 'right' has no masks from its capture"):
+        reader.source_mask(1, "right")
+    with pytest.raises(AbsentFrameError, match="frame 0 of camera 'right'"):
+        reader.source_mask(0, "right")
 
 
 def test_updater_failures_leave_the_session_as_it_was(url):

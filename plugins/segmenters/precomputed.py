@@ -1,5 +1,9 @@
-"""``precomputed``: the masks a session already holds (written at ingest by formats that ship them, such
-as d3dgs and D-NeRF, or the synthetic capture's ground truth), post-processed like any other."""
+"""``precomputed``: the masks a session was ingested with (by formats that ship them, such as d3dgs and
+D-NeRF, or the synthetic capture's ground truth), post-processed like any other.
+
+It always starts from those masks, never from what an earlier segmentation stored (the session keeps them
+as ``source_mask`` once a segmentation replaced them): running it again gives the same masks, and it
+brings the capture's masks back after another segmenter."""
 
 from __future__ import annotations
 
@@ -13,13 +17,13 @@ from .postprocess import PostProcessedSegmenter, present_frames
 
 
 class PrecomputedSegmenter(PostProcessedSegmenter):
-    """Yields the session's own masks of a camera; its labels are left as they are (yielded as ``None``)."""
+    """Yields the masks a camera was ingested with; its labels are left as they are (yielded as ``None``)."""
 
     def raw(self, session: SessionReader, camera: str) -> Iterator[tuple[int, np.ndarray, np.ndarray | None]]:
-        if not session.has("mask", camera):
+        if not session.has_source_mask(camera):
             raise ValueError(
-                f"{session.url}: camera {camera!r} has no masks to use (the precomputed segmenter needs masks "
-                "written at ingest; choose another segmenter)"
+                f"{session.url}: camera {camera!r} has no masks from its capture (the precomputed segmenter "
+                "needs the masks written at ingest: choose another segmenter, or ingest the capture again)"
             )
         for t in present_frames(session, camera):
-            yield int(t), session.frame(int(t), camera).mask, None
+            yield int(t), session.source_mask(int(t), camera), None
