@@ -151,7 +151,8 @@ def ingest(
 
     ``frames`` selects frame indices, ``cameras`` a subset of cameras (in that order), ``holdout`` cameras
     kept for evaluation (added to those the format itself holds out), ``reader_options`` parameters of
-    the reader (e.g. ``{"size_mismatch": "crop"}`` for ``videos``).
+    the reader (e.g. ``{"size_mismatch": "crop"}`` for ``videos``). The session records ``source`` (and
+    ``calibration``) as absolute paths.
     """
     from tqdm import tqdm
 
@@ -160,6 +161,9 @@ def ingest(
     source = Path(source)
     if not source.exists():
         raise FileNotFoundError(f"source {source} does not exist")
+    # Recorded absolute, so the session finds its capture (and ground truth) from any working directory.
+    source = source.resolve()
+    calibration = None if calibration is None else Path(calibration).resolve()
     if not scale > 0:
         raise ValueError(f"scale must be positive, got {scale}")
     registry = default_registry()

@@ -190,6 +190,23 @@ def test_cli_reports_bad_input_and_succeeds_on_good(tmp_path: Path, capsys: pyte
     assert SessionReader(tmp_path / "out.zarr").num_frames == 1
 
 
+def test_a_relative_source_is_recorded_as_an_absolute_path(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import zarr
+
+    from mmcsplat.tracking import find_ground_truth
+
+    source = (tmp_path / "capture").resolve()
+    rig.make_capture(source, frames=2)
+    zarr.open_group(str(source / "ground_truth.zarr"), mode="w")
+    monkeypatch.chdir(tmp_path)
+    assert main(["ingest", "capture", "out.zarr", "--calibration", "capture/calibration.toml"]) == 0
+    monkeypatch.chdir(source)  # read from another working directory
+    session = SessionReader(tmp_path / "out.zarr")
+    assert session.source == str(source)
+    assert session.provenance["reader"]["calibration"] == str(source / "calibration.toml")
+    assert find_ground_truth(session) == source / "ground_truth.zarr"
+
+
 def test_interrupted_ingest_leaves_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     rig.make_capture(tmp_path / "capture", frames=3)
     calls = []
