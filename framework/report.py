@@ -175,7 +175,9 @@ def metrics_section(run: Path, metrics: dict[str, Any] | None) -> str:
             [(name, s.get("split"), s.get("psnr"), s.get("masked_psnr"), s.get("ssim")) for name, s in per_camera.items()]))
     if "tracking_method" in metrics:
         parts.append("<h3>Tracking</h3>" + table(["metric", "value"], [(label, metrics[key]) for key, label in TRACKING_METRICS if key in metrics]))
-        if metrics.get("tracking_median_mm") is None:
+        if metrics.get("tracking_error"):
+            parts.append(f'<p class="note">Tracking errors not measured: {esc(metrics["tracking_error"])}</p>')
+        elif metrics.get("tracking_median_mm") is None:
             parts.append('<p class="note">No ground truth was found for the tracking errors (<code>mmcsplat evaluate --ground-truth</code>).</p>')
     if metrics.get("per_frame_val_masked_psnr"):
         parts.append(image(per_frame_chart(metrics), "per-frame chart", "Held-out masked PSNR"

@@ -9,7 +9,8 @@ folder. Session frames map to capture frames through the ingest provenance (``fr
 
 For every ground-truth point, the Gaussians within :data:`FOLLOW_RADIUS` of it at the first tracked
 frame follow it: the point's estimated position at frame k is its first position plus their mean
-displacement. Errors are taken over every followed point and every later frame.
+displacement. Errors are taken over every followed point and every later frame. When no point has a
+Gaussian that near (a fit in the wrong place), the errors are not measured and ``tracking_error`` says why.
 """
 
 from __future__ import annotations
@@ -28,6 +29,11 @@ from .tracks import TrackReader
 
 GROUND_TRUTH_DIR = "ground_truth.zarr"
 FOLLOW_RADIUS = 0.01  # metres
+
+
+class NothingFollowedError(ValueError):
+    """No ground-truth point has a Gaussian within the follow radius at the first tracked frame, so no
+    tracking error can be measured."""
 
 
 @attrs.frozen
@@ -98,7 +104,11 @@ def tracking_accuracy(tracks: TrackReader, truth: np.ndarray, camera: Camera | N
     first = tracks.means(0).astype(np.float64)
     weights, followed = follower_weights(first, truth[0], radius)
     if not len(followed):
-        raise ValueError(f"no ground-truth point has a Gaussian within {radius * 1000:.0f} mm at the first frame: is the fit in the right place?")
+        nearest = np.min(cKDTree(first).query(truth[0])[0], initial=np.inf) * 1000.0
+        raise NothingFollowedError(
+            f"no ground-truth surface point has a Gaussian within {radius * 1000:.0f} mm at the first tracked frame "
+            f"(nearest {nearest:.0f} mm; {len(first)} Gaussians, {truth.shape[1]} points): is the fit in the right place?"
+        )
     start = truth[0, followed]
     errors, still, pixel_errors, per_frame = [], [], [], [0.0]
     for k in range(1, tracks.num_frames):
@@ -133,7 +143,8 @@ def _pixel_errors(camera: Camera, estimate: np.ndarray, actual: np.ndarray) -> n
 def evaluate_tracks(run: Path, session: SessionReader, heldout: list[str], ground_truth: str | Path | None = None,
                     renderer: Any = None, psnr: Any = None) -> dict[str, Any]:
     """The tracking metrics of ``run``: ``tracking_median_mm``, ``tracking_p90_mm``,
-    ``tracking_2d_median_px`` (``None`` when no ground truth is found), ``tracking_followed_points``,
+    ``tracking_2d_median_px`` (``None`` when no ground truth is found, and ``None`` with the reason in
+    ``tracking_error`` when no ground-truth point is followed), ``tracking_followed_points``,
     ``tracking_per_frame_median_mm`` and ``per_frame_val_masked_psnr`` (held-out cameras' mean per frame,
     rendered with ``renderer`` and scored by the ``psnr`` metric)."""
     import torch
@@ -163,15 +174,19 @@ def evaluate_tracks(run: Path, session: SessionReader, heldout: list[str], groun
         metrics.update(tracking_median_mm=None, tracking_p90_mm=None, tracking_2d_median_px=None)
         return metrics
     truth = read_surface_points(path, capture_frames(session, frames))
-    accuracy = tracking_accuracy(tracks, truth, session.camera(heldout[0]) if heldout else None)
+    metrics.update(tracking_ground_truth=str(path), tracking_ground_truth_points=int(truth.shape[1]))
+    try:
+        accuracy = tracking_accuracy(tracks, truth, session.camera(heldout[0]) if heldout else None)
+    except NothingFollowedError as error:  # a bad run: its other metrics still tell how bad
+        metrics.update(tracking_median_mm=None, tracking_p90_mm=None, tracking_2d_median_px=None, tracking_followed_points=0,
+                       tracking_error=str(error))
+        return metrics
     metrics.update(
-        tracking_ground_truth=str(path),
         tracking_median_mm=accuracy.median_mm,
         tracking_p90_mm=accuracy.p90_mm,
         tracking_still_median_mm=accuracy.still_median_mm,
         tracking_2d_median_px=accuracy.median_2d_px,
         tracking_per_frame_median_mm=accuracy.per_frame_median_mm,
         tracking_followed_points=accuracy.followed_points,
-        tracking_ground_truth_points=accuracy.total_points,
     )
     return metrics

@@ -122,6 +122,27 @@ def test_untouched_run_says_which_commands_make_what_is_missing(runs, tmp_path):
     assert len(embedded(page, "image/png")) == 6 and not embedded(page, "video/mp4")
 
 
+def test_a_run_whose_tracks_follow_no_ground_truth_point_is_still_evaluated(runs, tmp_path, capsys):
+    import json
+
+    import numpy as np
+    import zarr
+
+    run = tmp_path / "far"
+    shutil.copytree(runs[0], run)
+    truth = tmp_path / "far_truth.zarr"
+    zarr.open_group(str(truth), mode="w", zarr_format=3).create_array("surface_points", data=np.full((FRAMES, 5, 3), 10.0))
+    assert main(["evaluate", str(run), "--ground-truth", str(truth)]) == 0
+    assert "warning: " + str(run) + ": tracking errors not measured: no ground-truth surface point" in capsys.readouterr().err
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["tracking_median_mm"] is None and metrics["tracking_followed_points"] == 0
+    assert metrics["val_masked_psnr"] is not None and len(metrics["per_frame_val_masked_psnr"]) == FRAMES and "drift" in metrics
+    assert main(["report", str(run)]) == 0
+    page = (run / "report.html").read_text()
+    assert "Tracking errors not measured: no ground-truth surface point has a Gaussian within 10 mm" in page
+    assert "No ground truth was found" not in page
+
+
 def test_study_page_has_the_table_findings_and_charts(study):
     out, charts = study
     page = (out / "report.html").read_text()

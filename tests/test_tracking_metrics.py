@@ -14,7 +14,9 @@ from fitting_scene import ring_camera
 from mmcsplat.drift import off_subject
 from mmcsplat.tracking import (
     GROUND_TRUTH_DIR,
+    NothingFollowedError,
     capture_frames,
+    evaluate_tracks,
     find_ground_truth,
     follower_weights,
     read_surface_points,
@@ -75,8 +77,21 @@ def test_points_without_a_gaussian_nearby_are_left_out(tmp_path):
     weights, followed = follower_weights(means, points, radius=0.01)
     assert followed.tolist() == [0]
     np.testing.assert_allclose(weights.toarray(), [[0.5, 0.5, 0.0]])
-    with pytest.raises(ValueError, match="no ground-truth point has a Gaussian within 10 mm"):
+    with pytest.raises(NothingFollowedError, match=r"no ground-truth surface point has a Gaussian within 10 mm .*nearest 7680 mm; 3 Gaussians, 3 points"):
         tracking_accuracy(write_tracks(tmp_path, np.stack([means + 5, means + 5])), np.stack([points, points]))
+
+
+def test_evaluate_reports_why_nothing_was_followed_instead_of_failing(tmp_path):
+    truth = ground_truth()
+    path = tmp_path / "truth.zarr"
+    zarr.open_group(str(path), mode="w", zarr_format=3).create_array("surface_points", data=truth)
+    (tmp_path / "run").mkdir()
+    write_tracks(tmp_path / "run", truth + [0.5, 0, 0])  # the whole fit 50 cm off the subject
+    metrics = evaluate_tracks(tmp_path / "run", SimpleNamespace(provenance={}), [], path)
+    assert metrics["tracking_median_mm"] is metrics["tracking_p90_mm"] is metrics["tracking_2d_median_px"] is None
+    assert (metrics["tracking_followed_points"], metrics["tracking_ground_truth_points"]) == (0, P)
+    assert metrics["tracking_error"].startswith("no ground-truth surface point has a Gaussian within 10 mm at the first tracked frame")
+    assert metrics["per_frame_val_masked_psnr"] == [None] * T and "tracking_per_frame_median_mm" not in metrics
 
 
 def test_ground_truth_location_and_frame_mapping(tmp_path):
