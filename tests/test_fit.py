@@ -110,3 +110,21 @@ def test_unknown_holdout_and_missing_masks(session, tmp_path):
     config = load_config(write_config(tmp_path / "fit.toml"))
     with pytest.raises(ValueError, match="cam_9"):
         FirstFrameFit(session, config, tmp_path / "run", holdout=["cam_9"], progress=False)
+
+
+def _available_renderers() -> list:
+    from mmcsplat.registry import default_registry
+
+    registry = default_registry()
+    return [pytest.param(name, marks=pytest.mark.skipif(bool(reason := registry.get("renderer", name).unavailable_reason()), reason=str(reason)))
+            for name in registry.names("renderer")]
+
+
+@pytest.mark.parametrize("backend", _available_renderers())
+def test_a_built_in_configuration_runs_unchanged_on_every_backend(session, tmp_path, backend):
+    """paper-masked as shipped — only its size shrunk to the tiny scene — fits on each renderer by name."""
+    config = load_config("paper-masked", ["fit.iterations=40", "initializer.random.num_points=600", "initializer.random.half_size=0.3"])
+    info = FirstFrameFit(session, config, tmp_path / backend, backend=backend, progress=False).run()
+    assert info["status"] == "complete" and info["renderer"] == backend
+    metrics = evaluate(tmp_path / backend, backend=backend)
+    assert metrics["train_masked_psnr"] > 12, metrics  # an empty render scores about 8 dB inside these masks
