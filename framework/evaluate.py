@@ -19,7 +19,7 @@ from .rendering import RenderCameras
 from .store import SessionReader
 from .tracking import evaluate_tracks
 from .tracks import TRACKS_DIR, TrackReader
-from .visual_hull import FLOATER_MARGIN_PX, dilated, floater_share, mask_agreement
+from .visual_hull import FLOATER_MARGIN_PX, dilated, eroded, floater_share, mask_agreement
 
 METRICS_FILE = "metrics.json"
 
@@ -94,6 +94,9 @@ def evaluate_run(run: Path, registry: Registry | None = None, backend: str | Non
         camera_scores = {"psnr": psnr(prediction, target), "ssim": ssim(prediction, target)}
         if data.mask is not None and data.mask.any():
             camera_scores["masked_psnr"] = psnr(prediction, target, data.mask)
+            interior = eroded(data.mask, 1)
+            if interior.any():
+                camera_scores["interior_masked_psnr"] = psnr(prediction, target, interior)
         per_camera[name] = {"split": split, **camera_scores}
         for key, value in camera_scores.items():
             scores[split].setdefault(key, []).append(value)
@@ -102,6 +105,8 @@ def evaluate_run(run: Path, registry: Registry | None = None, backend: str | Non
         "val_psnr": _mean(scores["val"].get("psnr", [])),
         "val_ssim": _mean(scores["val"].get("ssim", [])),
         "train_masked_psnr": _mean(scores["train"].get("masked_psnr", [])),
+        "val_interior_masked_psnr": _mean(scores["val"].get("interior_masked_psnr", [])),
+        "train_interior_masked_psnr": _mean(scores["train"].get("interior_masked_psnr", [])),
         "train_psnr": _mean(scores["train"].get("psnr", [])),
         "num_gaussians": int(params["means"].shape[0]),
         "floater_share": _floater_share(views, params),
@@ -138,7 +143,7 @@ def evaluate(run: Path, registry: Registry | None = None, backend: str | None = 
         return evaluate_run(Path(run), registry, backend, ground_truth)
     folds = {path.name: evaluate_run(path, registry, backend, ground_truth) for path in runs}
     summary: dict[str, Any] = {}
-    for key in ("val_masked_psnr", "val_psnr", "val_ssim", "train_masked_psnr", "train_psnr", "num_gaussians", "floater_share", "iterations", "wall_s"):
+    for key in ("val_masked_psnr", "val_psnr", "val_ssim", "train_masked_psnr", "val_interior_masked_psnr", "train_interior_masked_psnr", "train_psnr", "num_gaussians", "floater_share", "iterations", "wall_s"):
         values = [m[key] for m in folds.values() if m[key] is not None]
         summary[key] = _mean(values)
     summary["val_masked_psnr_std"] = float(np.std([m["val_masked_psnr"] for m in folds.values() if m["val_masked_psnr"] is not None] or [np.nan]))

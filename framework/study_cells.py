@@ -44,6 +44,7 @@ class CellOutcome:
     val_psnr: float | None = None
     val_ssim: float | None = None
     train_masked_psnr: float | None = None
+    val_interior_masked_psnr: float | None = None
     train_psnr: float | None = None
     num_gaussians: int | None = None
     floater_share: float | None = None
@@ -107,7 +108,7 @@ def _run(spec: CellSpec, cell_dir: Path) -> dict[str, Any]:
     metrics = evaluate_run(cell_dir, ground_truth=Path(spec.ground_truth) if spec.ground_truth else None)
     wall = float(info["wall_s"])
     return {
-        **{key: metrics.get(key) for key in ("val_masked_psnr", "val_psnr", "val_ssim", "train_masked_psnr", "train_psnr",
+        **{key: metrics.get(key) for key in ("val_masked_psnr", "val_psnr", "val_ssim", "train_masked_psnr", "val_interior_masked_psnr", "train_psnr",
                                              "num_gaussians", "floater_share", "mask_agreement", "drift", "tracking_median_mm", "tracking_p90_mm",
                                              "per_frame_val_masked_psnr", "tracking_per_frame_median_mm")},
         "loss_min": info.get("loss_min"),

@@ -63,6 +63,16 @@ def dilated(mask: np.ndarray, margin_px: int) -> np.ndarray:
     return cv2.dilate(mask.astype(np.uint8), kernel) > 0
 
 
+def eroded(mask: np.ndarray, margin_px: int) -> np.ndarray:
+    """``mask`` without the pixels within ``margin_px`` pixels of its edge (a square: 8-neighbours)."""
+    if margin_px <= 0:
+        return mask
+    import cv2
+
+    kernel = np.ones((2 * margin_px + 1, 2 * margin_px + 1), np.uint8)
+    return cv2.erode(mask.astype(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=1) > 0
+
+
 def floater_share(means: np.ndarray, opacities: np.ndarray, views: Sequence[View], tolerance: int = 0) -> float:
     """The share of opacity mass (sum of opacities, in [0, 1] each) of Gaussians whose centres ``means``
     [N, 3] lie outside the visual hull of ``views`` (masks already dilated); 0 for no opacity at all."""

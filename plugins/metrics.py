@@ -16,7 +16,7 @@ def _as_tensors(prediction: np.ndarray, target: np.ndarray, mask: np.ndarray | N
         raise ValueError(f"{metric}: prediction {tuple(prediction_t.shape)} and target {tuple(target_t.shape)} must be equal [H, W, C]")
     if mask is None:
         return prediction_t, target_t, None
-    mask_t = torch.as_tensor(np.asarray(mask, dtype=bool))
+    mask_t = torch.from_numpy(np.array(mask, dtype=bool))  # a copy: session frames are read-only
     if tuple(mask_t.shape) != tuple(target_t.shape[:2]):
         raise ValueError(f"{metric}: mask {tuple(mask_t.shape)} does not match image {tuple(target_t.shape[:2])}")
     if not mask_t.any():

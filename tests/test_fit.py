@@ -31,6 +31,9 @@ def test_fit_learns_and_evaluates(session, tmp_path):
     # 80 iterations from random points: well above an empty render's masked PSNR (~8 dB here).
     assert metrics["train_masked_psnr"] > 14
     assert metrics["val_masked_psnr"] is not None and metrics["num_gaussians"] > 0
+    # The same scores inside the mask less its 1-pixel edge (visual_hull.eroded), per camera and averaged.
+    interior = [scores["interior_masked_psnr"] for scores in metrics["per_camera"].values() if scores["split"] == "train"]
+    assert metrics["train_interior_masked_psnr"] == pytest.approx(sum(interior) / len(interior)) and metrics["val_interior_masked_psnr"] > 10
 
 
 def test_killed_run_resumes_to_the_same_parameters(session, tmp_path, monkeypatch):

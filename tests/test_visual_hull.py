@@ -50,3 +50,15 @@ def test_a_camera_turned_away_disagrees_with_the_others_and_only_it():
     turned = scores(cameras)
     assert turned[2] < 0.5 and min(turned[:2] + turned[3:]) > 0.99
     assert mask_agreement(cameras[0], np.zeros((36, 48), dtype=bool), views[1:], np.zeros(3), 1.4) is None
+
+
+def test_eroded_drops_the_edge_band_and_keeps_the_image_border():
+    from mmcsplat.visual_hull import eroded
+
+    mask = np.zeros((8, 10), bool)
+    mask[2:7, 0:6] = True  # touches the image's left border
+    inner = eroded(mask, 1)
+    expected = np.zeros_like(mask)
+    expected[3:6, 0:5] = True  # one pixel off each edge but the image border, which is no edge of the subject
+    np.testing.assert_array_equal(inner, expected)
+    np.testing.assert_array_equal(eroded(mask, 0), mask)
