@@ -13,15 +13,16 @@ from scipy.spatial import cKDTree
 
 from mmcsplat.interfaces import Initializer, SceneContext
 from mmcsplat.rendering import Gaussians, RenderOutput
-from mmcsplat.visual_hull import in_hull, mask_hits
+from mmcsplat.visual_hull import in_hull, mask_hits, mask_votes
 
 INITIAL_OPACITY = 0.1
 INITIAL_SEG = 0.5
 
 
-def gaussians_at(points: np.ndarray, colors: np.ndarray | None, generator: torch.Generator) -> Gaussians:
+def gaussians_at(points: np.ndarray, colors: np.ndarray | None, generator: torch.Generator, segmentation: np.ndarray | None = None) -> Gaussians:
     """Isotropic Gaussians at ``points`` [N, 3], sized by the mean distance to their 3 nearest neighbours
-    (as 3DGS initialises from a point cloud), opacity 0.1, the given or random colours."""
+    (as 3DGS initialises from a point cloud), opacity 0.1, the given or random colours, and the given
+    segmentation colours (default 0.5 each)."""
     n = len(points)
     if n == 0:
         raise ValueError("no points to place Gaussians at")
@@ -35,8 +36,27 @@ def gaussians_at(points: np.ndarray, colors: np.ndarray | None, generator: torch
     log_scales = torch.as_tensor(np.log(spacing), dtype=torch.float32)[:, None].repeat(1, 3)
     opacity_logits = torch.full((n,), float(np.log(INITIAL_OPACITY / (1 - INITIAL_OPACITY))))
     colors_t = torch.rand(n, 3, generator=generator) if colors is None else torch.as_tensor(colors, dtype=torch.float32)
-    features = torch.full((n, 1), INITIAL_SEG)
+    features = torch.full((n, 1), INITIAL_SEG) if segmentation is None else torch.as_tensor(segmentation, dtype=torch.float32).reshape(n, 1)
     return Gaussians(means, quats, log_scales, opacity_logits, colors_t, features)
+
+
+def segmentation_start(points: np.ndarray, scene: SceneContext) -> np.ndarray | None:
+    """Each point's starting segmentation colour: the share of the training views that see it in which it
+    falls on the subject mask (0.5 where no view sees it), clipped to [0.02, 0.98]; ``None`` without masks.
+
+    Starting every Gaussian at 0.5 lets the segmentation loss undo an unmasked fit: its colours learn at
+    1e-3 (the study's rate), far slower than opacities (5e-2), so the quickest way to render the mat with
+    segmentation 0 is to make everything transparent — measured on the synthetic capture, paper-unmasked
+    went transparent within 200 iterations and never fitted its training views (masked PSNR 9.4 dB)."""
+    views = []
+    for camera in scene.cameras:
+        mask = scene.session.frame(scene.frame, camera.name).mask
+        if mask is None:
+            return None
+        views.append((camera, mask))
+    seen, inside = mask_votes(np.asarray(points, dtype=np.float64), views)
+    share = np.where(seen > 0, inside / np.maximum(seen, 1), INITIAL_SEG)
+    return np.clip(share, 0.02, 0.98)
 
 
 def _uniform_cube(count: int, center: np.ndarray, half_size: float, generator: torch.Generator) -> np.ndarray:
@@ -55,7 +75,8 @@ class RandomInitializer(Initializer):
         self.half_size = half_size
 
     def initial_gaussians(self, scene: SceneContext, generator: torch.Generator) -> Gaussians:
-        return gaussians_at(_uniform_cube(self.num_points, scene.center, self.half_size, generator), None, generator)
+        points = _uniform_cube(self.num_points, scene.center, self.half_size, generator)
+        return gaussians_at(points, None, generator, segmentation_start(points, scene))
 
 
 class MaskedInitializer(Initializer):
@@ -131,7 +152,7 @@ class VisualHullInitializer(Initializer):
             raise ValueError("visual-hull initializer: no point lies inside every view's mask — are the masks and calibration consistent?")
         points = np.concatenate(kept_points)[: self.num_points]
         colors = np.concatenate(kept_colors)[: self.num_points]
-        return gaussians_at(points, colors, generator)
+        return gaussians_at(points, colors, generator, segmentation_start(points, scene))
 
     def _carve(self, points: np.ndarray, views) -> tuple[np.ndarray, np.ndarray]:
         color_sum = np.zeros((len(points), 3))
