@@ -11,8 +11,9 @@ import numpy as np
 import torch
 
 from mmcsplat.camera import Camera
+from mmcsplat.interfaces import SceneContext
 from mmcsplat.rendering import Gaussians, RenderCameras
-from mmcsplat.store import SessionWriter
+from mmcsplat.store import SessionReader, SessionWriter
 
 WIDTH, HEIGHT, FOCAL = 48, 36, 40.0
 
@@ -41,6 +42,11 @@ def subject(count: int = 150, seed: int = 0, scale: float = 0.03) -> Gaussians:
     return Gaussians(means, quats, log_scales, opacity_logits, colors, torch.ones(count, 1, dtype=torch.float64))
 
 
+def single_precision(gaussians: Gaussians) -> Gaussians:
+    """``gaussians`` in float32, as a trainer holds them (:func:`subject` is float64)."""
+    return Gaussians(*(getattr(gaussians, field).float() for field in ("means", "quats", "log_scales", "opacity_logits", "colors", "features")))
+
+
 def moved(gaussians: Gaussians, t: int, step: float = 0.005, bend: float = 0.04) -> Gaussians:
     """The subject at frame ``t``: translated ``step`` metres per frame along x, its x > 0 half bent
     ``t·bend`` radians about the y axis through the origin, smoothly (an articulated limb on a body)."""
@@ -58,10 +64,11 @@ def moved(gaussians: Gaussians, t: int, step: float = 0.005, bend: float = 0.04)
 
 
 def write_session(path: Path, cameras: int = 5, heldout: tuple[str, ...] = ("cam_0",), blank: tuple[str, ...] = (),
-                  frames: int = 1, absent: tuple[tuple[str, int], ...] = (), zoom: int = 1, truth: Gaussians | None = None) -> Path:
+                  frames: int = 1, absent: tuple[tuple[str, int], ...] = (), zoom: int = 1, truth: Gaussians | None = None,
+                  masks: bool = True, depth: bool = True) -> Path:
     """Render ``truth`` (default ``subject()``), moving over ``frames``, into ``cameras`` ring cameras of ``zoom`` times the
     base resolution; cameras in ``blank`` get an empty image/mask; the (camera, frame) pairs in ``absent``
-    are left out of the session."""
+    are left out of the session; ``masks`` / ``depth`` false leave those fields out (a capture without them)."""
     from mmcsplat.backends.torch_reference import rasterize
 
     rig = [ring_camera(f"cam_{i}", 2 * np.pi * i / cameras, zoom=zoom) for i in range(cameras)]
@@ -75,8 +82,20 @@ def write_session(path: Path, cameras: int = 5, heldout: tuple[str, ...] = ("cam
                 if camera.name in blank:
                     rgb[:] = 0
                     mask[:] = False
-                writer.write_frame(camera.name, t, rgb, mask=mask, depth=out.depth[0].numpy().astype(np.float32))
+                writer.write_frame(camera.name, t, rgb, mask=mask if masks else None,
+                                   depth=out.depth[0].numpy().astype(np.float32) if depth else None)
     return path
+
+
+def scene_context(session: SessionReader, frame: int = 0) -> SceneContext:
+    """What a first-frame fit of ``session`` shows its initializers: its training cameras (the session's
+    held-out ones left out) and the calibration's centre and scale, built as :class:`~mmcsplat.fit.FirstFrameFit` does."""
+    from mmcsplat.fit import select_cameras
+    from mmcsplat.geometry import rig_center, rig_scale
+
+    train, _ = select_cameras(session, None)
+    center = rig_center(session.cameras)
+    return SceneContext(session, tuple(train), frame, center, rig_scale(session.cameras, center))
 
 
 def write_ground_truth(path: Path, frames: int, truth: Gaussians | None = None) -> Path:
@@ -98,12 +117,11 @@ def write_fitted_run(run: Path, session: Path, truth: Gaussians | None = None) -
 
     from mmcsplat.geometry import rig_center, rig_scale
     from mmcsplat.model import GaussianModel, LearningRates
-    from mmcsplat.store import SessionReader
 
     reader = SessionReader(session)
     train = list(reader.train_cameras)
     truth = subject() if truth is None else truth
-    gaussians = Gaussians(*(getattr(truth, field).float() for field in ("means", "quats", "log_scales", "opacity_logits", "colors", "features")))
+    gaussians = single_precision(truth)
     center = rig_center(reader.cameras)
     model = GaussianModel(gaussians, tuple(train), LearningRates(), rig_scale(reader.cameras, center))
     run.mkdir(parents=True, exist_ok=True)
