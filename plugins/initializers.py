@@ -189,7 +189,7 @@ class DepthSupervisedInitializer(Initializer):
             frame = scene.session.frame(scene.frame, camera.name)
             if frame.depth is None:
                 raise ValueError(f"depth-supervised initializer: camera {camera.name!r} has no depth map at frame {scene.frame}")
-            depth = torch.as_tensor(np.asarray(frame.depth, dtype=np.float32))
+            depth = torch.tensor(np.asarray(frame.depth, dtype=np.float32))  # a copy: cached frames are read-only and shared
             if self.noise:
                 depth = depth * (1 + self.noise * torch.randn(depth.shape, generator=generator))
             self._maps[camera.name] = depth

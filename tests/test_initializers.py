@@ -246,3 +246,10 @@ def test_depth_supervision_needs_depth_maps(bare_scene):
     with pytest.raises(ValueError, match="depth-supervised initializer: camera 'cam_1' has no depth map at frame 0"):
         depth_loss(bare_scene, single_precision(subject()))
 
+
+def test_depth_maps_are_copied_from_the_sessions_read_only_frames(scene):
+    # Wrapping a cached frame would share it with every other reader (and make torch warn: it is read-only).
+    camera, render = first_view_render(scene, single_precision(subject()))
+    supervisor = initializer("depth-supervised")
+    supervisor.extra_loss(0, render, camera, scene)
+    assert not np.shares_memory(supervisor._maps[camera.name].numpy(), scene.session.frame(scene.frame, camera.name).depth)
