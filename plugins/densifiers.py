@@ -104,12 +104,19 @@ class DefaultDensifier(Densifier):
         split_rows["means"] = split_rows["means"] + (rotation @ offsets[..., None])[..., 0]
         split_rows["log_scales"] = torch.log(scales / self.split_factor)
         edit = {name: torch.cat([clone_rows[name], split_rows[name]]) for name in clone_rows}
-        opacity = torch.sigmoid(model.params["opacity_logits"].detach())
-        doomed = split | (opacity < self.prune_opacity) | (size > self.prune_size_fraction * scene_scale)
+        # As 3DGS, prune after densifying, over the whole set: a faint or oversized Gaussian's clone or children go too.
+        fresh = ~self._faint_or_oversized(edit["opacity_logits"], edit["log_scales"], scene_scale)
+        edit = {name: rows[fresh] for name, rows in edit.items()}
+        doomed = split | self._faint_or_oversized(model.params["opacity_logits"].detach(), model.params["log_scales"].detach(), scene_scale)
         if edit["means"].shape[0] or doomed.any():
             model.replace(edit, keep=~doomed, source=None)
         state["grad_sum"] = torch.zeros(model.count)
         state["count"] = torch.zeros(model.count)
+
+    def _faint_or_oversized(self, opacity_logits: torch.Tensor, log_scales: torch.Tensor, scene_scale: float) -> torch.Tensor:
+        """[N] bool: opacity below ``prune_opacity`` or size above ``prune_size_fraction`` × the scene scale."""
+        size = log_scales.exp().amax(dim=-1)
+        return (torch.sigmoid(opacity_logits) < self.prune_opacity) | (size > self.prune_size_fraction * scene_scale)
 
 
 class BudgetDensifier(Densifier):

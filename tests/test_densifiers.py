@@ -107,11 +107,14 @@ def test_nothing_grows_below_the_gradient_threshold(scene):
     torch.testing.assert_close(model.params["means"].detach(), before["means"], rtol=0, atol=0)
 
 
-def test_faint_and_oversized_gaussians_are_pruned(scene):
+@pytest.mark.parametrize("grad_threshold, descendants", [(1.0, [1, 0, 1, 0]), (1e-9, [2, 0, 2, 0])], ids=["still", "growing"])
+def test_faint_and_oversized_gaussians_are_pruned(scene, grad_threshold, descendants):
+    # Growing, the faint and the oversized Gaussians (which have gradients too: the faint one is drawn, above
+    # the renderer's 1/255 alpha floor) leave no clone or children.
     model = model_of(scene, IN_VIEW[:4], [SMALL, SMALL, LARGE, 0.3], [0.5, 0.01, 0.5, 0.5])
-    default = densifier("default", grad_threshold=1.0, start=0, every=10, prune_opacity=0.02, prune_size_fraction=0.1)
+    default = densifier("default", grad_threshold=grad_threshold, start=0, every=10, prune_opacity=0.02, prune_size_fraction=0.1)
     before = fit_step(scene, model, default, default.initialize_state(scene.scale), 0)
-    assert [len(rows_of(model, before, index)["means"]) for index in range(4)] == [1, 0, 1, 0]
+    assert [len(rows_of(model, before, index)["means"]) for index in range(4)] == descendants
     assert_trainable(scene, model)
 
 
