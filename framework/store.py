@@ -62,9 +62,12 @@ import attrs
 import numpy as np
 
 from .camera import Camera
+from .memory import release_freed_memory
 
 FORMAT_VERSION = 1
 DEFAULT_CACHE_BYTES = 256 * 2**20
+#: Bytes a cache stores between two returns of free memory to the system (one takes a few milliseconds).
+TRIM_BYTES = 2 * 2**20
 #: Optional per-frame fields, and the dtype each is stored as.
 FIELDS = {"mask": np.dtype(bool), "labels": np.dtype(np.uint16), "depth": np.dtype(np.float16)}
 #: Where ``fields`` keeps the array of the masks a session was written with once an update replaced them.
@@ -103,7 +106,9 @@ class FrameCache:
     """A least-recently-used cache bounded by the total ``nbytes`` of its values, safe across threads.
 
     A value larger than the whole budget is never cached; ``hits``, ``misses`` and ``current_bytes`` say
-    how it does.
+    how it does. After every :data:`TRIM_BYTES` stored, the allocator's free pages go back to the system
+    (:func:`mmcsplat.memory.release_freed_memory`): without that, a streamed training run's resident size
+    grew to several times the budget.
     """
 
     def __init__(self, max_bytes: int) -> None:
@@ -115,6 +120,7 @@ class FrameCache:
         self.current_bytes = 0
         self._items: OrderedDict[Hashable, Any] = OrderedDict()
         self._lock = threading.Lock()
+        self._stored_since_trim = 0
 
     def __len__(self) -> int:
         return len(self._items)
@@ -147,6 +153,12 @@ class FrameCache:
                 self.current_bytes -= evicted.nbytes
             self._items[key] = value
             self.current_bytes += size
+            self._stored_since_trim += size
+            trim = self._stored_since_trim >= TRIM_BYTES
+            if trim:
+                self._stored_since_trim = 0
+        if trim:
+            release_freed_memory()
 
     def clear(self) -> None:
         """Drop every value (the counters stay)."""

@@ -141,6 +141,26 @@ def test_frame_cache_is_bounded_in_bytes_and_evicts_least_recently_used():
     assert (cache.hits, cache.misses) == (1, 1)
 
 
+def test_frame_cache_returns_freed_memory_after_every_trim_bytes_stored(monkeypatch):
+    import mmcsplat.store as store
+
+    released = []
+    monkeypatch.setattr(store, "TRIM_BYTES", 250)
+    monkeypatch.setattr(store, "release_freed_memory", lambda: released.append(True) or True)
+    cache = FrameCache(300)
+    for index in range(6):  # 100 bytes at a time, evicting as it goes: a return after the 3rd and the 6th
+        cache.put(index, SessionFrame(rgb=np.zeros(100, dtype=np.uint8)))
+    assert len(released) == 2
+    cache.put("huge", SessionFrame(rgb=np.zeros(301, dtype=np.uint8)))  # not stored, not counted
+    assert len(released) == 2
+
+
+def test_release_freed_memory_runs_here():
+    from mmcsplat.memory import release_freed_memory
+
+    assert isinstance(release_freed_memory(), bool)
+
+
 def test_reader_cache_hits_and_stays_in_budget(tmp_path):
     url = tmp_path / "session.zarr"
     write_session(url)

@@ -1,0 +1,32 @@
+"""Giving freed heap memory back to the operating system.
+
+A run that streams frames through a bounded cache keeps decoding frames that live long (in the cache)
+between the trainer's short-lived tensors; glibc's allocator then keeps the freed holes between them
+mapped, and the process's resident size grows to several times the cache's budget (measured:
+docs/performance.md, "Streaming"). ``malloc_trim`` hands every whole free page back.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import functools
+
+
+@functools.cache
+def _malloc_trim():
+    """glibc's ``malloc_trim``, or ``None`` where the C library has none (macOS, musl, Windows)."""
+    name = ctypes.util.find_library("c")
+    if name is None:
+        return None
+    try:
+        return ctypes.CDLL(name).malloc_trim
+    except (OSError, AttributeError):
+        return None
+
+
+def release_freed_memory() -> bool:
+    """Hand the allocator's free pages back to the operating system; whether any were (never, where the
+    C library has no ``malloc_trim``)."""
+    trim = _malloc_trim()
+    return trim is not None and bool(trim(0))
