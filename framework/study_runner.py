@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import sys
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
@@ -157,13 +158,21 @@ def _cpus() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
-def _limit_threads(threads: int) -> None:
-    """Each pool worker gets its share of the cores (torch and numba would each take them all)."""
+def _start_worker(threads: int) -> None:
+    """Each pool worker gets its share of the cores (torch and numba would each take them all), and on
+    Linux dies with the study's process: a study killed by SIGTERM would otherwise leave its workers
+    running their cells, orphaned, and a restarted study would run the same cells beside them."""
     import numba
     import torch
 
     torch.set_num_threads(threads)
     numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    if sys.platform.startswith("linux"):
+        import ctypes
+        import signal
+
+        PR_SET_PDEATHSIG = 1
+        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
 
 
 def _pool(jobs: list[Job], workers: int) -> Iterator[CellOutcome]:
@@ -173,7 +182,7 @@ def _pool(jobs: list[Job], workers: int) -> Iterator[CellOutcome]:
     from concurrent.futures.process import BrokenProcessPool
 
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                               initializer=_limit_threads, initargs=(max(1, _cpus() // workers),))
+                               initializer=_start_worker, initargs=(max(1, _cpus() // workers),))
     try:
         futures = {pool.submit(run_cell, spec, cell_dir): spec for spec, cell_dir in jobs}
         for future in as_completed(futures):
