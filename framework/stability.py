@@ -39,7 +39,7 @@ import numpy as np
 from .atomic import write_json_atomic, write_text_atomic
 from .study import Study
 from .study_cells import DIVERGED, FAILED, CellOutcome
-from .study_results import Row, _number, _table, group_label
+from .study_results import Row, format_value, group_label, markdown_rows
 from .study_runner import StudyRun, run_study
 
 DEFAULT_SEEDS = 5
@@ -210,9 +210,9 @@ def stability_table(rows: Sequence[StabilityRow]) -> str:
     table = [header, ["---"] * len(header)]
     for row in rows:
         table.append([row.label, str(row.runs), *(f"{row.fractions[name]:.0%}" for name in CLASSES), f"{row.unstable:.0%}",
-                      _number(row.psnr_mean, ".2f"), _number(row.psnr_std, ".2f"), _number(row.psnr_min, ".2f"),
-                      _number(row.floater_share_mean, ".1%")])
-    return "\n".join(_table(table))
+                      format_value(row.psnr_mean, ".2f"), format_value(row.psnr_std, ".2f"), format_value(row.psnr_min, ".2f"),
+                      format_value(row.floater_share_mean, ".1%")])
+    return "\n".join(markdown_rows(table))
 
 
 def stability_markdown(result: Stability) -> str:

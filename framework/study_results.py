@@ -244,11 +244,11 @@ def markdown(study: Study, rows: Sequence[Row], aggregates: Sequence[Aggregate],
     table = [header, ["---"] * len(header)]
     for a in aggregates:
         c = a.columns
-        table.append([a.label, _yes(c.mask), _number(c.lambda_seg, "g"), _yes(c.sparse), _number(c.init_points, ",.0f"),
-                      _number(c.init_range_m, "g"), _spread(a, "val_masked_psnr", ".2f"), _spread(a, "train_masked_psnr", ".2f"),
+        table.append([a.label, _yes(c.mask), format_value(c.lambda_seg, "g"), _yes(c.sparse), format_value(c.init_points, ",.0f"),
+                      format_value(c.init_range_m, "g"), _spread(a, "val_masked_psnr", ".2f"), _spread(a, "train_masked_psnr", ".2f"),
                       _spread(a, "val_interior_masked_psnr", ".2f"), _spread(a, "wall_s", ".1f"), _spread(a, "iterations_per_s", ".2f"), _spread(a, "num_gaussians", ",.0f"),
                       a.backend, f"{a.cells - a.failed}/{a.cells}"])
-    lines += _table(table) + [""]
+    lines += markdown_rows(table) + [""]
     if findings.best:
         lines += [f"- Best held-out masked PSNR: **{findings.best}**.",
                   f"- Smallest model within {SMALLEST_WITHIN_DB} dB of the best (a model no more than the scene needs): "
@@ -262,7 +262,7 @@ def markdown(study: Study, rows: Sequence[Row], aggregates: Sequence[Aggregate],
         for a in tracked:
             table.append([a.label, a.columns.dynamics or "", _spread(a, "tracking_median_mm", ".1f"), _spread(a, "tracking_p90_mm", ".1f"),
                           _spread(a, "track_wall_s_per_frame", ".2f"), f"{a.cells - a.failed}/{a.cells}"])
-        lines += [f"{heading}# Dynamics", ""] + _table(table) + [""]
+        lines += [f"{heading}# Dynamics", ""] + markdown_rows(table) + [""]
     for title, path in charts:
         lines += [f"![{title}]({path})", ""]
     failed = [row for row in rows if row.outcome.status != COMPLETE]
@@ -273,7 +273,9 @@ def markdown(study: Study, rows: Sequence[Row], aggregates: Sequence[Aggregate],
     return "\n".join(lines)
 
 
-def _table(rows: Sequence[Sequence[str]]) -> list[str]:
+def markdown_rows(rows: Sequence[Sequence[str]]) -> list[str]:
+    """Markdown table lines, one per row (the first row the header, the second the ``---`` rule), with
+    ``|`` escaped inside cells."""
     return ["| " + " | ".join(str(cell).replace("|", "\\|") for cell in row) + " |" for row in rows]
 
 
@@ -281,7 +283,8 @@ def _yes(flag: bool) -> str:
     return "yes" if flag else "no"
 
 
-def _number(value: float | None, spec: str) -> str:
+def format_value(value: float | None, spec: str) -> str:
+    """``value`` formatted with ``spec``, or ``—`` for a missing or NaN value."""
     if value is None or (isinstance(value, float) and math.isnan(value)):
         return "—"
     return format(value, spec)
@@ -292,4 +295,4 @@ def _spread(a: Aggregate, key: str, spec: str) -> str:
     mean, std = a.mean[key], a.std[key]
     if mean is None:
         return "—"
-    return _number(mean, spec) + (f" ± {_number(std, spec)}" if a.cells - a.failed > 1 and std is not None else "")
+    return format_value(mean, spec) + (f" ± {format_value(std, spec)}" if a.cells - a.failed > 1 and std is not None else "")
