@@ -39,8 +39,9 @@ RENDER_OUTPUTS = (
     ("depth_*.mp4", "Expected depth", "--depth"),
 )
 RUN_METRICS = (  # (metrics.json key, label)
-    ("val_masked_psnr", "held-out masked PSNR (dB)"), ("val_psnr", "held-out PSNR (dB)"), ("val_ssim", "held-out SSIM"),
-    ("train_masked_psnr", "training masked PSNR (dB)"), ("train_psnr", "training PSNR (dB)"),
+    ("val_masked_psnr", "held-out masked PSNR (dB)"), ("val_interior_masked_psnr", "held-out masked PSNR, mask less its edge (dB)"),
+    ("val_psnr", "held-out PSNR (dB)"), ("val_ssim", "held-out SSIM"), ("train_masked_psnr", "training masked PSNR (dB)"),
+    ("train_interior_masked_psnr", "training masked PSNR, mask less its edge (dB)"), ("train_psnr", "training PSNR (dB)"),
     ("num_gaussians", "Gaussians"), ("floater_share", "opacity share outside the masks' hull (floaters)"),
     ("iterations", "iterations"), ("wall_s", "fit wall time (s)"), ("status", "status"),
 )
@@ -169,10 +170,11 @@ def metrics_section(run: Path, metrics: dict[str, Any] | None) -> str:
         return f"<h2>Metrics</h2><p class=\"note\">No {METRICS_FILE} yet: {command('mmcsplat', 'evaluate', run)} scores the run.</p>"
     parts = ["<h2>Metrics</h2>", table(["metric", "value"], [(label, metrics[key]) for key, label in RUN_METRICS if key in metrics])]
     per_camera = metrics.get("per_camera", {})
+    agreement = metrics.get("mask_agreement") or {}  # a camera's mask on the other masks' hull: low = bad calibration
     if per_camera:
         parts.append("<h3>Per camera</h3>" + table(
-            ["camera", "split", "PSNR (dB)", "masked PSNR (dB)", "SSIM"],
-            [(name, s.get("split"), s.get("psnr"), s.get("masked_psnr"), s.get("ssim")) for name, s in per_camera.items()]))
+            ["camera", "split", "PSNR (dB)", "masked PSNR (dB)", "SSIM", "mask share on the others' hull"],
+            [(name, s.get("split"), s.get("psnr"), s.get("masked_psnr"), s.get("ssim"), agreement.get(name)) for name, s in per_camera.items()]))
     if "tracking_method" in metrics:
         parts.append("<h3>Tracking</h3>" + table(["metric", "value"], [(label, metrics[key]) for key, label in TRACKING_METRICS if key in metrics]))
         if metrics.get("tracking_error"):

@@ -5,6 +5,7 @@ video."""
 from __future__ import annotations
 
 import base64
+import json
 import re
 import shutil
 import subprocess
@@ -104,6 +105,9 @@ def test_run_page_shows_views_metrics_chart_and_renders(runs):
     pngs = embedded(page, "image/png")
     assert len(pngs) == 3 * 2 + 1 + 1 and all(png.startswith(b"\x89PNG") for png in pngs)
     assert "3D error, median (mm)" in page and "synthetic" in page
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert "held-out masked PSNR, mask less its edge (dB)" in page and "mask share on the others&#x27; hull" in page
+    assert f"{metrics['val_interior_masked_psnr']:.3f}" in page
     videos = embedded(page, "video/mp4")
     assert sorted(videos) == sorted((run / "renders" / name).read_bytes() for name in ("novel.mp4", "trajectories_cam_0.mp4", "depth_cam_0.mp4"))
     assert (run / "renders" / "trajectories_cam_0.png").read_bytes() in pngs
