@@ -9,19 +9,16 @@ docs/performance.md, "Streaming"). ``malloc_trim`` hands every whole free page b
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 import functools
 
 
 @functools.cache
 def _malloc_trim():
-    """glibc's ``malloc_trim``, or ``None`` where the C library has none (macOS, musl, Windows)."""
-    name = ctypes.util.find_library("c")
-    if name is None:
-        return None
+    """glibc's ``malloc_trim``, or ``None`` where the C library has none (macOS, musl, Windows). Looked up
+    among the process's own symbols: ``ctypes.util.find_library`` would run ``ldconfig`` to find libc."""
     try:
-        return ctypes.CDLL(name).malloc_trim
-    except (OSError, AttributeError):
+        return getattr(ctypes.CDLL(None), "malloc_trim", None)
+    except (OSError, TypeError):  # Windows has no handle for the process's own symbols
         return None
 
 
