@@ -1,10 +1,10 @@
 """The session store: one capture, undistorted, as a zarr v3 group at any URL zarr and fsspec accept.
 
-On-disk layout (format version 1)::
+On-disk layout (format version 2; version 1 had no plates nor ``source_mask`` and still reads)::
 
     <session>/                         a zarr v3 group
         zarr.json                      group attributes:
-            mmcsplat_session: 1          format version
+            mmcsplat_session: 2          format version
             complete: true               written last; a session without it never reads
             cameras: [Camera.to_dict()]  the stored cameras, after undistortion (zero distortion), in order
             num_frames: T
@@ -15,12 +15,15 @@ On-disk layout (format version 1)::
             provenance: {mmcsplat, zarr, created (UTC, ISO 8601), command, ...}
             fields: {camera: {field: array name}}   where each optional field of a camera lives, and
                                                      source_mask: the replaced masks it was written with
+            plates: [camera name]        the cameras with a clean plate
         cameras/<camera>/              one sub-group per camera (images may differ in size between cameras)
             present  [T] bool              which frames exist (D-NeRF is monocular: one camera per frame)
             rgb      [T, H, W, 3] uint8
             mask     [T, H, W] bool        optional: the subject's mask
             labels   [T, H, W] uint16      optional: semantic labels
             depth    [T, H, W] float16     optional: metres along the optical axis, 0 where no surface
+            plate    [H, W, 3] uint8       optional: the empty scene as this camera sees it (a clean plate),
+                                           which a fit may composite its subject over
 
 Every image array has one frame per chunk (chunk file ``c.<t>.0.0[.0]``), compressed with zstd level 1
 (it decodes at ~0.9 GB/s here, as fast as level 3, and encodes almost twice as fast). Chunks of absent
@@ -64,7 +67,7 @@ import numpy as np
 from .camera import Camera
 from .memory import release_freed_memory
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 DEFAULT_CACHE_BYTES = 256 * 2**20
 #: Bytes a cache stores between two returns of free memory to the system (one takes a few milliseconds).
 TRIM_BYTES = 2 * 2**20
@@ -72,6 +75,8 @@ TRIM_BYTES = 2 * 2**20
 FIELDS = {"mask": np.dtype(bool), "labels": np.dtype(np.uint16), "depth": np.dtype(np.float16)}
 #: Where ``fields`` keeps the array of the masks a session was written with once an update replaced them.
 SOURCE_MASK = "source_mask"
+#: A camera's clean plate: the array's name in its group.
+PLATE = "plate"
 _RGB = np.dtype(np.uint8)
 _URL = re.compile(r"^[A-Za-z][A-Za-z0-9+.-]*://")
 
@@ -213,8 +218,9 @@ def _check_camera_name(name: str) -> None:
         raise ValueError(f"camera name {name!r} cannot name a zarr group (empty, '/', leading '__' or only dots)")
 
 
-def _checked(session: str, camera: Camera, field: str, t: int, array: np.ndarray) -> np.ndarray:
-    """``array`` in its stored dtype, after checking its shape and dtype against ``camera``."""
+def _checked(session: str, camera: Camera, field: str, t: int | None, array: np.ndarray) -> np.ndarray:
+    """``array`` (of frame ``t``, or the camera's plate for ``None``) in its stored dtype, after checking its
+    shape and dtype against ``camera``."""
     storage = _RGB if field == "rgb" else FIELDS[field]
     shape = (camera.height, camera.width, 3) if field == "rgb" else (camera.height, camera.width)
     array = np.asarray(array)
@@ -222,8 +228,9 @@ def _checked(session: str, camera: Camera, field: str, t: int, array: np.ndarray
     fits = array.dtype.kind == storage.kind and (field == "depth" or np.can_cast(array.dtype, storage, "safe"))
     if array.shape != shape or not fits:
         kinds = {"rgb": "uint8", "mask": "bool", "labels": "uint8 or uint16", "depth": "floating-point"}
+        where = "plate" if t is None else f"frame {t}"
         raise ValueError(
-            f"{session}: camera {camera.name!r} frame {t}: {field} must be {kinds[field]} {list(shape)}, "
+            f"{session}: camera {camera.name!r} {where}: {field} must be {kinds[field]} {list(shape)}, "
             f"got {array.dtype} {list(array.shape)}"
         )
     return array.astype(storage, copy=False)
@@ -318,8 +325,8 @@ class SessionWriter(_Transaction):
     Use as a context manager: an exception in the ``with`` block aborts (removes everything written), a
     normal exit commits unless :meth:`commit` or :meth:`abort` was already called. Cameras must already be
     undistorted (zero distortion). Optional fields (mask, depth, labels) are created on first write and, if
-    written for a camera at all, must be written for every frame written for that camera.
-    ``storage_options`` go to fsspec for URLs (credentials, endpoints).
+    written for a camera at all, must be written for every frame written for that camera; a camera may have
+    one clean plate (:meth:`write_plate`). ``storage_options`` go to fsspec for URLs (credentials, endpoints).
     """
 
     def __init__(
@@ -400,6 +407,7 @@ class SessionWriter(_Transaction):
         self._present = {name: np.zeros(self.num_frames, dtype=bool) for name in names}
         # camera -> field -> (zarr array, [T] bool of the frames written)
         self._fields: dict[str, dict[str, tuple[Any, np.ndarray]]] = {name: {} for name in names}
+        self._plates: list[str] = []
 
     def write_frame(
         self,
@@ -432,6 +440,16 @@ class SessionWriter(_Transaction):
             written[t] = True
         self._present[camera][t] = True
 
+    def write_plate(self, camera: str, rgb: np.ndarray) -> None:
+        """Store ``camera``'s clean plate: [H, W, 3] uint8, the empty scene in the stored image space."""
+        self._check_open()
+        if camera not in self._cameras:
+            raise ValueError(f"{self.url}: unknown camera {camera!r}; the session has {list(self._cameras)}")
+        plate = _checked(self.url, self._cameras[camera], "rgb", None, rgb)
+        self._group.create_array(f"cameras/{camera}/{PLATE}", data=plate, overwrite=True)
+        if camera not in self._plates:
+            self._plates.append(camera)
+
     def commit(self) -> None:
         """Finish the session: it reads as complete from now on. On failure everything is removed."""
         self._check_open()
@@ -449,7 +467,7 @@ class SessionWriter(_Transaction):
             for camera, present in self._present.items():
                 self._group.create_array(f"cameras/{camera}/present", data=present)
             fields = {camera: {field: field for field in fields} for camera, fields in self._fields.items()}
-            self._group.attrs.update({"fields": fields, "complete": True})
+            self._group.attrs.update({"fields": fields, "plates": self._plates, "complete": True})
             if self._partial is not None:
                 self._move_into_place()
         except BaseException:
@@ -502,6 +520,7 @@ class _Session:
         self.num_frames = int(attributes["num_frames"])
         self._by_name = dict(zip(self.camera_names, self.cameras, strict=True))
         self._field_names: dict[str, dict[str, str]] = attributes["fields"]
+        self._plates = frozenset(attributes.get("plates", ()))
         self._attributes = attributes
         self._present: dict[str, np.ndarray] = {}
 
@@ -594,6 +613,15 @@ class SessionReader(_Session):
         frame = SessionFrame(**arrays)
         self.cache.put((camera, t), frame)
         return frame
+
+    def plate(self, camera: str) -> np.ndarray | None:
+        """[H, W, 3] uint8, read-only: ``camera``'s clean plate (the empty scene), or ``None`` without one."""
+        self.camera(camera)
+        if camera not in self._plates:
+            return None
+        plate = self._group[f"cameras/{camera}/{PLATE}"][...]
+        plate.setflags(write=False)
+        return plate
 
     def has_source_mask(self, camera: str) -> bool:
         """Whether ``camera`` has masks from when the session was written (at ingest: the capture's own)."""

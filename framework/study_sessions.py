@@ -98,6 +98,7 @@ def _modify(path: Path, spec: SessionSpec) -> None:
         "cameras": [camera.to_dict() for camera in kept],
         "heldout": [name for name in attributes["heldout"] if name in keep],
         "fields": {name: fields for name, fields in attributes["fields"].items() if name in keep},
+        "plates": [name for name in attributes.get("plates", ()) if name in keep],
     })
     for name in names:
         if name not in keep:

@@ -103,6 +103,34 @@ def test_round_trip_of_every_field(url):
     assert frame.mask is None and frame.depth is None and frame.labels is None
 
 
+def test_a_clean_plate_per_camera_round_trips(url):
+    cameras = make_cameras()
+    plate = fields_of(cameras[0], 9)["rgb"]
+    with SessionWriter(url, cameras=cameras, num_frames=1, fps=30.0) as writer:
+        writer.write_frame("left", 0, fields_of(cameras[0], 0)["rgb"])
+        writer.write_plate("left", plate)
+        with pytest.raises(ValueError, match=r"camera 'right' plate: rgb must be uint8 \[10, 20, 3\], got uint8 \[24, 32, 3\]"):
+            writer.write_plate("right", plate)
+        with pytest.raises(ValueError, match=r"unknown camera 'top'"):
+            writer.write_plate("top", plate)
+    reader = SessionReader(url)
+    np.testing.assert_array_equal(reader.plate("left"), plate)
+    assert reader.plate("right") is None and not reader.plate("left").flags.writeable
+    with pytest.raises(ValueError, match="unknown camera 'top'"):
+        reader.plate("top")
+
+
+def test_a_version_1_session_reads_without_plates(tmp_path):
+    import zarr
+
+    write_session(tmp_path / "old.zarr")
+    group = zarr.open_group(str(tmp_path / "old.zarr"), mode="r+")
+    group.attrs.pop("plates")
+    group.attrs["mmcsplat_session"] = 1
+    assert "plates" not in zarr.open_group(str(tmp_path / "old.zarr"), mode="r").attrs
+    assert SessionReader(tmp_path / "old.zarr").plate("left") is None
+
+
 def test_present_says_which_frames_exist(url):
     write_session(url)
     reader = SessionReader(url)
