@@ -13,6 +13,7 @@ from pathlib import Path
 
 from mmcsplat.camera import Camera
 from mmcsplat.interfaces import RecordedFrame, Reader, Recording
+from mmcsplat.ingest import PLATES_FOLDER
 
 from .calibration import read_calibration
 from .files import read_image
@@ -27,10 +28,11 @@ def image_files(folder: Path) -> list[Path]:
 
 
 def camera_folders(source: Path) -> list[Path]:
-    """The folders holding images: those in ``source/images`` if any, else those directly in ``source``."""
+    """The folders holding images: those in ``source/images`` if any, else those directly in ``source``
+    (except the clean plates' folder, which ingest reads)."""
     for root in (source / "images", source):
         if root.is_dir():
-            found = sorted(p for p in root.iterdir() if p.is_dir() and image_files(p))
+            found = sorted(p for p in root.iterdir() if p.is_dir() and p.name != PLATES_FOLDER and image_files(p))
             if found:
                 return found
     return []

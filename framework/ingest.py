@@ -7,6 +7,11 @@ nearest for masks and depth — so the stored cameras have zero distortion and t
 resizes the images (area averaging when shrinking) with K scaled to match (:meth:`Camera.scaled`).
 Everything is written through :class:`~mmcsplat.store.SessionWriter`, which commits atomically: a failed
 or interrupted ingest leaves nothing that reads as a session.
+
+Clean plates — one image per camera of the empty scene (the mat before the infant is laid on it), named
+after the camera (``cam_0.png``) in a ``plates/`` folder of the capture or the folder given — are
+undistorted like the frames and stored with the session, for fits that composite the subject over them
+(``fit.background = "plate"``).
 """
 
 from __future__ import annotations
@@ -120,6 +125,28 @@ class Undistorter:
         return self._apply(depth.astype(np.float32), cv2.INTER_NEAREST, cv2.INTER_NEAREST)
 
 
+#: Where ingest looks for clean plates when none are named: this folder of the capture.
+PLATES_FOLDER = "plates"
+PLATE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
+
+
+def read_plates(folder: Path, cameras: Sequence[Camera]) -> dict[str, np.ndarray]:
+    """Each camera's clean plate from ``folder`` (``<camera name>.png``, .jpg, …) as [H, W, 3] uint8 at
+    the camera's calibrated size; an error names the camera without a plate or the file of the wrong size."""
+    from .datasets.files import read_image
+
+    plates = {}
+    for camera in cameras:
+        found = [folder / f"{camera.name}{suffix}" for suffix in PLATE_SUFFIXES if (folder / f"{camera.name}{suffix}").is_file()]
+        if not found:
+            raise FileNotFoundError(f"plates {folder}: no plate for camera {camera.name!r} (expected {camera.name}.png or another image type)")
+        rgb, _ = read_image(found[0])
+        if rgb.shape[:2] != (camera.height, camera.width):
+            raise ValueError(f"plate {found[0]}: {rgb.shape[1]}×{rgb.shape[0]} pixels, but camera {camera.name!r} is calibrated at {camera.width}×{camera.height}")
+        plates[camera.name] = rgb
+    return plates
+
+
 def _select(cameras: Sequence[Camera], names: Sequence[str] | None, what: str) -> list[str]:
     """``names`` checked against ``cameras`` (all of them when ``names`` is None)."""
     known = [camera.name for camera in cameras]
@@ -145,14 +172,16 @@ def ingest(
     overwrite: bool = False,
     progress: bool = True,
     reader_options: dict | None = None,
+    plates: Path | None = None,
 ) -> SessionReader:
     """Read ``source`` (``format`` or auto-detected), undistort and rescale its frames, and write the
     session at ``out``; returns it opened for reading.
 
     ``frames`` selects frame indices, ``cameras`` a subset of cameras (in that order), ``holdout`` cameras
     kept for evaluation (added to those the format itself holds out), ``reader_options`` parameters of
-    the reader (e.g. ``{"size_mismatch": "crop"}`` for ``videos``). The session records ``source`` (and
-    ``calibration``) as absolute paths.
+    the reader (e.g. ``{"size_mismatch": "crop"}`` for ``videos``), ``plates`` a folder of clean plates
+    (default: the capture's ``plates/`` folder when it has one; every selected camera needs a plate). The
+    session records ``source`` (and ``calibration``) as absolute paths.
     """
     from tqdm import tqdm
 
@@ -183,6 +212,10 @@ def ingest(
         if not indices:
             raise ValueError(f"the frames asked for select none of the {recording.num_frames} frames of {source}")
         by_name = {camera.name: camera for camera in recording.cameras}
+        plates_folder = Path(plates) if plates is not None else source / PLATES_FOLDER
+        if plates is not None and not plates_folder.is_dir():
+            raise FileNotFoundError(f"plates folder {plates_folder} does not exist")
+        plate_images = read_plates(plates_folder, [by_name[camera] for camera in selected]) if plates_folder.is_dir() else {}
         undistorters = {camera: Undistorter.for_camera(by_name[camera], scale) for camera in selected}
         expected = {camera: int(recording.present(camera)[indices.start : indices.stop : indices.step].sum()) for camera in selected}
         provenance = {
@@ -192,6 +225,7 @@ def ingest(
             "frames": [indices.start, indices.stop, indices.step],
             "scale": scale,
             "undistortion": "cv2.getOptimalNewCameraMatrix(alpha=0) + remap",
+            "plates": str(plates_folder.resolve()) if plate_images else None,
         }
         with SessionWriter(
             out,
@@ -206,6 +240,8 @@ def ingest(
         ) as writer, tqdm(total=sum(expected.values()), unit="frame", desc=f"ingest {source.name}", disable=not progress) as bar:
             for camera in selected:
                 undistort, written = undistorters[camera], 0
+                if camera in plate_images:
+                    writer.write_plate(camera, undistort.rgb(plate_images[camera]))
                 for frame in recording.frames(camera, indices):
                     writer.write_frame(
                         camera,

@@ -285,3 +285,60 @@ def test_pose2sim_demo_joints_land_on_keypoints(tmp_path: Path) -> None:
     assert all(m <= 25.0 for m in medians.values()), medians
     session = SessionReader(tmp_path / "pose2sim.zarr")
     assert (session.camera("cam_01").width, session.camera("cam_03").width) == (540, 544)
+
+
+def _write_plates(folder: Path, cameras, size_of: dict[str, tuple[int, int]] | None = None) -> None:
+    """Each camera's marker image (frame 0) as its clean plate ``folder/<camera>.png``, optionally resized."""
+    folder.mkdir(parents=True, exist_ok=True)
+    for camera in cameras:
+        image = cv2.cvtColor(rig.frame_image(camera, 0), cv2.COLOR_RGB2BGR)
+        if size_of and camera.name in size_of:
+            image = cv2.resize(image, size_of[camera.name])
+        cv2.imwrite(str(folder / f"{camera.name}.png"), image)
+
+
+def test_clean_plates_are_undistorted_with_the_frames(tmp_path: Path) -> None:
+    calibrated = rig.make_capture(tmp_path / "capture", frames=2)
+    _write_plates(tmp_path / "capture" / "plates", calibrated)
+    session = _ingest(tmp_path / "capture", tmp_path / "out.zarr")
+    assert session.provenance["plates"] == str((tmp_path / "capture" / "plates").resolve())
+    for camera in calibrated:
+        plate = session.plate(camera.name)
+        assert plate.shape == (camera.height, camera.width, 3)
+        # The plate's markers moved with the undistortion, as the frames' did (PNG is lossless: 0.3 px).
+        assert rig.marker_offsets(plate, session.camera(camera.name)).max() < 0.3
+    # Scaled with the frames; a folder named explicitly is used instead of the capture's own.
+    _write_plates(tmp_path / "elsewhere", calibrated)
+    scaled = _ingest(tmp_path / "capture", tmp_path / "half.zarr", scale=0.5, plates=tmp_path / "elsewhere")
+    assert scaled.plate("cam_a").shape == (48, 64, 3) and "elsewhere" in scaled.provenance["plates"]
+
+
+def test_an_image_capture_keeps_its_plates_folder_out_of_its_cameras(tmp_path: Path) -> None:
+    cameras = rig.ring_cameras(["cam_a", "cam_b"])
+    (tmp_path / "capture").mkdir()
+    write_calibration(tmp_path / "capture" / "calibration.toml", cameras)
+    rig.write_image_folders(tmp_path / "capture", cameras, 2)
+    _write_plates(tmp_path / "capture" / "plates", cameras)
+    assert detect_format(tmp_path / "capture") == "images"
+    session = _ingest(tmp_path / "capture", tmp_path / "out.zarr")
+    assert session.camera_names == ("cam_a", "cam_b") and session.plate("cam_b") is not None
+
+
+@pytest.mark.parametrize(
+    "problem, message",
+    [
+        ("missing", r"plates .*plates: no plate for camera 'cam_b'"),
+        ("size", r"plate .*cam_b\.png: 64×48 pixels, but camera 'cam_b' is calibrated at 128×96"),
+        ("folder", r"plates folder .*nowhere does not exist"),
+    ],
+)
+def test_bad_plates_fail_clearly_and_leave_no_session(tmp_path: Path, problem: str, message: str) -> None:
+    calibrated = rig.make_capture(tmp_path / "capture", frames=1)
+    plates = tmp_path / "capture" / "plates"
+    if problem == "missing":
+        _write_plates(plates, calibrated[:1])
+    elif problem == "size":
+        _write_plates(plates, calibrated, {"cam_b": (64, 48)})
+    with pytest.raises((FileNotFoundError, ValueError), match=message):
+        _ingest(tmp_path / "capture", tmp_path / "out.zarr", plates=tmp_path / "nowhere" if problem == "folder" else None)
+    assert rig.no_session_left(tmp_path / "out.zarr")

@@ -52,6 +52,19 @@ def test_videos_decode_to_the_rendered_frames(capture):
         assert np.array_equal(view.render(parts, _pose(parts, TINY, 2)).mask > 0, truth.mask(camera.name, 2))
 
 
+def test_clean_plates_show_the_empty_mat(tmp_path):
+    config = attrs.evolve(TINY, frames=1, adult_leg=False)
+    result = synthesize(tmp_path / "capture", config, progress=False)
+    truth = SynthGroundTruth(result.out_dir)
+    for camera in truth.cameras():
+        plate = cv2.cvtColor(cv2.imread(str(result.out_dir / "plates" / f"{camera.name}.png")), cv2.COLOR_BGR2RGB)
+        frame = decode(result.videos[camera.name])[0]
+        # Away from the infant (whose outline pixels mix it in) the frame is the plate, exactly; on it, not.
+        near = cv2.dilate(truth.mask(camera.name, 0).astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+        np.testing.assert_array_equal(plate[~near], frame[~near])
+        assert np.abs(plate[truth.mask(camera.name, 0)].astype(int) - frame[truth.mask(camera.name, 0)]).mean() > 20
+
+
 def _pose(parts, config: SynthConfig, t: int) -> BodyPose:
     motion = Motion.random(parts, np.random.default_rng([config.seed, 2]))
     pose = forward_kinematics(parts, motion.rotvecs(np.array([t / config.fps])))

@@ -162,6 +162,13 @@ class ViewRenderer:
         self.sample_colour = paint_static(self.origin, self.sample_rays, self.sample_static, leg).reshape(h * w, k, 3)
         self.static_colour = self.sample_colour.mean(axis=1)  # [H·W, 3]: each pixel's average
 
+    def plate(self) -> np.ndarray:
+        """[H, W, 3] uint8: the empty scene — the mat without the infant or the adult, as a clean plate
+        recorded before the session would show it — anti-aliased like the frames."""
+        empty = cast_static(self.origin, self.sample_rays, None)
+        colour = paint_static(self.origin, self.sample_rays, empty, None).reshape(self.camera.height, self.camera.width, -1, 3).mean(axis=2)
+        return np.round(np.clip(colour, 0.0, 1.0) * 255).astype(np.uint8)
+
     def render(self, parts: tuple[Part, ...], pose: BodyPose) -> Image:
         """The view of the infant in ``pose`` (one frame)."""
         h, w = self.camera.height, self.camera.width

@@ -73,7 +73,8 @@ class SynthResult:
 
 def synthesize(out_dir: str | Path, config: SynthConfig = SynthConfig(), *, overwrite: bool = False, progress: bool = True) -> SynthResult:
     """Render the synthetic infant capture into ``out_dir``: ``videos/<camera>.mp4``, an anipose
-    ``calibration.toml`` and ``ground_truth.zarr`` (masks, depth, surface points, joints).
+    ``calibration.toml``, ``plates/<camera>.png`` (clean plates: the empty mat) and ``ground_truth.zarr``
+    (masks, depth, surface points, joints).
 
     Frames stream to disk one at a time; the folder appears only once complete. ``out_dir`` must not
     exist or be empty unless ``overwrite``.
@@ -97,6 +98,8 @@ def synthesize(out_dir: str | Path, config: SynthConfig = SynthConfig(), *, over
                            {"surface_point_parts": [parts[i].name for i in point_part], "units": "m"})  # fmt: skip
         writer.write_array("joints", poses.origins[:, 1:].astype(np.float32), {"joint_names": [p.joint for p in parts[1:]], "units": "m"})
         views = [ViewRenderer(camera, config.samples, leg) for camera in tqdm(cameras, desc="synth: cameras", disable=not progress)]
+        for c, view in enumerate(views):
+            writer.write_plate(c, view.plate())
         for t in tqdm(range(config.frames), desc="synth: frames", unit="frame", disable=not progress):
             pose = BodyPose(poses.rotations[t], poses.origins[t])
             for c, view in enumerate(views):

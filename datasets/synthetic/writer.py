@@ -18,6 +18,7 @@ from .scene import Image
 VIDEOS = "videos"
 CALIBRATION = "calibration.toml"
 GROUND_TRUTH = "ground_truth.zarr"
+PLATES = "plates"
 #: Lossless H.264 in RGB (4:4:4): the videos hold exactly the rendered frames. Measured on the default
 #: capture, OpenCV's 'mp4v' reached 30 dB PSNR (26 dB inside the infant) and even lossless 4:2:0 H.264
 #: only 27 dB inside the infant, because chroma subsampling smears the small coloured patterns.
@@ -108,6 +109,16 @@ class CaptureWriter:
         self.streams[camera].write(image.rgb)
         self.masks[camera][t] = image.mask
         self.depth[camera][t] = image.depth.astype(np.float16)
+
+    def write_plate(self, camera: int, rgb: np.ndarray) -> None:
+        """Camera number ``camera``'s clean plate, ``plates/<camera>.png`` (what ingest reads)."""
+        import cv2
+
+        folder = self.temp / PLATES
+        folder.mkdir(exist_ok=True)
+        path = folder / f"{self.cameras[camera].name}.png"
+        if not cv2.imwrite(str(path), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)):
+            raise RuntimeError(f"plate {path}: OpenCV could not write it")
 
     def commit(self, attributes: dict[str, Any], calibration_metadata: dict[str, Any]) -> None:
         """Finish the videos and check that they decode, write the calibration and the ground truth's

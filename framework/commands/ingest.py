@@ -40,6 +40,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scale", type=float, default=1.0, help="resize factor for the stored images; K is scaled to match (default: 1)")
     parser.add_argument("--cameras", type=_names, metavar="A,B,…", help="ingest only these cameras")
     parser.add_argument("--holdout", type=_names, default=[], metavar="A,B,…", help="cameras kept for evaluation, not training")
+    parser.add_argument("--plates", type=Path, metavar="DIR",
+                        help="clean plates of the empty scene, one image per camera named after it (default: SOURCE/plates when it exists)")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing session at OUT")
 
 
@@ -60,8 +62,10 @@ def run(args: argparse.Namespace) -> int:
             cameras=args.cameras,
             holdout=args.holdout,
             overwrite=args.overwrite,
+            plates=args.plates,
         )
     sizes = sorted({f"{camera.width}×{camera.height}" for camera in session.cameras})
     held = f" (held out: {', '.join(session.heldout)})" if session.heldout else ""
-    print(f"wrote {args.out}: {len(session.cameras)} cameras{held}, {session.num_frames} frames at {session.fps:g} fps, {', '.join(sizes)}")
+    plates = ", with clean plates" if session.plate(session.camera_names[0]) is not None else ""
+    print(f"wrote {args.out}: {len(session.cameras)} cameras{held}, {session.num_frames} frames at {session.fps:g} fps, {', '.join(sizes)}{plates}")
     return 0

@@ -1,7 +1,7 @@
-"""Render the built-in synthetic infant capture: videos, calibration.toml and ground truth.
+"""Render the built-in synthetic infant capture: videos, calibration.toml, clean plates and ground truth.
 
 Writes OUT_DIR/videos/<camera>.mp4 (lossless H.264), OUT_DIR/calibration.toml (anipose, distorted
-cameras) and OUT_DIR/ground_truth.zarr (per-frame infant masks and depth in the videos' pixels, labelled
+cameras), OUT_DIR/plates/<camera>.png (the empty mat) and OUT_DIR/ground_truth.zarr (per-frame infant masks and depth in the videos' pixels, labelled
 surface points and joint centres over time). The folder appears only once complete. The adult's leg is
 on by default: the reference study's captures show adults beside the mat, and the subject mask never
 includes it, so it tests largest-component masking at no cost to the ground truth.
