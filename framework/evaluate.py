@@ -10,12 +10,12 @@ import numpy as np
 import torch
 
 from .atomic import write_json_atomic
+from .backdrop import camera_backdrop, render_over
 from .camera import Camera
 from .drift import detect_drift
-from .fit import RUN_INFO, load_fitted
+from .fit import RUN_INFO, fitted_background, load_fitted
 from .model import gaussians_from_params
 from .registry import Registry, default_registry
-from .rendering import RenderCameras
 from .store import SessionReader
 from .tracking import evaluate_tracks
 from .tracks import TRACKS_DIR, TrackReader
@@ -77,18 +77,17 @@ def evaluate_run(run: Path, registry: Registry | None = None, backend: str | Non
     gaussians = gaussians_from_params(params)
     frame = info["frame"]
     views = _mask_views(session, frame)
+    background = fitted_background(info)
     scores: dict[str, dict[str, list[float]]] = {"val": {}, "train": {}}
     per_camera = {}
     names = [*info["train_cameras"], *info["heldout_cameras"]]
     for name in names:
         split = "train" if name in info["train_cameras"] else "val"
         data = session.frame(frame, name)
-        with torch.no_grad():
-            render = renderer.render(gaussians, RenderCameras.from_cameras([session.camera(name)]))
-            rgb = render.rgb[0]
-            if split == "train":  # training views are scored through their learnt colour correction
-                index = info["train_cameras"].index(name)
-                rgb = rgb * camera_scale[index] + camera_offset[index]
+        rgb = render_over(renderer, gaussians, session.camera(name), camera_backdrop(background, session, name))
+        if split == "train":  # training views are scored through their learnt colour correction
+            index = info["train_cameras"].index(name)
+            rgb = rgb * camera_scale[index] + camera_offset[index]
         prediction = rgb.clamp(0, 1).double().numpy()
         target = data.rgb.astype(np.float64) / 255.0
         camera_scores = {"psnr": psnr(prediction, target), "ssim": ssim(prediction, target)}
@@ -118,7 +117,7 @@ def evaluate_run(run: Path, registry: Registry | None = None, backend: str | Non
         "per_camera": per_camera,
     }
     if (Path(run) / TRACKS_DIR).exists():
-        metrics.update(evaluate_tracks(Path(run), session, info["heldout_cameras"], ground_truth, renderer, psnr))
+        metrics.update(evaluate_tracks(Path(run), session, info["heldout_cameras"], ground_truth, renderer, psnr, background))
         report = detect_drift(TrackReader(run), session, info["train_cameras"])
         metrics.update(drift=report.drift, drift_per_frame=report.counts, drift_foreground=report.foreground)
     write_json_atomic(Path(run) / METRICS_FILE, metrics)

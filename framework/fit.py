@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 import time
 import warnings
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +21,7 @@ import torch
 
 from . import losses
 from .atomic import atomic_path, write_json_atomic
+from .backdrop import Background, camera_backdrop, composite, parse_background
 from .camera import Camera
 from .config import Config
 from .errors import MmcsplatError
@@ -28,7 +29,7 @@ from .geometry import rig_center, rig_scale
 from .interfaces import Densifier, Initializer, Renderer, SceneContext
 from .model import GAUSSIAN_PARAMETERS, GaussianModel, LearningRates
 from .registry import Registry, default_registry
-from .rendering import RenderCameras
+from .rendering import RenderCameras, RenderOutput
 from .store import SessionReader
 
 CHECKPOINT = "checkpoint.pt"
@@ -58,7 +59,8 @@ class FitSettings:
     lambda_seg: float = 3.0
     ssim_weight: float = 0.2
     checkpoint_every: int = 500
-    background: tuple[float, float, float] = attrs.field(default=(0.0, 0.0, 0.0), converter=tuple)
+    #: An RGB colour, or "plate": each camera's clean plate (:mod:`mmcsplat.backdrop`).
+    background: Background = attrs.field(default=(0.0, 0.0, 0.0), converter=parse_background)
     lrs: LearningRates = attrs.field(factory=LearningRates, converter=lambda v: v if isinstance(v, LearningRates) else LearningRates(**v))
 
     @classmethod
@@ -80,18 +82,27 @@ class TrainingView:
     image: torch.Tensor  # [H, W, 3] float, the loss target (after initializers' prepare_target)
     mask: torch.Tensor | None  # [H, W] bool
     seg_target: torch.Tensor | None  # [H, W, 1] float
+    backdrop: torch.Tensor  # [3] or [H, W, 3]: what renders of this camera are composited over
+
+    def composite(self, render: RenderOutput, index: int) -> torch.Tensor:
+        """Camera ``index`` of ``render`` (rendered over black) over this view's backdrop."""
+        return composite(render, index, self.backdrop)
 
 
-def load_view(session: SessionReader, t: int, camera: Camera, index: int, initializers: Sequence[Initializer]) -> TrainingView:
+def load_view(
+    session: SessionReader, t: int, camera: Camera, index: int, initializers: Sequence[Initializer], backdrop: torch.Tensor
+) -> TrainingView:
     """Frame ``t`` of ``camera`` (training camera number ``index``) as loss targets, shaped by the
-    initializers' ``prepare_target`` (masking zeroes the outside of the subject)."""
+    initializers' ``prepare_target``. They shape the image's difference from the ``backdrop``, so masking
+    (which zeroes the outside of the subject) leaves the backdrop there: black, or the clean plate."""
     data = session.frame(t, camera.name)
     image = torch.from_numpy(data.rgb.astype(np.float32) / 255.0)
     mask = torch.from_numpy(data.mask.copy()) if data.mask is not None else None
+    subject = image - backdrop
     for initializer in initializers:
-        image = initializer.prepare_target(image, mask)
+        subject = initializer.prepare_target(subject, mask)
     seg = mask[..., None].float() if mask is not None else None
-    return TrainingView(camera, index, image, mask, seg)
+    return TrainingView(camera, index, subject + backdrop, mask, seg, backdrop)
 
 
 class CameraSchedule:
@@ -176,7 +187,10 @@ class FirstFrameFit:
 
     def _load_views(self) -> list[TrainingView]:
         frame = self.settings.frame
-        views = [load_view(self.session, frame, camera, index, self.initializers) for index, camera in enumerate(self.train_cameras)]
+        views = [
+            load_view(self.session, frame, camera, index, self.initializers, camera_backdrop(self.settings.background, self.session, camera.name))
+            for index, camera in enumerate(self.train_cameras)
+        ]
         if self.settings.lambda_seg > 0 and any(view.seg_target is None for view in views):
             missing = [view.camera.name for view in views if view.seg_target is None]
             raise ValueError(
@@ -229,15 +243,14 @@ class FirstFrameFit:
         if checkpoint.exists():
             start, elapsed, record = self._resume(checkpoint, model, generator, schedule, densify_state)
         cameras = self._render_cameras()
-        background = torch.tensor(settings.background, dtype=torch.float32)
         bar = tqdm(range(start, settings.iterations), initial=start, total=settings.iterations, desc="fit", disable=not self.progress, unit="it")
         began = time.perf_counter() - elapsed
         try:
             for step in bar:
                 index = schedule.next()
                 view = self.views[index]
-                render = self.renderer.render(model.gaussians(), cameras.select([index]), background)
-                image = model.correct_color(render.rgb[0], index)
+                render = self.renderer.render(model.gaussians(), cameras.select([index]))
+                image = model.correct_color(view.composite(render, 0), index)
                 loss = settings.lambda_image * losses.photometric_loss(image, view.image, settings.ssim_weight)
                 if settings.lambda_seg > 0:
                     loss = loss + settings.lambda_seg * losses.photometric_loss(render.features[0, ..., :1], view.seg_target, settings.ssim_weight)
@@ -354,3 +367,8 @@ def load_fitted(out: Path) -> tuple[dict[str, Any], dict[str, torch.Tensor], tor
     payload = torch.load(checkpoint, weights_only=False)
     model = payload["model"]
     return info, model["params"], model["camera_scale"], model["camera_offset"]
+
+
+def fitted_background(info: Mapping[str, Any]) -> Background:
+    """The ``fit.background`` a run was fitted with, from its run.json ``info``."""
+    return parse_background(info.get("config_values", {}).get("fit", {}).get("background", (0.0, 0.0, 0.0)))

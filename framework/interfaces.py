@@ -136,7 +136,9 @@ class Initializer(ABC):
         return None
 
     def prepare_target(self, image: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
-        """The training target for one [H, W, 3] image given its subject mask (masking zeroes the outside)."""
+        """The training target for one [H, W, 3] image given its subject mask. The image comes as its
+        difference from the fit's backdrop (background colour or clean plate, :mod:`mmcsplat.backdrop`), so
+        zeroing the outside of the subject — what masking does — leaves the backdrop there."""
         return image
 
     def extra_loss(self, step: int, render: RenderOutput, camera: Camera, scene: SceneContext) -> torch.Tensor | None:

@@ -12,7 +12,8 @@ import numpy as np
 import torch
 
 from .camera import Camera
-from .fit import load_fitted
+from .backdrop import PLATE
+from .fit import fitted_background, load_fitted
 from .model import gaussians_from_params
 from .rendering import Gaussians
 from .store import SessionReader
@@ -69,9 +70,10 @@ class RunStates:
 
     @property
     def background(self) -> tuple[float, float, float]:
-        """The background colour the run was fitted with."""
-        fit: dict[str, Any] = self.info.get("config_values", {}).get("fit", {})
-        return tuple(fit.get("background", (0.0, 0.0, 0.0)))
+        """The background colour renders are shown over: the run's, or black for a run fitted over clean
+        plates (a viewpoint between the cameras has no plate)."""
+        background = fitted_background(self.info)
+        return (0.0, 0.0, 0.0) if background == PLATE else background
 
     @property
     def train_cameras(self) -> list[Camera]:

@@ -18,6 +18,7 @@ import attrs
 import torch
 
 from .atomic import write_json_atomic
+from .backdrop import camera_backdrop
 from .camera import Camera
 from .config import Config, PluginChoice, apply_override, load_config
 from .fit import RUN_INFO, FitSettings, TrainingView, load_fitted, load_view
@@ -48,6 +49,8 @@ class TrackingContext:
     renderer: Renderer
     settings: FitSettings
     initializers: tuple[Initializer, ...]
+    #: What each training camera's renders are composited over (:mod:`mmcsplat.backdrop`), in ``cameras`` order.
+    backdrops: tuple[torch.Tensor, ...]
     scene_center: Sequence[float]
     scene_scale: float
     config: Config
@@ -62,7 +65,7 @@ class TrackingContext:
         for index, camera in enumerate(self.cameras):
             if not self.session.present(camera.name)[t]:
                 continue
-            view = load_view(self.session, t, camera, index, self.initializers)
+            view = load_view(self.session, t, camera, index, self.initializers, self.backdrops[index])
             if self.settings.lambda_seg > 0 and view.seg_target is None:
                 raise ValueError(
                     f"fit.lambda_seg = {self.settings.lambda_seg} needs subject masks, but session {self.session.url!r} "
@@ -119,6 +122,7 @@ def track_run(
     loaded, choice = tracking_config(run, info, config, overrides, dynamics)
     method: Dynamics = choice.build(registry)
     session = SessionReader(info["session"])
+    settings = FitSettings.from_config(loaded)
     first = int(info["frame"])
     stop = session.num_frames if frames is None else min(session.num_frames, first + frames)
     if stop - first < 2:
@@ -133,8 +137,9 @@ def track_run(
         camera_scale=camera_scale,
         camera_offset=camera_offset,
         renderer=registry.create("renderer", renderer_name),
-        settings=FitSettings.from_config(loaded),
+        settings=settings,
         initializers=tuple(c.build(registry) for c in loaded.plugins("initializer")),
+        backdrops=tuple(camera_backdrop(settings.background, session, name) for name in info["train_cameras"]),
         scene_center=tuple(info["scene_center"]),
         scene_scale=float(info["scene_scale"]),
         config=loaded,

@@ -23,6 +23,7 @@ import numpy as np
 import scipy.sparse
 from scipy.spatial import cKDTree
 
+from .backdrop import Background, camera_backdrop, render_over
 from .camera import Camera
 from .store import SessionReader
 from .tracks import TrackReader
@@ -141,16 +142,13 @@ def _pixel_errors(camera: Camera, estimate: np.ndarray, actual: np.ndarray) -> n
 
 
 def evaluate_tracks(run: Path, session: SessionReader, heldout: list[str], ground_truth: str | Path | None = None,
-                    renderer: Any = None, psnr: Any = None) -> dict[str, Any]:
+                    renderer: Any = None, psnr: Any = None, background: Background = (0.0, 0.0, 0.0)) -> dict[str, Any]:
     """The tracking metrics of ``run``: ``tracking_median_mm``, ``tracking_p90_mm``,
     ``tracking_2d_median_px`` (``None`` when no ground truth is found, and ``None`` with the reason in
     ``tracking_error`` when no ground-truth point is followed), ``tracking_followed_points``,
     ``tracking_per_frame_median_mm`` and ``per_frame_val_masked_psnr`` (held-out cameras' mean per frame,
-    rendered with ``renderer`` and scored by the ``psnr`` metric)."""
-    import torch
-
-    from .rendering import RenderCameras
-
+    rendered with ``renderer`` over the run's ``background`` and scored by the ``psnr`` metric)."""
+    backdrops = {name: camera_backdrop(background, session, name) for name in heldout}
     tracks = TrackReader(run)
     frames = range(int(tracks.attrs.get("first_frame", 0)), int(tracks.attrs.get("first_frame", 0)) + tracks.num_frames)
     metrics: dict[str, Any] = {"tracking_method": tracks.method}
@@ -164,8 +162,7 @@ def evaluate_tracks(run: Path, session: SessionReader, heldout: list[str], groun
             data = session.frame(t, name)
             if data.mask is None or not data.mask.any():
                 continue
-            with torch.no_grad():
-                rgb = renderer.render(gaussians, RenderCameras.from_cameras([session.camera(name)])).rgb[0]
+            rgb = render_over(renderer, gaussians, session.camera(name), backdrops[name])
             scores.append(psnr(rgb.clamp(0, 1).double().numpy(), data.rgb.astype(np.float64) / 255.0, data.mask))
         per_frame.append(float(np.mean(scores)) if scores else None)
     metrics["per_frame_val_masked_psnr"] = per_frame

@@ -65,10 +65,12 @@ def moved(gaussians: Gaussians, t: int, step: float = 0.005, bend: float = 0.04)
 
 def write_session(path: Path, cameras: int = 5, heldout: tuple[str, ...] = ("cam_0",), blank: tuple[str, ...] = (),
                   frames: int = 1, absent: tuple[tuple[str, int], ...] = (), zoom: int = 1, truth: Gaussians | None = None,
-                  masks: bool = True, depth: bool = True) -> Path:
+                  masks: bool = True, depth: bool = True, plates: bool = False) -> Path:
     """Render ``truth`` (default ``subject()``), moving over ``frames``, into ``cameras`` ring cameras of ``zoom`` times the
     base resolution; cameras in ``blank`` get an empty image/mask; the (camera, frame) pairs in ``absent``
-    are left out of the session; ``masks`` / ``depth`` false leave those fields out (a capture without them)."""
+    are left out of the session; ``masks`` / ``depth`` false leave those fields out (a capture without them);
+    with ``plates`` the subject is seen in front of each camera's :func:`plate` (else black), stored as its
+    clean plate."""
     from mmcsplat.backends.torch_reference import rasterize
 
     rig = [ring_camera(f"cam_{i}", 2 * np.pi * i / cameras, zoom=zoom) for i in range(cameras)]
@@ -77,14 +79,29 @@ def write_session(path: Path, cameras: int = 5, heldout: tuple[str, ...] = ("cam
             gaussians = moved(subject() if truth is None else truth, t)
             for camera in (camera for camera in rig if (camera.name, t) not in absent):
                 out = rasterize(gaussians, RenderCameras.from_cameras([camera], dtype=torch.float64))
-                rgb = (out.rgb[0].clamp(0, 1).numpy() * 255).round().astype(np.uint8)
+                colour = out.rgb[0].numpy()
+                if plates:
+                    colour = colour + (1 - out.alpha[0].numpy())[..., None] * plate(camera) / 255.0
+                rgb = (np.clip(colour, 0, 1) * 255).round().astype(np.uint8)
                 mask = out.alpha[0].numpy() > 0.5
                 if camera.name in blank:
                     rgb[:] = 0
                     mask[:] = False
                 writer.write_frame(camera.name, t, rgb, mask=mask if masks else None,
                                    depth=out.depth[0].numpy().astype(np.float32) if depth else None)
+        if plates:
+            for camera in rig:
+                writer.write_plate(camera.name, plate(camera))
     return path
+
+
+def plate(camera: Camera) -> np.ndarray:
+    """[H, W, 3] uint8: a camera's empty scene for :func:`write_session` — checks of 4 px over a colour
+    ramp, different in every camera."""
+    v, u = np.mgrid[: camera.height, : camera.width]
+    checks = ((u // 4 + v // 4) % 2)[..., None] * 0.3
+    ramp = np.stack([u / camera.width, v / camera.height, np.full(u.shape, 0.5 + 0.05 * int(camera.name.split("_")[-1]))], axis=-1)
+    return np.round(np.clip(0.2 + 0.5 * ramp + checks, 0, 1) * 255).astype(np.uint8)
 
 
 def scene_context(session: SessionReader, frame: int = 0) -> SceneContext:
@@ -108,11 +125,11 @@ def write_ground_truth(path: Path, frames: int, truth: Gaussians | None = None) 
     return path
 
 
-def write_fitted_run(run: Path, session: Path, truth: Gaussians | None = None) -> Path:
+def write_fitted_run(run: Path, session: Path, truth: Gaussians | None = None, background: str | None = None) -> Path:
     """A completed first-frame "fit" of ``session`` that is the true subject (default ``subject()``) at
     frame 0: tracking tests start from it, so what they measure is the dynamics alone. Its configuration
     has no segmentation loss: the true Gaussians' soft edges are not the optimum of one against binary
-    masks, so it would move them even where nothing moves."""
+    masks, so it would move them even where nothing moves. ``background`` sets its ``fit.background``."""
     import json
 
     from mmcsplat.geometry import rig_center, rig_scale
@@ -126,7 +143,7 @@ def write_fitted_run(run: Path, session: Path, truth: Gaussians | None = None) -
     model = GaussianModel(gaussians, tuple(train), LearningRates(), rig_scale(reader.cameras, center))
     run.mkdir(parents=True, exist_ok=True)
     torch.save({"model": model.state_dict()}, run / "checkpoint.pt")
-    config = {"fit": {"lambda_seg": 0.0}, "renderer": {"name": "torch-cpu"}, "initializer": [{"name": "masked"}]}
+    config = {"fit": {"lambda_seg": 0.0, **({"background": background} if background is not None else {})}, "renderer": {"name": "torch-cpu"}, "initializer": [{"name": "masked"}]}
     info = {
         "status": "complete", "session": str(Path(session).resolve()), "config": "test", "config_values": config,
         "renderer": "torch-cpu", "frame": 0, "train_cameras": train, "heldout_cameras": list(reader.heldout),
@@ -142,7 +159,7 @@ CONFIG = """
 iterations = {iterations}
 checkpoint_every = {checkpoint_every}
 lambda_seg = 3.0
-
+{background}
 [renderer]
 name = "torch-reference"
 
@@ -164,6 +181,8 @@ every = 10
 """
 
 
-def write_config(path: Path, iterations: int = 60, checkpoint_every: int = 20) -> Path:
-    path.write_text(CONFIG.format(iterations=iterations, checkpoint_every=checkpoint_every))
+def write_config(path: Path, iterations: int = 60, checkpoint_every: int = 20, background: str | None = None) -> Path:
+    """:data:`CONFIG` with these settings (``background``: a ``fit.background`` TOML value)."""
+    line = f"background = {background}\n" if background is not None else ""
+    path.write_text(CONFIG.format(iterations=iterations, checkpoint_every=checkpoint_every, background=line))
     return path

@@ -136,7 +136,7 @@ def test_masked_target_is_zero_outside_the_mask_and_the_image_inside():
 def test_masked_needs_masks_in_the_session(bare_scene):
     camera = bare_scene.cameras[0]
     with pytest.raises(ValueError, match="masked initializer needs subject masks.*mmcsplat segment"):
-        load_view(bare_scene.session, 0, camera, 0, [initializer("masked")])
+        load_view(bare_scene.session, 0, camera, 0, [initializer("masked")], torch.zeros(3))
 
 
 def test_masked_prunes_exactly_the_gaussians_beyond_the_radius_on_its_grid(scene):

@@ -170,20 +170,19 @@ class _Run:
         checkpoint = self.out / CHECKPOINT
         if checkpoint.exists() and not context.overwrite:
             self._resume(checkpoint)
-        background = torch.tensor(fit.background, dtype=torch.float32)
         frames = len(context.frames)
         bar = tqdm(range(self.step, settings.iterations), initial=self.step, total=settings.iterations, desc="deformation",
                    unit="it", disable=not context.progress)
         began = time.perf_counter() - self.elapsed
         for step in bar:
             k, index = self.pairs[int(torch.randint(len(self.pairs), (1,), generator=self.generator))].tolist()
-            view = load_view(self.session, context.frames[k], context.cameras[index], index, context.initializers)
+            view = load_view(self.session, context.frames[k], context.cameras[index], index, context.initializers, context.backdrops[index])
             if fit.lambda_seg > 0 and view.seg_target is None:
                 raise ValueError(f"fit.lambda_seg = {fit.lambda_seg} needs subject masks, but session {self.session.url!r} has none for "
                                  f"camera {view.camera.name!r} at frame {context.frames[k]}: run `mmcsplat segment` or set fit.lambda_seg=0")
             noise = float(torch.randn((), generator=self.generator)) * settings.noise_std(step, frames)
-            render = context.renderer.render(gaussians_from_params(self.deformed(k, noise)), self.cameras.select([index]), background)
-            image = model.correct_color(render.rgb[0], index)
+            render = context.renderer.render(gaussians_from_params(self.deformed(k, noise)), self.cameras.select([index]))
+            image = model.correct_color(view.composite(render, 0), index)
             loss = fit.lambda_image * losses.photometric_loss(image, view.image, fit.ssim_weight)
             if fit.lambda_seg > 0:
                 loss = loss + fit.lambda_seg * losses.photometric_loss(render.features[0, ..., :1], view.seg_target, fit.ssim_weight)

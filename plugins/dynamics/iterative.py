@@ -172,15 +172,14 @@ class IterativeDynamics(Dynamics):
             return FrameResult(t, None, None, 0, time.perf_counter() - began, time.process_time() - cpu)
         settings = context.settings
         lambda_seg = settings.lambda_seg if self.lambda_seg is None else self.lambda_seg
-        background = torch.tensor(settings.background, dtype=torch.float32)
         schedule = CameraSchedule(len(views), generator)
         lambda_rigid, lambda_rot, lambda_iso = self.weights
         recent: dict[int, tuple[float, float]] = {}
         bar = tqdm(range(self.iterations), desc=f"frame {t}", unit="it", leave=False, disable=not context.progress)
         for step in bar:
             view: TrainingView = views[schedule.next()]
-            render = context.renderer.render(model.gaussians(), cameras.select([view.index]), background)
-            image = model.correct_color(render.rgb[0], view.index)
+            render = context.renderer.render(model.gaussians(), cameras.select([view.index]))
+            image = model.correct_color(view.composite(render, 0), view.index)
             loss = settings.lambda_image * losses.photometric_loss(image, view.image, settings.ssim_weight)
             if lambda_seg > 0:
                 loss = loss + lambda_seg * losses.photometric_loss(render.features[0, ..., :1], view.seg_target, settings.ssim_weight)
