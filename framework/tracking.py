@@ -146,12 +146,14 @@ def evaluate_tracks(run: Path, session: SessionReader, heldout: list[str], groun
     """The tracking metrics of ``run``: ``tracking_median_mm``, ``tracking_p90_mm``,
     ``tracking_2d_median_px`` (``None`` when no ground truth is found, and ``None`` with the reason in
     ``tracking_error`` when no ground-truth point is followed), ``tracking_followed_points``,
-    ``tracking_per_frame_median_mm`` and ``per_frame_val_masked_psnr`` (held-out cameras' mean per frame,
+    ``tracking_per_frame_median_mm``, ``tracking_num_gaussians`` (the tracked model's size: a method
+    that densifies while tracking ends larger than the first-frame fit, whose size is ``num_gaussians``)
+    and ``per_frame_val_masked_psnr`` (held-out cameras' mean per frame,
     rendered with ``renderer`` over the run's ``background`` and scored by the ``psnr`` metric)."""
     backdrops = {name: camera_backdrop(background, session, name) for name in heldout}
     tracks = TrackReader(run)
     frames = range(int(tracks.attrs.get("first_frame", 0)), int(tracks.attrs.get("first_frame", 0)) + tracks.num_frames)
-    metrics: dict[str, Any] = {"tracking_method": tracks.method}
+    metrics: dict[str, Any] = {"tracking_method": tracks.method, "tracking_num_gaussians": tracks.num_gaussians}
     per_frame = []
     for k, t in enumerate(frames):
         gaussians = tracks.gaussians(k)

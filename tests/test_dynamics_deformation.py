@@ -14,6 +14,7 @@ import pytest
 import torch
 
 from fitting_scene import WIDTH, moved, ring_camera, subject, write_fitted_run, write_session
+from mmcsplat.evaluate import evaluate
 from mmcsplat.plugins.dynamics.deformation import CHECKPOINT, DeformationDynamics, DeformationSettings, _Run
 from mmcsplat.plugins.dynamics.deformation_field import DeformationField, sinusoidal_encoding
 from mmcsplat.registry import default_registry
@@ -77,6 +78,9 @@ def test_follows_a_moving_subject(session, tmp_path):
     shift = (tracks.means(FRAMES - 1) - tracks.means(0)).mean(axis=0)
     true_shift = (truth[-1] - truth[0]).mean(axis=0)
     assert abs(shift[0] - true_shift[0]) < 0.3 * abs(true_shift[0])
+    # The tracked model's size is reported beside the first-frame fit's (densification may change it).
+    metrics = evaluate(run)
+    assert metrics["tracking_num_gaussians"] == tracks.num_gaussians and metrics["num_gaussians"] == subject().count
 
 
 def test_killed_run_resumes_to_the_same_tracks(session, tmp_path, monkeypatch):
