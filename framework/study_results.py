@@ -238,7 +238,8 @@ def markdown(study: Study, rows: Sequence[Row], aggregates: Sequence[Aggregate],
     lines += [f"{len(rows)} cells ({len(cells)} distinct runs; {done} complete, {len(rows) - done} failed) over "
               f"session(s) {', '.join(s.name for s in study.sessions)}, folds {', '.join(folds)}, seeds "
               f"{', '.join(map(str, study.seeds))}. PSNR in dB inside the subject mask (interior: the mask less its 1-pixel "
-              "edge, whose pixels mix in the background a masked fit does not model), mean ± std over folds and seeds.", ""]
+              "edge, whose pixels mix in the background: a masked fit over black cannot model them, one over clean plates can), "
+              "mean ± std over folds and seeds.", ""]
     header = ["Variant", "Mask", "λ_seg", "Sparse", "#init points", "init range (m)", "val PSNR", "train PSNR",
               "val PSNR, interior", "wall time (s)", "it/s", "Gaussians", "backend", "cells"]
     table = [header, ["---"] * len(header)]
