@@ -117,6 +117,34 @@ class SparsityPrunedInitializer(Initializer):
         return torch.as_tensor(distances[:, 1] > self.max_distance)
 
 
+class InViewInitializer(Initializer):
+    """Prunes every Gaussian that no training camera sees — its centre, grown by three times its largest
+    scale, projects into no training image — every ``every`` iterations from the first. Such a Gaussian
+    never gets a gradient and keeps its starting opacity; near a held-out camera, outside every training
+    camera's field of view, it veils that camera's whole view. A random start in a cube puts some there:
+    the cube's corners point at a ring's diagonal cameras."""
+
+    def __init__(self, every: int = 500) -> None:
+        if every < 1:
+            raise ValueError(f"in-view initializer: every must be ≥ 1, got {every}")
+        self.every = every
+
+    def prune_mask(self, step: int, gaussians: Gaussians, scene: SceneContext) -> torch.Tensor | None:
+        if step % self.every or gaussians.count == 0:
+            return None
+        means = gaussians.means.detach().double().cpu().numpy()
+        reach = 3 * np.exp(gaussians.log_scales.detach().double().cpu().numpy()).max(axis=1)
+        seen = np.zeros(len(means), dtype=bool)
+        for camera in scene.cameras:
+            depth = (means @ camera.R.T + camera.t)[:, 2]
+            front = depth > 1e-6
+            pixels = camera.project(means[front])
+            margin = reach[front] * camera.K[0, 0] / depth[front]
+            inside = np.all((pixels > -margin[:, None]) & (pixels < np.array([camera.width, camera.height]) + margin[:, None]), axis=1)
+            seen[np.flatnonzero(front)[inside]] = True
+        return torch.as_tensor(~seen)
+
+
 class VisualHullInitializer(Initializer):
     """``num_points`` Gaussians sampled inside the intersection of every training camera's mask cone
     (space carving), coloured from the views: a start on the subject's surface volume rather than in a

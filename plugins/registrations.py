@@ -18,6 +18,8 @@ def mmcsplat_initializers() -> list[Registration]:
                      "L1 depth loss with a learnable per-camera scale and offset"),
         Registration("sparsity-pruned", "mmcsplat.plugins.initializers:SparsityPrunedInitializer",
                      "prune Gaussians whose nearest neighbour is farther than 0.1 m"),
+        Registration("in-view", "mmcsplat.plugins.initializers:InViewInitializer",
+                     "prune Gaussians that no training camera sees (they never get a gradient)"),
     ]
 
 

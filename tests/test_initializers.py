@@ -150,6 +150,24 @@ def test_masked_prunes_exactly_the_gaussians_beyond_the_radius_on_its_grid(scene
         assert masked.prune_mask(step, gaussians, scene) is None
 
 
+def test_in_view_prunes_the_gaussians_no_training_camera_sees(scene):
+    camera = scene.cameras[0]
+    # 5 px left of a training image, 0.3 m from its camera: a 10 cm Gaussian reaches into it (40 px), a
+    # 1 cm one does not (4 px).
+    beside = camera.R.T @ (0.3 * np.array([(-5 - camera.K[0, 2]) / camera.K[0, 0], 0.0, 1.0]) - camera.t)
+    behind_heldout = 1.3 * scene.session.camera("cam_0").center  # outside every training camera's view
+    gaussians = points_at([scene.center, behind_heldout, beside, beside])
+    gaussians = Gaussians(gaussians.means, gaussians.quats, torch.log(torch.tensor([[0.02] * 3, [0.02] * 3, [0.1] * 3, [0.01] * 3])),
+                          gaussians.opacity_logits, gaussians.colors, gaussians.features)
+    seen_centres = sum(seen for _, _, seen, _ in hits(gaussians.means.numpy(), scene))
+    assert seen_centres[0] > 0 and not seen_centres[1:].any()
+    in_view = initializer("in-view", every=50)
+    np.testing.assert_array_equal(in_view.prune_mask(0, gaussians, scene).numpy(), [False, True, False, True])
+    assert in_view.prune_mask(49, gaussians, scene) is None and in_view.prune_mask(100, gaussians, scene) is not None
+    with pytest.raises(ValueError, match="every must be"):
+        initializer("in-view", every=0)
+
+
 # ------------------------------------------------------------------------------------------- visual hull
 
 
