@@ -41,7 +41,7 @@ class DemoSettings:
     frames: int = 30
     width: int = 256
     height: int = 192
-    config: str = "paper-masked"
+    config: str = "masked-plate"
     overrides: tuple[str, ...] = attrs.field(default=(), converter=tuple)
     backend: str | None = None
     track_iterations: int | None = None

@@ -17,7 +17,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from ..demo import TRACK_ITERATIONS
 
     parser.add_argument("--out", required=True, type=Path, help="output directory (created; reused steps are skipped)")
-    parser.add_argument("--config", default="paper-masked", help="configuration to fit and track with (default: paper-masked)")
+    parser.add_argument("--config", default="masked-plate", help="configuration to fit and track with (default: masked-plate)")
     parser.add_argument("--backend", help="renderer backend (default: the configuration's)")
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                         help="override a configuration value (repeatable)")
