@@ -137,12 +137,12 @@ def read_plates(folder: Path, cameras: Sequence[Camera]) -> dict[str, np.ndarray
 
     plates = {}
     for camera in cameras:
-        found = [folder / f"{camera.name}{suffix}" for suffix in PLATE_SUFFIXES if (folder / f"{camera.name}{suffix}").is_file()]
-        if not found:
+        path = next((path for suffix in PLATE_SUFFIXES if (path := folder / f"{camera.name}{suffix}").is_file()), None)
+        if path is None:
             raise FileNotFoundError(f"plates {folder}: no plate for camera {camera.name!r} (expected {camera.name}.png or another image type)")
-        rgb, _ = read_image(found[0])
+        rgb, _ = read_image(path)
         if rgb.shape[:2] != (camera.height, camera.width):
-            raise ValueError(f"plate {found[0]}: {rgb.shape[1]}×{rgb.shape[0]} pixels, but camera {camera.name!r} is calibrated at {camera.width}×{camera.height}")
+            raise ValueError(f"plate {path}: {rgb.shape[1]}×{rgb.shape[0]} pixels, but camera {camera.name!r} is calibrated at {camera.width}×{camera.height}")
         plates[camera.name] = rgb
     return plates
 

@@ -66,6 +66,6 @@ def run(args: argparse.Namespace) -> int:
         )
     sizes = sorted({f"{camera.width}×{camera.height}" for camera in session.cameras})
     held = f" (held out: {', '.join(session.heldout)})" if session.heldout else ""
-    plates = ", with clean plates" if session.plate(session.camera_names[0]) is not None else ""
+    plates = ", with clean plates" if session.provenance.get("plates") else ""
     print(f"wrote {args.out}: {len(session.cameras)} cameras{held}, {session.num_frames} frames at {session.fps:g} fps, {', '.join(sizes)}{plates}")
     return 0
