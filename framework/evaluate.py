@@ -17,6 +17,7 @@ from .fit import RUN_INFO, fitted_background, load_fitted
 from .model import gaussians_from_params
 from .registry import Registry, default_registry
 from .store import SessionReader
+from .supersampling import run_renderer
 from .tracking import evaluate_tracks
 from .tracks import TRACKS_DIR, TrackReader
 from .visual_hull import FLOATER_MARGIN_PX, dilated, eroded, floater_share, mask_agreement
@@ -71,7 +72,7 @@ def evaluate_run(run: Path, registry: Registry | None = None, backend: str | Non
     registry = registry or default_registry()
     info, params, camera_scale, camera_offset = load_fitted(run)
     session = SessionReader(info["session"])
-    renderer = registry.create("renderer", backend or info["renderer"])
+    renderer = run_renderer(info, registry, backend)
     psnr = registry.create("metric", "psnr")
     ssim = registry.create("metric", "ssim")
     gaussians = gaussians_from_params(params)

@@ -31,6 +31,7 @@ from .model import GAUSSIAN_PARAMETERS, GaussianModel, LearningRates
 from .registry import Registry, default_registry
 from .rendering import RenderCameras, RenderOutput
 from .store import SessionReader
+from .supersampling import supersampled
 
 CHECKPOINT = "checkpoint.pt"
 RUN_INFO = "run.json"
@@ -48,6 +49,11 @@ class NonFiniteError(FitError):
     """A loss, gradient or parameter became NaN or infinite."""
 
 
+def _whole_factor(instance: Any, attribute: attrs.Attribute, value: Any) -> None:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ValueError(f"fit.{attribute.name} must be a whole number ≥ 1 (sub-pixels per pixel side), got {value!r}")
+
+
 @attrs.frozen
 class FitSettings:
     """The ``[fit]`` table of a configuration."""
@@ -59,6 +65,9 @@ class FitSettings:
     lambda_seg: float = 3.0
     ssim_weight: float = 0.2
     checkpoint_every: int = 500
+    #: Render at N× and average N × N sub-pixels into each pixel, as a camera's pixel integrates over its
+    #: area (:mod:`mmcsplat.supersampling`); evaluation, tracking and renders of the run do the same.
+    supersample: int = attrs.field(default=1, validator=_whole_factor)
     #: An RGB colour, or "plate": each camera's clean plate (:mod:`mmcsplat.backdrop`).
     background: Background = attrs.field(default=(0.0, 0.0, 0.0), converter=parse_background)
     lrs: LearningRates = attrs.field(factory=LearningRates, converter=lambda v: v if isinstance(v, LearningRates) else LearningRates(**v))
@@ -176,7 +185,7 @@ class FirstFrameFit:
         self.progress = progress
         self.renderer_name = backend or config.plugin("renderer").name
         renderer_params = dict(config.plugin("renderer").params) if not backend else {}
-        self.renderer: Renderer = self.registry.create("renderer", self.renderer_name, **renderer_params)
+        self.renderer: Renderer = supersampled(self.registry.create("renderer", self.renderer_name, **renderer_params), self.settings.supersample)
         self.initializers: list[Initializer] = [choice.build(self.registry) for choice in config.plugins("initializer")]
         densifiers = config.plugins("densifier")
         self.densifier: Densifier | None = densifiers[0].build(self.registry) if densifiers else None

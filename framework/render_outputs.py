@@ -24,6 +24,7 @@ from .interfaces import Renderer
 from .registry import Registry, default_registry
 from .rendering import NEAR_PLANE, RenderCameras, RenderOutput
 from .run_states import RunStates
+from .supersampling import run_renderer
 from .video import write_png, write_video
 
 MIN_FRAMES_PER_SEGMENT = 15
@@ -45,7 +46,7 @@ class RunRenderer:
         self.states = states
         self.scale = scale
         self.progress = progress
-        self.renderer: Renderer = (registry or default_registry()).create("renderer", backend or states.info["renderer"])
+        self.renderer: Renderer = run_renderer(states.info, registry or default_registry(), backend)
         self.background = torch.tensor(states.background, dtype=torch.float32)
 
     def scaled(self, camera: Camera) -> Camera:

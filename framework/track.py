@@ -25,6 +25,7 @@ from .fit import RUN_INFO, FitSettings, TrainingView, load_fitted, load_view
 from .interfaces import Dynamics, Initializer, Renderer
 from .registry import Registry, default_registry
 from .store import SessionReader
+from .supersampling import run_renderer
 from .tracks import TRACKS_DIR
 
 TRACK_INFO = "track.json"
@@ -136,7 +137,7 @@ def track_run(
         params=params,
         camera_scale=camera_scale,
         camera_offset=camera_offset,
-        renderer=registry.create("renderer", renderer_name),
+        renderer=run_renderer(info, registry, renderer_name),
         settings=settings,
         initializers=tuple(c.build(registry) for c in loaded.plugins("initializer")),
         backdrops=tuple(camera_backdrop(settings.background, session, name) for name in info["train_cameras"]),

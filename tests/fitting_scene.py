@@ -65,20 +65,23 @@ def moved(gaussians: Gaussians, t: int, step: float = 0.005, bend: float = 0.04)
 
 def write_session(path: Path, cameras: int = 5, heldout: tuple[str, ...] = ("cam_0",), blank: tuple[str, ...] = (),
                   frames: int = 1, absent: tuple[tuple[str, int], ...] = (), zoom: int = 1, truth: Gaussians | None = None,
-                  masks: bool = True, depth: bool = True, plates: bool = False) -> Path:
+                  masks: bool = True, depth: bool = True, plates: bool = False, supersample: int = 1) -> Path:
     """Render ``truth`` (default ``subject()``), moving over ``frames``, into ``cameras`` ring cameras of ``zoom`` times the
     base resolution; cameras in ``blank`` get an empty image/mask; the (camera, frame) pairs in ``absent``
     are left out of the session; ``masks`` / ``depth`` false leave those fields out (a capture without them);
     with ``plates`` the subject is seen in front of each camera's :func:`plate` (else black), stored as its
-    clean plate."""
-    from mmcsplat.backends.torch_reference import rasterize
+    clean plate; ``supersample`` > 1 makes each pixel the mean of that many sub-pixels per side (a pixel
+    integrating over its area)."""
+    from mmcsplat.backends.torch_reference import TorchReferenceRenderer
+    from mmcsplat.supersampling import supersampled
 
+    renderer = supersampled(TorchReferenceRenderer(), supersample)
     rig = [ring_camera(f"cam_{i}", 2 * np.pi * i / cameras, zoom=zoom) for i in range(cameras)]
     with SessionWriter(path, cameras=rig, num_frames=frames, fps=30.0, heldout=heldout, source="fitting-scene") as writer:
         for t in range(frames):
             gaussians = moved(subject() if truth is None else truth, t)
             for camera in (camera for camera in rig if (camera.name, t) not in absent):
-                out = rasterize(gaussians, RenderCameras.from_cameras([camera], dtype=torch.float64))
+                out = renderer.render(gaussians, RenderCameras.from_cameras([camera], dtype=torch.float64))
                 colour = out.rgb[0].numpy()
                 if plates:
                     colour = colour + (1 - out.alpha[0].numpy())[..., None] * plate(camera) / 255.0
@@ -125,11 +128,13 @@ def write_ground_truth(path: Path, frames: int, truth: Gaussians | None = None) 
     return path
 
 
-def write_fitted_run(run: Path, session: Path, truth: Gaussians | None = None, background: str | None = None) -> Path:
+def write_fitted_run(run: Path, session: Path, truth: Gaussians | None = None, background: str | None = None,
+                     supersample: int | None = None) -> Path:
     """A completed first-frame "fit" of ``session`` that is the true subject (default ``subject()``) at
     frame 0: tracking tests start from it, so what they measure is the dynamics alone. Its configuration
     has no segmentation loss: the true Gaussians' soft edges are not the optimum of one against binary
-    masks, so it would move them even where nothing moves. ``background`` sets its ``fit.background``."""
+    masks, so it would move them even where nothing moves. ``background`` and ``supersample`` set those
+    ``[fit]`` values."""
     import json
 
     from mmcsplat.geometry import rig_center, rig_scale
@@ -143,7 +148,9 @@ def write_fitted_run(run: Path, session: Path, truth: Gaussians | None = None, b
     model = GaussianModel(gaussians, tuple(train), LearningRates(), rig_scale(reader.cameras, center))
     run.mkdir(parents=True, exist_ok=True)
     torch.save({"model": model.state_dict()}, run / "checkpoint.pt")
-    config = {"fit": {"lambda_seg": 0.0, **({"background": background} if background is not None else {})}, "renderer": {"name": "torch-cpu"}, "initializer": [{"name": "masked"}]}
+    fit = {"lambda_seg": 0.0, **({"background": background} if background is not None else {}),
+           **({"supersample": supersample} if supersample is not None else {})}
+    config = {"fit": fit, "renderer": {"name": "torch-cpu"}, "initializer": [{"name": "masked"}]}
     info = {
         "status": "complete", "session": str(Path(session).resolve()), "config": "test", "config_values": config,
         "renderer": "torch-cpu", "frame": 0, "train_cameras": train, "heldout_cameras": list(reader.heldout),
