@@ -8,6 +8,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 import torch
 
 from mmcsplat.camera import Camera
@@ -193,3 +194,12 @@ def write_config(path: Path, iterations: int = 60, checkpoint_every: int = 20, b
     line = f"background = {background}\n" if background is not None else ""
     path.write_text(CONFIG.format(iterations=iterations, checkpoint_every=checkpoint_every, background=line))
     return path
+
+
+def every_renderer() -> list:
+    """Each registered renderer's name as a pytest parameter, skipped (saying why) where it is unusable."""
+    from mmcsplat.registry import default_registry
+
+    registry = default_registry()
+    return [pytest.param(name, marks=pytest.mark.skipif(bool(reason := registry.get("renderer", name).unavailable_reason()), reason=str(reason)))
+            for name in registry.names("renderer")]

@@ -7,7 +7,7 @@ import json
 import pytest
 import torch
 
-from fitting_scene import write_config, write_session
+from fitting_scene import every_renderer, write_config, write_session
 from mmcsplat.cli import main
 from mmcsplat.config import load_config
 from mmcsplat.evaluate import evaluate
@@ -115,15 +115,7 @@ def test_unknown_holdout_and_missing_masks(session, tmp_path):
         FirstFrameFit(session, config, tmp_path / "run", holdout=["cam_9"], progress=False)
 
 
-def _available_renderers() -> list:
-    from mmcsplat.registry import default_registry
-
-    registry = default_registry()
-    return [pytest.param(name, marks=pytest.mark.skipif(bool(reason := registry.get("renderer", name).unavailable_reason()), reason=str(reason)))
-            for name in registry.names("renderer")]
-
-
-@pytest.mark.parametrize("backend", _available_renderers())
+@pytest.mark.parametrize("backend", every_renderer())
 def test_a_built_in_configuration_runs_unchanged_on_every_backend(session, tmp_path, backend):
     """paper-masked as shipped — only its size shrunk to the tiny scene — fits on each renderer by name."""
     config = load_config("paper-masked", ["fit.iterations=40", "initializer.random.num_points=600", "initializer.random.half_size=0.3"])

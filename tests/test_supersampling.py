@@ -8,11 +8,12 @@ import numpy as np
 import pytest
 import torch
 
-from fitting_scene import ring_camera, subject, write_config, write_fitted_run, write_session
+from fitting_scene import every_renderer, ring_camera, subject, write_config, write_fitted_run, write_session
 from mmcsplat.backends.torch_reference import TorchReferenceRenderer
 from mmcsplat.config import load_config
 from mmcsplat.evaluate import evaluate
 from mmcsplat.fit import FirstFrameFit, FitSettings
+from mmcsplat.registry import default_registry
 from mmcsplat.rendering import Gaussians, RenderCameras
 from mmcsplat.store import SessionReader
 from mmcsplat.supersampling import SupersampledRenderer, subpixel_cameras, supersampled
@@ -27,11 +28,10 @@ def _alpha_centroid(alpha: torch.Tensor) -> np.ndarray:
     return np.array([(u * weights).sum(), (v * weights).sum()]) / weights.sum()
 
 
-def _one_gaussian(point: list[float], scale: float) -> Gaussians:
-    """One white, half-transparent (no pixel clamped at full opacity) isotropic Gaussian, double precision."""
-    double = dict(dtype=torch.float64)
-    return Gaussians.from_linear(torch.tensor([point], **double), torch.tensor([[1.0, 0, 0, 0]], **double),
-                                 torch.full((1, 3), scale, **double), torch.tensor([0.5], **double), torch.ones(1, 3, **double))
+def _one_gaussian(point: list[float], scale: float, dtype: torch.dtype = torch.float64) -> Gaussians:
+    """One white, half-transparent (no pixel clamped at full opacity) isotropic Gaussian."""
+    return Gaussians.from_linear(torch.tensor([point], dtype=dtype), torch.tensor([[1.0, 0, 0, 0]], dtype=dtype),
+                                 torch.full((1, 3), scale, dtype=dtype), torch.tensor([0.5], dtype=dtype), torch.ones(1, 3, dtype=dtype))
 
 
 def test_subpixels_are_centred_in_their_pixel():
@@ -60,6 +60,16 @@ def test_a_supersampled_render_stays_where_the_plain_one_is(factor):
     drawn = fine.alpha[0] > 0
     np.testing.assert_allclose(fine.depth[0][drawn].numpy(), z, rtol=1e-9)
     assert float(fine.depth[0][~drawn].abs().max()) == 0.0
+
+
+@pytest.mark.parametrize("backend", every_renderer())
+def test_every_backend_supersamples(backend):
+    """The wrapper only moves cameras and averages blocks, so each backend keeps its own render's place."""
+    renderer = default_registry().create("renderer", backend)
+    cameras = RenderCameras.from_cameras([ring_camera("cam_0", 0.3)])
+    gaussians = _one_gaussian([0.03, 0.02, 0.01], 0.05, torch.float32)
+    plain, fine = renderer.render(gaussians, cameras), SupersampledRenderer(renderer, 2).render(gaussians, cameras)
+    np.testing.assert_allclose(_alpha_centroid(fine.alpha[0].detach().cpu()), _alpha_centroid(plain.alpha[0].detach().cpu()), atol=0.01)
 
 
 def test_factor_one_is_the_renderer_itself_and_bad_factors_are_refused():
