@@ -124,14 +124,14 @@ def test_unknown_fold_camera_fails_before_any_cell_runs(scene, tmp_path):
 def test_builtin_paper_ablation_has_the_studys_five_rows_then_its_own(tmp_path):
     study = load_study("paper-ablation")
     cells = expand(study, tmp_path)
-    assert len(cells) == 10 * 4 and {c.fold for c in cells} == {"cam_0", "cam_2", "cam_4", "cam_6"}
+    assert len(cells) == 11 * 4 and {c.fold for c in cells} == {"cam_0", "cam_2", "cam_4", "cam_6"}
     registry = default_registry()
     rows = [(c.mask, c.lambda_seg, c.sparse, c.init_points, c.init_range_m)
             for c in (derive_columns(variant.config, registry) for variant in study.variants)]
     assert rows[:5] == [(True, 3.0, False, 10_000, 1.5), (True, 3.0, False, 20_000, 1.5), (False, 3.0, False, 100_000, 10.0),
                         (False, 0.0, False, 100_000, 10.0), (True, 3.0, True, 10_000, 1.5)]
     assert [variant.name for variant in study.variants[5:]] == ["visual-hull", "masked-plate", "masked-sparse-seg0.3", "masked-plate-seg3",
-                                                                "visual-hull-plate"]
+                                                                "visual-hull-plate", "masked-plate-supersampled"]
     assert rows[6] == (True, 0.3, True, 10_000, 1.5) and rows[7][1] == 0.3 and rows[8][1] == 3.0
     assert study.sessions[0].synthetic["frames"] == 1 and study.sessions[0].segmenter.name == "precomputed"
 
