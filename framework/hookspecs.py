@@ -39,6 +39,12 @@ def mmcsplat_initializers() -> list[Registration]:
 
 
 @hookspec
+def mmcsplat_depth_sources() -> list[Registration]:
+    """Depth maps for the ``depth-supervised`` initializer; each factory returns a
+    :class:`~mmcsplat.interfaces.DepthSource`."""
+
+
+@hookspec
 def mmcsplat_densifiers() -> list[Registration]:
     """Densification strategies; each factory returns a :class:`~mmcsplat.interfaces.Densifier`."""
 
@@ -63,6 +69,7 @@ HOOK_OF_KIND = {
     "renderer": "mmcsplat_renderers",
     "segmenter": "mmcsplat_segmenters",
     "initializer": "mmcsplat_initializers",
+    "depth-source": "mmcsplat_depth_sources",
     "densifier": "mmcsplat_densifiers",
     "dynamics": "mmcsplat_dynamics",
     "reader": "mmcsplat_readers",

@@ -150,6 +150,16 @@ class Initializer(ABC):
         return None
 
 
+class DepthSource(ABC):
+    """Per-camera depth maps that the ``depth-supervised`` initializer fits the rendered depth to (up to a
+    learnt per-camera scale and offset): ground truth, a depth camera's maps, or a monocular estimate."""
+
+    @abstractmethod
+    def depth(self, session: SessionReader, frame: int, camera: Camera) -> np.ndarray:
+        """[H, W] float32 camera-z depth in metres of ``camera`` at ``frame``, 0 where unknown; a
+        ``ValueError`` naming the camera and frame when there is none."""
+
+
 # -------------------------------------------------------------------------------------------- densifiers
 
 

@@ -19,7 +19,7 @@ import attrs
 import pluggy
 
 ENTRY_POINT_GROUP = "mmcsplat"
-KINDS = ("renderer", "segmenter", "initializer", "densifier", "dynamics", "reader", "metric")
+KINDS = ("renderer", "segmenter", "initializer", "depth-source", "densifier", "dynamics", "reader", "metric")
 
 
 class PluginError(Exception):

@@ -2,16 +2,20 @@
 
 They compose (a configuration lists several): `random` or `visual-hull` places the Gaussians, `masked`
 masks the targets and prunes far Gaussians, `sparsity-pruned` prunes isolated ones, `depth-supervised`
-adds a depth loss.
+adds a depth loss against a `depth-source` plugin's maps.
 """
 
 from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
-from mmcsplat.interfaces import Initializer, SceneContext
+from mmcsplat.interfaces import DepthSource, Initializer, SceneContext
+from mmcsplat.registry import default_registry
 from mmcsplat.rendering import Gaussians, RenderOutput
 from mmcsplat.visual_hull import in_hull, mask_hits, mask_votes
 
@@ -197,30 +201,31 @@ class VisualHullInitializer(Initializer):
 
 class DepthSupervisedInitializer(Initializer):
     """An L1 loss between rendered depth and a per-camera depth map, with a learnable per-camera scale and
-    offset (monocular depth is only defined up to them). The depth maps come from the session's depth
-    field (ground truth on synthetic data), optionally with multiplicative noise ``noise`` (relative std)
-    to stand in for an estimated depth map. Weight ``weight``; pixels without depth are ignored."""
+    offset (monocular depth is only defined up to them). The maps come from a ``depth-source`` plugin:
+    ``source`` is its name, or a table of its name and parameters (``{ name = "session", noise = 0.05 }``);
+    the default, ``session``, is the session's depth field (ground truth on synthetic data). Weight
+    ``weight``; pixels without depth are ignored."""
 
-    def __init__(self, weight: float = 0.1, noise: float = 0.0, seed: int = 0, lr: float = 1e-3) -> None:
+    def __init__(self, weight: float = 0.1, lr: float = 1e-3, source: str | Mapping[str, Any] = "session") -> None:
+        options = {"name": source} if isinstance(source, str) else dict(source)
+        name = options.pop("name", None)
+        if not isinstance(name, str):
+            raise ValueError(f"depth-supervised initializer: source must be a depth-source name or a table with a 'name', got {source!r}")
+        self.source: DepthSource = default_registry().create("depth-source", name, **options)
         self.weight = weight
-        self.noise = noise
-        self.seed = seed
         self.lr = lr
         self._maps: dict[str, torch.Tensor] = {}
         self._affine: dict[str, torch.Tensor] = {}
         self._optimizer: torch.optim.Adam | None = None
 
     def _load(self, scene: SceneContext) -> None:
-        """Read (and perturb) every training camera's depth map once; one Adam over all scale/offsets."""
-        generator = torch.Generator().manual_seed(self.seed)
+        """Read every training camera's depth map once; one Adam over all scale/offsets."""
         for camera in scene.cameras:
-            frame = scene.session.frame(scene.frame, camera.name)
-            if frame.depth is None:
-                raise ValueError(f"depth-supervised initializer: camera {camera.name!r} has no depth map at frame {scene.frame}")
-            depth = torch.tensor(np.asarray(frame.depth, dtype=np.float32))  # a copy: cached frames are read-only and shared
-            if self.noise:
-                depth = depth * (1 + self.noise * torch.randn(depth.shape, generator=generator))
-            self._maps[camera.name] = depth
+            try:
+                depth = self.source.depth(scene.session, scene.frame, camera)
+            except ValueError as error:
+                raise ValueError(f"depth-supervised initializer: {error}") from error
+            self._maps[camera.name] = torch.tensor(np.asarray(depth, dtype=np.float32))  # a copy: the source's may be shared
             self._affine[camera.name] = torch.tensor([1.0, 0.0], requires_grad=True)
         self._optimizer = torch.optim.Adam(list(self._affine.values()), lr=self.lr)
 

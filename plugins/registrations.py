@@ -1,4 +1,4 @@
-"""Registers the built-in segmenters, initializers, densifiers, dynamics methods and metrics."""
+"""Registers the built-in segmenters, initializers, depth sources, densifiers, dynamics methods and metrics."""
 
 from __future__ import annotations
 
@@ -40,6 +40,14 @@ def mmcsplat_dynamics() -> list[Registration]:
                      "per-frame optimisation from the previous frame with local-rigidity priors (Luiten et al.)"),
         Registration("deformation", "mmcsplat.plugins.dynamics.deformation:DeformationDynamics",
                      "one MLP deformation field over (x, y, z, t) for the whole sequence (Yang et al.)"),
+    ]
+
+
+@hookimpl
+def mmcsplat_depth_sources() -> list[Registration]:
+    return [
+        Registration("session", "mmcsplat.plugins.depth_sources:SessionDepth",
+                     "the session's depth field (synthetic ground truth, a depth camera), optionally with noise"),
     ]
 
 

@@ -4,6 +4,8 @@ name through the registry and shown the scene as a first-frame fit shows it."""
 
 from __future__ import annotations
 
+import types
+
 import numpy as np
 import pytest
 import torch
@@ -12,7 +14,9 @@ from scipy.spatial import cKDTree
 from fitting_scene import scene_context, single_precision, subject, write_session
 from mmcsplat.fit import load_view
 from mmcsplat.plugins.initializers import segmentation_start
-from mmcsplat.registry import default_registry
+from mmcsplat import Registration, hookimpl
+from mmcsplat.interfaces import DepthSource
+from mmcsplat.registry import PluginError, Registry, UnknownPluginError, default_registry
 from mmcsplat.rendering import Gaussians, RenderCameras
 from mmcsplat.store import SessionReader
 
@@ -254,15 +258,38 @@ def test_depth_loss_vanishes_on_the_truth_and_pulls_a_shifted_subject(scene):
 def test_depth_noise_perturbs_the_maps_reproducibly(scene):
     truth = single_precision(subject())
     clean = depth_loss(scene, truth).item()
-    noisy = depth_loss(scene, truth, noise=0.05, seed=3).item()
+    noisy = depth_loss(scene, truth, source={"name": "session", "noise": 0.05, "seed": 3}).item()
     assert noisy > 10 * max(clean, 1e-6)
-    assert depth_loss(scene, truth, noise=0.05, seed=3).item() == noisy
-    assert depth_loss(scene, truth, noise=0.05, seed=4).item() != noisy
+    assert depth_loss(scene, truth, source={"name": "session", "noise": 0.05, "seed": 3}).item() == noisy
+    assert depth_loss(scene, truth, source={"name": "session", "noise": 0.05, "seed": 4}).item() != noisy
 
 
 def test_depth_supervision_needs_depth_maps(bare_scene):
-    with pytest.raises(ValueError, match="depth-supervised initializer: camera 'cam_1' has no depth map at frame 0"):
+    with pytest.raises(ValueError, match="depth-supervised initializer: session depth source: camera 'cam_1' has no depth map at frame 0"):
         depth_loss(bare_scene, single_precision(subject()))
+
+
+class DoubledDepth(DepthSource):
+    """A third-party depth source for the test below: the session's depth, twice over."""
+
+    def depth(self, session, frame, camera):
+        return 2 * session.frame(frame, camera.name).depth
+
+
+def test_the_depth_source_is_a_plugin_chosen_by_name(scene, monkeypatch):
+    """A depth source another distribution registers feeds the loss by name; bad choices are named."""
+    plugin = types.ModuleType("doubled_depth")
+    plugin.mmcsplat_depth_sources = hookimpl(lambda: [Registration("doubled", f"{__name__}:DoubledDepth")])
+    monkeypatch.setattr("mmcsplat.plugins.initializers.default_registry", lambda: Registry([("doubled", "test-dist", plugin)]))
+    truth = single_precision(subject())
+    assert depth_loss(scene, truth).item() < 1e-4
+    assert depth_loss(scene, truth, source="doubled").item() > 0.05  # |z − 2z| ≈ 1.4 m, weight 0.1
+    with pytest.raises(UnknownPluginError, match=r"unknown depth-source 'monocular'; registered depth-sources: doubled, session"):
+        initializer("depth-supervised", source="monocular")
+    with pytest.raises(ValueError, match="source must be a depth-source name or a table with a 'name'"):
+        initializer("depth-supervised", source={"noise": 0.1})
+    with pytest.raises(PluginError, match=r"depth-source 'session'.*rejected its parameters \['blur'\]"):
+        initializer("depth-supervised", source={"name": "session", "blur": 2})
 
 
 def test_depth_maps_are_copied_from_the_sessions_read_only_frames(scene):
