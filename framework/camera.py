@@ -25,6 +25,12 @@ def _float_array(shape: tuple[int, ...]):
     return {"converter": convert, "validator": validate}
 
 
+def resize_matrix(sx: float, sy: float) -> np.ndarray:
+    """[3, 3] S with S @ K the intrinsics of an image resized by (sx, sy). Pixel (u, v) is centred at the
+    continuous point (u, v), so the image's edge lies at −0.5: coordinates map as x' = sx·(x + 0.5) − 0.5."""
+    return np.array([[sx, 0.0, 0.5 * (sx - 1)], [0.0, sy, 0.5 * (sy - 1)], [0.0, 0.0, 1.0]])
+
+
 def _distortion(value: Any) -> np.ndarray:
     array = np.array(value if value is not None else [], dtype=np.float64).reshape(-1)
     array.setflags(write=False)
@@ -108,13 +114,7 @@ class Camera:
     def scaled(self, sx: float, sy: float | None = None) -> Camera:
         """This camera for an image resized by (sx, sy): K scaled so pixel centres stay consistent."""
         sy = sx if sy is None else sy
-        K = self.K.copy()
-        K[0, :] *= sx
-        K[1, :] *= sy
-        # Pixel centres sit at integer + 0.5, so the principal point shifts by half a pixel on each side.
-        K[0, 2] = (self.K[0, 2] + 0.5) * sx - 0.5
-        K[1, 2] = (self.K[1, 2] + 0.5) * sy - 0.5
-        return attrs.evolve(self, K=K, width=round(self.width * sx), height=round(self.height * sy))
+        return attrs.evolve(self, K=resize_matrix(sx, sy) @ self.K, width=round(self.width * sx), height=round(self.height * sy))
 
     def with_units(self, metres_per_unit: float) -> Camera:
         """This camera with its translation rescaled to metres."""

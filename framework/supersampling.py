@@ -16,19 +16,18 @@ from typing import Any
 import attrs
 import torch
 
+from .camera import resize_matrix
 from .interfaces import Renderer
 from .registry import Registry
 from .rendering import Gaussians, RenderCameras, RenderOutput
 
 
 def subpixel_cameras(cameras: RenderCameras, factor: int) -> RenderCameras:
-    """``cameras`` with every pixel split into ``factor`` × ``factor`` sub-pixels. Pixel centres sit at
-    integer coordinates (docs/rendering.md), so pixel u's sub-pixels are centred at u + (2i + 1 − f) / 2f,
-    i = 0 … f − 1: the focal lengths scale by f and the principal point maps to f·c + (f − 1) / 2."""
-    K = cameras.K.clone()
-    K[:, :2, :2] *= factor
-    K[:, :2, 2] = K[:, :2, 2] * factor + (factor - 1) / 2
-    return RenderCameras(K, cameras.viewmats, cameras.width * factor, cameras.height * factor)
+    """``cameras`` with every pixel split into ``factor`` × ``factor`` sub-pixels: the image resized by
+    ``factor`` (:func:`~mmcsplat.camera.resize_matrix`), so pixel u's sub-pixels are centred at
+    u + (2i + 1 − f) / 2f, i = 0 … f − 1."""
+    resize = torch.as_tensor(resize_matrix(factor, factor), dtype=cameras.K.dtype, device=cameras.K.device)
+    return RenderCameras(resize @ cameras.K, cameras.viewmats, cameras.width * factor, cameras.height * factor)
 
 
 def block_mean(images: torch.Tensor, factor: int) -> torch.Tensor:
