@@ -93,9 +93,9 @@ class TrainingView:
     seg_target: torch.Tensor | None  # [H, W, 1] float
     backdrop: torch.Tensor  # [3] or [H, W, 3]: what renders of this camera are composited over
 
-    def composite(self, render: RenderOutput, index: int) -> torch.Tensor:
-        """Camera ``index`` of ``render`` (rendered over black) over this view's backdrop."""
-        return composite(render, index, self.backdrop)
+    def composite(self, render: RenderOutput) -> torch.Tensor:
+        """``render`` — of this view's camera alone, over black — over this view's backdrop."""
+        return composite(render, 0, self.backdrop)
 
 
 def load_view(
@@ -259,7 +259,7 @@ class FirstFrameFit:
                 index = schedule.next()
                 view = self.views[index]
                 render = self.renderer.render(model.gaussians(), cameras.select([index]))
-                image = model.correct_color(view.composite(render, 0), index)
+                image = model.correct_color(view.composite(render), index)
                 loss = settings.lambda_image * losses.photometric_loss(image, view.image, settings.ssim_weight)
                 if settings.lambda_seg > 0:
                     loss = loss + settings.lambda_seg * losses.photometric_loss(render.features[0, ..., :1], view.seg_target, settings.ssim_weight)

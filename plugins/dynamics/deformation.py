@@ -182,7 +182,7 @@ class _Run:
                                  f"camera {view.camera.name!r} at frame {context.frames[k]}: run `mmcsplat segment` or set fit.lambda_seg=0")
             noise = float(torch.randn((), generator=self.generator)) * settings.noise_std(step, frames)
             render = context.renderer.render(gaussians_from_params(self.deformed(k, noise)), self.cameras.select([index]))
-            image = model.correct_color(view.composite(render, 0), index)
+            image = model.correct_color(view.composite(render), index)
             loss = fit.lambda_image * losses.photometric_loss(image, view.image, fit.ssim_weight)
             if fit.lambda_seg > 0:
                 loss = loss + fit.lambda_seg * losses.photometric_loss(render.features[0, ..., :1], view.seg_target, fit.ssim_weight)

@@ -179,7 +179,7 @@ class IterativeDynamics(Dynamics):
         for step in bar:
             view: TrainingView = views[schedule.next()]
             render = context.renderer.render(model.gaussians(), cameras.select([view.index]))
-            image = model.correct_color(view.composite(render, 0), view.index)
+            image = model.correct_color(view.composite(render), view.index)
             loss = settings.lambda_image * losses.photometric_loss(image, view.image, settings.ssim_weight)
             if lambda_seg > 0:
                 loss = loss + lambda_seg * losses.photometric_loss(render.features[0, ..., :1], view.seg_target, settings.ssim_weight)
