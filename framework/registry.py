@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
+import inspect
 from collections.abc import Callable, Iterable
 from functools import cache
 from importlib.metadata import EntryPoint, entry_points
@@ -187,12 +188,18 @@ class Registry:
         return matches[0]
 
     def create(self, kind: str, name: str, **params: Any) -> Any:
-        """Build the implementation ``name`` of ``kind`` with the configuration's parameters."""
+        """Build the implementation ``name`` of ``kind`` with the configuration's parameters. A factory
+        that declares a ``registry`` parameter gets this registry, to build the plugins it names (the
+        ``depth-supervised`` initializer's depth source) where its own caller's plugins are."""
         entry = self.get(kind, name)
         reason = entry.unavailable_reason()
         if reason:
             raise PluginUnavailableError(f"{kind} {name!r} from {entry.origin} is not usable here: {reason}")
+        if "registry" in params:
+            raise PluginError(f"{kind} {name!r}: 'registry' is not a configuration parameter (the registry passes itself)")
         factory = entry.load()
+        if "registry" in inspect.signature(factory).parameters:
+            params = {**params, "registry": self}
         try:
             return factory(**params)
         except TypeError as error:

@@ -15,7 +15,7 @@ import torch
 from scipy.spatial import cKDTree
 
 from mmcsplat.interfaces import DepthSource, Initializer, SceneContext
-from mmcsplat.registry import default_registry
+from mmcsplat.registry import Registry, default_registry
 from mmcsplat.rendering import Gaussians, RenderOutput
 from mmcsplat.visual_hull import in_hull, mask_hits, mask_votes
 
@@ -202,16 +202,18 @@ class VisualHullInitializer(Initializer):
 class DepthSupervisedInitializer(Initializer):
     """An L1 loss between rendered depth and a per-camera depth map, with a learnable per-camera scale and
     offset (monocular depth is only defined up to them). The maps come from a ``depth-source`` plugin:
-    ``source`` is its name, or a table of its name and parameters (``{ name = "session", noise = 0.05 }``);
-    the default, ``session``, is the session's depth field (ground truth on synthetic data). Weight
+    ``source`` is its name, or a table of its name and parameters (``{ name = "session", noise = 0.05 }``),
+    built by the registry that builds this initializer; the default, ``session``, is the session's depth field (ground truth on synthetic data). Weight
     ``weight``; pixels without depth are ignored."""
 
-    def __init__(self, weight: float = 0.1, lr: float = 1e-3, source: str | Mapping[str, Any] = "session") -> None:
+    def __init__(
+        self, weight: float = 0.1, lr: float = 1e-3, source: str | Mapping[str, Any] = "session", *, registry: Registry | None = None
+    ) -> None:
         options = {"name": source} if isinstance(source, str) else dict(source)
         name = options.pop("name", None)
         if not isinstance(name, str):
             raise ValueError(f"depth-supervised initializer: source must be a depth-source name or a table with a 'name', got {source!r}")
-        self.source: DepthSource = default_registry().create("depth-source", name, **options)
+        self.source: DepthSource = (registry or default_registry()).create("depth-source", name, **options)
         self.weight = weight
         self.lr = lr
         self._maps: dict[str, torch.Tensor] = {}

@@ -21,9 +21,9 @@ from mmcsplat.rendering import Gaussians, RenderCameras
 from mmcsplat.store import SessionReader
 
 
-def initializer(name: str, **params):
-    """The built-in initializer ``name``, built as a configuration's [[initializer]] table builds it."""
-    return default_registry().create("initializer", name, **params)
+def initializer(name: str, registry: Registry | None = None, **params):
+    """The initializer ``name``, built as a configuration's [[initializer]] table builds it."""
+    return (registry or default_registry()).create("initializer", name, **params)
 
 
 def seeded(seed: int = 0) -> torch.Generator:
@@ -234,10 +234,10 @@ def first_view_render(scene, gaussians: Gaussians):
     return camera, default_registry().create("renderer", "torch-reference").render(gaussians, RenderCameras.from_cameras([camera]))
 
 
-def depth_loss(scene, gaussians: Gaussians, **params) -> torch.Tensor:
+def depth_loss(scene, gaussians: Gaussians, registry: Registry | None = None, **params) -> torch.Tensor:
     """A fresh depth-supervised initializer's loss for a render of ``gaussians`` in the first training camera."""
     camera, render = first_view_render(scene, gaussians)
-    return initializer("depth-supervised", **params).extra_loss(0, render, camera, scene)
+    return initializer("depth-supervised", registry, **params).extra_loss(0, render, camera, scene)
 
 
 def shifted(gaussians: Gaussians, by: float) -> Gaussians:
@@ -276,20 +276,23 @@ class DoubledDepth(DepthSource):
         return 2 * session.frame(frame, camera.name).depth
 
 
-def test_the_depth_source_is_a_plugin_chosen_by_name(scene, monkeypatch):
-    """A depth source another distribution registers feeds the loss by name; bad choices are named."""
+def test_the_depth_source_is_a_plugin_chosen_by_name(scene):
+    """A depth source another distribution registers feeds the loss by name, found in the registry that
+    builds the initializer; bad choices are named."""
     plugin = types.ModuleType("doubled_depth")
     plugin.mmcsplat_depth_sources = hookimpl(lambda: [Registration("doubled", f"{__name__}:DoubledDepth")])
-    monkeypatch.setattr("mmcsplat.plugins.initializers.default_registry", lambda: Registry([("doubled", "test-dist", plugin)]))
+    extended = Registry([("doubled", "test-dist", plugin)])
     truth = single_precision(subject())
-    assert depth_loss(scene, truth).item() < 1e-4
-    assert depth_loss(scene, truth, source="doubled").item() > 0.05  # |z − 2z| ≈ 1.4 m, weight 0.1
+    assert depth_loss(scene, truth, extended).item() < 1e-4
+    assert depth_loss(scene, truth, extended, source="doubled").item() > 0.05  # |z − 2z| ≈ 1.4 m, weight 0.1
     with pytest.raises(UnknownPluginError, match=r"unknown depth-source 'monocular'; registered depth-sources: doubled, session"):
-        initializer("depth-supervised", source="monocular")
+        initializer("depth-supervised", extended, source="monocular")
     with pytest.raises(ValueError, match="source must be a depth-source name or a table with a 'name'"):
         initializer("depth-supervised", source={"noise": 0.1})
     with pytest.raises(PluginError, match=r"depth-source 'session'.*rejected its parameters \['blur'\]"):
         initializer("depth-supervised", source={"name": "session", "blur": 2})
+    with pytest.raises(PluginError, match=r"initializer 'depth-supervised': 'registry' is not a configuration parameter"):
+        default_registry().create("initializer", "depth-supervised", registry="elsewhere")
 
 
 def test_depth_maps_are_copied_from_the_sessions_read_only_frames(scene):
