@@ -24,8 +24,8 @@ class SessionDepth(DepthSource):
         data = session.frame(frame, camera.name)
         if data.depth is None:
             raise ValueError(f"session depth source: camera {camera.name!r} has no depth map at frame {frame} in {session.url}")
-        depth = np.array(data.depth, dtype=np.float32)  # a copy: cached frames are read-only and shared
+        depth = np.asarray(data.depth, dtype=np.float32)
         if self.noise:
             generator = np.random.default_rng([self.seed, frame, *camera.name.encode()])
-            depth *= (1 + self.noise * generator.standard_normal(depth.shape)).astype(np.float32)
+            depth = depth * (1 + self.noise * generator.standard_normal(depth.shape)).astype(np.float32)
         return depth
