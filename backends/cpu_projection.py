@@ -14,7 +14,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from mmcsplat.rendering import LOW_PASS, NEAR_PLANE, SIGMA_EXTENT, TILE_SIZE
+from mmcsplat.plugin_api.render_contract import LOW_PASS, NEAR_PLANE, SIGMA_EXTENT, TILE_SIZE
 
 _PARALLEL = {"parallel": True, "cache": True, "fastmath": False, "nogil": True}
 _INLINE = {"cache": True, "fastmath": False, "inline": "always"}

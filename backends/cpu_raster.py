@@ -22,7 +22,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from mmcsplat.rendering import ALPHA_MAX, ALPHA_MIN, DEPTH_EPS, TILE_SIZE, TRANSMITTANCE_MIN
+from mmcsplat.plugin_api.render_contract import ALPHA_MAX, ALPHA_MIN, DEPTH_EPS, TILE_SIZE, TRANSMITTANCE_MIN
 
 _PARALLEL = {"parallel": True, "cache": True, "fastmath": False, "nogil": True}
 _INLINE = {"cache": True, "fastmath": False, "inline": "always"}

@@ -24,7 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .jax_raster import (
+from mmcsplat.backends.jax_raster import (
     GAUSSIAN_FIELDS,
     CameraArrays,
     GaussianArrays,
@@ -33,6 +33,7 @@ from .jax_raster import (
     count_blocks,
     rasterize_fixed,
 )
+from mmcsplat.plugin_api.errors import InputError
 
 _COMPILE_EVENTS = (
     "/jax/core/compile/jaxpr_trace_duration",
@@ -106,7 +107,7 @@ class JaxRasterizer:
         self, block_size: int = 32, cell_size: int = 8, ratio: float = 1.25, min_gaussians: int = 256, min_blocks: int = 32
     ) -> None:
         if 16 % cell_size:
-            raise ValueError(f"cell_size must divide the 16-pixel tile, got {cell_size}")
+            raise InputError(f"cell_size must divide the 16-pixel tile, got {cell_size}")
         self.block_size = block_size
         self.cell_size = cell_size
         self.ratio = ratio
@@ -245,7 +246,7 @@ class JaxRasterizer:
         """The capacity rung for a load of ``needed`` blocks."""
         capacity = bucket(math.ceil(needed), self.min_blocks, self.ratio)
         if capacity * self.block_size >= 2**31:
-            raise ValueError(f"the Gaussian lists need {needed:.0f} blocks of {self.block_size}: beyond int32 indexing")
+            raise InputError(f"the Gaussian lists need {needed:.0f} blocks of {self.block_size}: beyond int32 indexing")
         return capacity
 
     @contextmanager
@@ -293,7 +294,7 @@ def _concrete(value: jax.Array) -> int:
     try:
         return int(value)
     except jax.errors.ConcretizationTypeError as error:
-        raise ValueError(
+        raise InputError(
             "JaxRasterizer chooses its capacity from the scene and cannot run inside jax.jit; "
             "use mmcsplat.backends.jax_raster.rasterize_fixed with a fixed RasterSpec there"
         ) from error

@@ -19,7 +19,7 @@ import math
 import jax
 import jax.numpy as jnp
 
-from mmcsplat.rendering import ALPHA_MAX, ALPHA_MIN, TRANSMITTANCE_MIN
+from mmcsplat.plugin_api.render_contract import ALPHA_MAX, ALPHA_MIN, TRANSMITTANCE_MIN
 
 #: Splat table columns before the blended channels: mean x, mean y, conic a, b, c, opacity.
 SPLAT_HEADER = 6

@@ -17,9 +17,8 @@ import attrs
 import jax
 import jax.numpy as jnp
 
-from mmcsplat.rendering import ALPHA_MIN, DEPTH_EPS, LOW_PASS, NEAR_PLANE, SIGMA_EXTENT, TILE_SIZE
-
-from .jax_composite import SPLAT_HEADER, composite_blocks
+from mmcsplat.backends.jax_composite import composite_blocks
+from mmcsplat.plugin_api.render_contract import ALPHA_MIN, DEPTH_EPS, LOW_PASS, NEAR_PLANE, SIGMA_EXTENT, TILE_SIZE
 
 #: Radii are capped here before the int32 cast (a radius this large covers any image anyway).
 MAX_RADIUS = 2.0**30
@@ -32,7 +31,7 @@ def _pytree(cls: type, data: tuple[str, ...]) -> type:
 
 @attrs.frozen(eq=False)
 class GaussianArrays:
-    """The Gaussians of :class:`mmcsplat.rendering.Gaussians` as JAX arrays (same shapes and meaning)."""
+    """The Gaussians of :class:`mmcsplat.plugin_api.render_contract.Gaussians` as JAX arrays (same shapes and meaning)."""
 
     means: jax.Array
     quats: jax.Array
@@ -42,7 +41,7 @@ class GaussianArrays:
     features: jax.Array
 
 
-#: The Gaussian fields, in the order of :class:`GaussianArrays` (and of :class:`mmcsplat.rendering.Gaussians`).
+#: The Gaussian fields, in the order of :class:`GaussianArrays` (and of :class:`mmcsplat.plugin_api.render_contract.Gaussians`).
 GAUSSIAN_FIELDS = tuple(field.name for field in attrs.fields(GaussianArrays))
 
 

@@ -1,4 +1,4 @@
-"""The ``jax`` renderer backend: the JAX rasterizer behind the torch :class:`~mmcsplat.interfaces.Renderer`
+"""The ``jax`` renderer backend: the JAX rasterizer behind the torch :class:`~mmcsplat.plugin_api.interfaces.Renderer`
 interface, for the torch trainer.
 
 A ``torch.autograd.Function`` hands the tensors to JAX through DLPack (zero-copy where both sides share
@@ -17,11 +17,10 @@ import jax.numpy as jnp
 import torch
 import torch.utils.dlpack
 
-from mmcsplat.interfaces import Renderer
-from mmcsplat.rendering import Gaussians, RenderCameras, RenderOutput, validate_render_inputs
-
-from .jax_buckets import JaxRasterizer, Prepared
-from .jax_raster import GAUSSIAN_FIELDS, CameraArrays, GaussianArrays
+from mmcsplat.backends.jax_buckets import JaxRasterizer, Prepared
+from mmcsplat.backends.jax_raster import GAUSSIAN_FIELDS, CameraArrays, GaussianArrays
+from mmcsplat.plugin_api.interfaces import Renderer
+from mmcsplat.plugin_api.render_contract import Gaussians, RenderCameras, RenderOutput, validate_render_inputs
 
 _warned: set[str] = set()
 

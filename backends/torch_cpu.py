@@ -19,10 +19,10 @@ import numpy as np
 import torch
 from torch.autograd.function import once_differentiable
 
-from mmcsplat.interfaces import Renderer
-from mmcsplat.rendering import Gaussians, RenderCameras, RenderOutput, validate_render_inputs
-
-from . import cpu_projection, cpu_raster
+from mmcsplat.backends import cpu_projection, cpu_raster
+from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.plugin_api.interfaces import Renderer
+from mmcsplat.plugin_api.render_contract import Gaussians, RenderCameras, RenderOutput, validate_render_inputs
 
 _DTYPE = torch.float64
 #: numba's workqueue threading layer aborts on concurrent launches; renders already use every core, so
@@ -128,7 +128,7 @@ def rasterize(gaussians: Gaussians, cameras: RenderCameras, background: torch.Te
     params = [getattr(gaussians, f) for f in ("means", "quats", "log_scales", "opacity_logits", "colors", "features")]
     tensors = [*params, cameras.K, cameras.viewmats] + ([] if background is None else [background])
     if any(t.device.type != "cpu" for t in tensors):
-        raise ValueError("the torch-cpu renderer needs CPU tensors (Gaussians, cameras and background); "
+        raise InputError("the torch-cpu renderer needs CPU tensors (Gaussians, cameras and background); "
                          "use torch-cuda or torch-reference on a GPU")
     n_cams, n = cameras.count, gaussians.count
     width, height = int(cameras.width), int(cameras.height)

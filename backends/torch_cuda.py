@@ -12,8 +12,9 @@ from __future__ import annotations
 import attrs
 import torch
 
-from mmcsplat.interfaces import Renderer
-from mmcsplat.rendering import (
+from mmcsplat.backends.torch_projection import project
+from mmcsplat.plugin_api.interfaces import Renderer
+from mmcsplat.plugin_api.render_contract import (
     LOW_PASS,
     NEAR_PLANE,
     TILE_SIZE,
@@ -22,8 +23,6 @@ from mmcsplat.rendering import (
     RenderOutput,
     validate_render_inputs,
 )
-
-from .torch_projection import project
 
 
 class GsplatRenderer(Renderer):

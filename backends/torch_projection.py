@@ -9,8 +9,8 @@ from __future__ import annotations
 import attrs
 import torch
 
-from mmcsplat.geometry import quat_to_rotmat
-from mmcsplat.rendering import LOW_PASS, NEAR_PLANE, SIGMA_EXTENT, TILE_SIZE, Gaussians, RenderCameras
+from mmcsplat.plugin_api.render_contract import LOW_PASS, NEAR_PLANE, SIGMA_EXTENT, TILE_SIZE, Gaussians, RenderCameras
+from mmcsplat.scene.quaternions import quat_to_rotmat
 
 
 @attrs.frozen(eq=False)

@@ -7,8 +7,9 @@ from __future__ import annotations
 import attrs
 import torch
 
-from mmcsplat.interfaces import Renderer
-from mmcsplat.rendering import (
+from mmcsplat.backends.torch_projection import Projection, project
+from mmcsplat.plugin_api.interfaces import Renderer
+from mmcsplat.plugin_api.render_contract import (
     ALPHA_MAX,
     ALPHA_MIN,
     DEPTH_EPS,
@@ -19,8 +20,6 @@ from mmcsplat.rendering import (
     RenderOutput,
     validate_render_inputs,
 )
-
-from .torch_projection import Projection, project
 
 #: The Gaussian parameters, in the order of :class:`Gaussians`' fields.
 FIELDS = tuple(field.name for field in attrs.fields(Gaussians))

@@ -21,11 +21,11 @@ from typing import Any
 import attrs
 import numpy as np
 
-from mmcsplat.camera import Camera
-from mmcsplat.interfaces import Reader, RecordedFrame, Recording
-
-from .calibration import metres_per_unit, read_calibration
-from .files import read_image, read_json, read_mask, require_files
+from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.plugin_api.interfaces import Reader, RecordedFrame, Recording
+from mmcsplat.scene.camera import Camera
+from mmcsplat.storage.calibration import metres_per_unit, read_calibration
+from mmcsplat.storage.capture_files import read_image, read_json, read_mask, require_files
 
 _KEYS = ("w", "h", "k", "w2c", "fn", "cam_id")
 _SPLITS = ("train_meta.json", "test_meta.json")
@@ -46,7 +46,7 @@ class D3DGSReader(Reader):
 
     def __init__(self, fps: float = 30.0) -> None:
         if not fps > 0:
-            raise ValueError(f"d3dgs reader: fps must be positive, got {fps}")
+            raise InputError(f"d3dgs reader: fps must be positive, got {fps}")
         self.fps = float(fps)
 
     def detect(self, source: Path) -> bool:
@@ -70,7 +70,7 @@ class D3DGSReader(Reader):
             num_frames = max(num_frames, frames)
             for name, entry in parsed.items():
                 if name in cameras:
-                    raise ValueError(f"{meta}: camera {name} also appears in {cameras[name].meta}")
+                    raise InputError(f"{meta}: camera {name} also appears in {cameras[name].meta}")
                 cameras[name] = entry
                 if split == "test_meta.json":
                     heldout.append(name)
@@ -86,15 +86,15 @@ def _parse_meta(meta: Path, source: Path, scale: float) -> tuple[dict[str, _Came
     try:
         width, height = int(document["w"]), int(document["h"])
     except (TypeError, ValueError):
-        raise ValueError(f"{meta}: 'w' and 'h' must be whole numbers, got {document['w']!r}, {document['h']!r}") from None
+        raise InputError(f"{meta}: 'w' and 'h' must be whole numbers, got {document['w']!r}, {document['h']!r}") from None
     lengths = {key: len(document[key]) if isinstance(document[key], list) else None for key in _KEYS[2:]}
     if None in lengths.values() or len(set(lengths.values())) != 1:
-        raise ValueError(f"{meta}: 'k', 'w2c', 'fn' and 'cam_id' must be lists with one entry per frame, got lengths {lengths}")
+        raise InputError(f"{meta}: 'k', 'w2c', 'fn' and 'cam_id' must be lists with one entry per frame, got lengths {lengths}")
     poses: dict[str, tuple[np.ndarray, np.ndarray, int]] = {}
     images: dict[str, dict[int, Path]] = {}
     for t, (ks, w2cs, fns, ids) in enumerate(zip(*(document[key] for key in _KEYS[2:]))):
         if not all(isinstance(row, list) for row in (ks, w2cs, fns, ids)) or not len(ks) == len(w2cs) == len(fns) == len(ids):
-            raise ValueError(f"{meta}: frame {t}: 'k', 'w2c', 'fn' and 'cam_id' must be lists of one length")
+            raise InputError(f"{meta}: frame {t}: 'k', 'w2c', 'fn' and 'cam_id' must be lists of one length")
         for slot, (k, w2c, fn, cam_id) in enumerate(zip(ks, w2cs, fns, ids)):
             where = f"{meta}: frame {t}, entry {slot}"
             name = _camera_name(where, cam_id)
@@ -103,19 +103,19 @@ def _parse_meta(meta: Path, source: Path, scale: float) -> tuple[dict[str, _Came
                 poses[name] = (K, pose, t)
                 images[name] = {}
             elif not (np.allclose(K, poses[name][0], rtol=1e-6, atol=1e-9) and np.allclose(pose, poses[name][1], rtol=1e-6, atol=1e-9)):
-                raise ValueError(f"{where}: camera {name} has a different k or w2c than at frame {poses[name][2]}; "
+                raise InputError(f"{where}: camera {name} has a different k or w2c than at frame {poses[name][2]}; "
                                  "mmcsplat needs fixed cameras")
             if t in images[name]:
-                raise ValueError(f"{where}: camera {name} appears twice in frame {t}")
+                raise InputError(f"{where}: camera {name} appears twice in frame {t}")
             if not isinstance(fn, str):
-                raise ValueError(f"{where}: 'fn' must be a file name, got {fn!r}")
+                raise InputError(f"{where}: 'fn' must be a file name, got {fn!r}")
             images[name][t] = source / "ims" / fn
     cameras = {}
     for name, (K, pose, first) in poses.items():
         try:
             camera = Camera(name=name, width=width, height=height, K=K, R=pose[:3, :3], t=pose[:3, 3] * scale)
         except ValueError as error:
-            raise ValueError(f"{meta}: frame {first}: {error}") from error
+            raise InputError(f"{meta}: frame {first}: {error}") from error
         require_files(list(images[name].values()), f"image of camera {name} listed in {meta}:")
         cameras[name] = _CameraFrames(camera, images[name], _masks(source, name, images[name]), meta)
     return cameras, len(document["fn"])
@@ -125,7 +125,7 @@ def _camera_name(where: str, cam_id: Any) -> str:
     """``cam_NN`` for a whole-number ``cam_id`` (an int, an integral float or a string of digits)."""
     whole = (isinstance(cam_id, int) and not isinstance(cam_id, bool)) or (isinstance(cam_id, float) and cam_id.is_integer())
     if not (whole or (isinstance(cam_id, str) and cam_id.isdigit())):
-        raise ValueError(f"{where}: 'cam_id' must be a whole number, got {cam_id!r}")
+        raise InputError(f"{where}: 'cam_id' must be a whole number, got {cam_id!r}")
     return f"cam_{int(cam_id):02d}"
 
 
@@ -134,9 +134,9 @@ def _matrix(where: str, key: str, value: Any, shape: tuple[int, int]) -> np.ndar
     try:
         array = np.array(value, dtype=np.float64)
     except (TypeError, ValueError):
-        raise ValueError(f"{where}: {key!r} must be a {shape[0]}×{shape[1]} matrix of numbers") from None
+        raise InputError(f"{where}: {key!r} must be a {shape[0]}×{shape[1]} matrix of numbers") from None
     if array.shape != shape or not np.all(np.isfinite(array)):
-        raise ValueError(f"{where}: {key!r} must be a finite {shape[0]}×{shape[1]} matrix, got shape {array.shape}")
+        raise InputError(f"{where}: {key!r} must be a finite {shape[0]}×{shape[1]} matrix, got shape {array.shape}")
     return array
 
 
@@ -155,7 +155,7 @@ def _override(cameras: dict[str, _CameraFrames], calibration: Path, units: str) 
     replacements = {camera.name: camera for camera in read_calibration(calibration, units)}
     missing = sorted(set(cameras) - set(replacements))
     if missing:
-        raise ValueError(f"calibration {calibration} lacks camera(s) {', '.join(missing)} of the d3dgs source")
+        raise InputError(f"calibration {calibration} lacks camera(s) {', '.join(missing)} of the d3dgs source")
     return {name: attrs.evolve(entry, camera=replacements[name]) for name, entry in cameras.items()}
 
 
@@ -195,7 +195,7 @@ class D3DGSRecording(Recording):
             expected = (entry.camera.height, entry.camera.width)
             for what, array, file in (("image", rgb, path), ("mask", mask, entry.masks and entry.masks[t])):
                 if array is not None and array.shape[:2] != expected:
-                    raise ValueError(f"{what} {file} is {array.shape[1]}×{array.shape[0]}, but {entry.meta} says "
+                    raise InputError(f"{what} {file} is {array.shape[1]}×{array.shape[0]}, but {entry.meta} says "
                                      f"{expected[1]}×{expected[0]}")
             yield RecordedFrame(t=t, rgb=rgb, mask=mask)
 

@@ -31,11 +31,11 @@ from typing import Any
 import attrs
 import numpy as np
 
-from mmcsplat.camera import Camera
-from mmcsplat.interfaces import Reader, RecordedFrame, Recording
-
-from .calibration import metres_per_unit
-from .files import read_image, read_json, require_files
+from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.plugin_api.interfaces import Reader, RecordedFrame, Recording
+from mmcsplat.scene.camera import Camera
+from mmcsplat.storage.calibration import metres_per_unit
+from mmcsplat.storage.capture_files import read_image, read_json, require_files
 
 SPLITS = ("train", "val", "test")
 _IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".exr", ".tif", ".tiff", ".bmp", ".webp"}
@@ -66,7 +66,7 @@ class DNeRFReader(Reader):
         translations; a separate calibration cannot apply to per-frame poses and is refused."""
         source = Path(source)
         if calibration is not None:
-            raise ValueError(f"dnerf source {source}: the poses come from transforms_*.json; --calibration is not supported")
+            raise InputError(f"dnerf source {source}: the poses come from transforms_*.json; --calibration is not supported")
         scale = metres_per_unit(units)
         cameras: list[Camera] = []
         images: list[list[_Image]] = []
@@ -90,18 +90,18 @@ def _parse_split(path: Path, source: Path, split: str, scale: float) -> tuple[li
     document = read_json(path, ("camera_angle_x", "frames"))
     frames = document["frames"]
     if not isinstance(frames, list) or not frames:
-        raise ValueError(f"{path}: 'frames' must be a non-empty list")
+        raise InputError(f"{path}: 'frames' must be a non-empty list")
     angle = _number(path, "camera_angle_x", document["camera_angle_x"])
     if not 0 < angle < np.pi:
-        raise ValueError(f"{path}: camera_angle_x must be in (0, π) radians, got {angle}")
+        raise InputError(f"{path}: camera_angle_x must be in (0, π) radians, got {angle}")
     files = []
     for index, frame in enumerate(frames):
         where = f"{path}: frames[{index}]"
         if not isinstance(frame, dict):
-            raise ValueError(f"{where}: expected an object with file_path, time and transform_matrix")
+            raise InputError(f"{where}: expected an object with file_path, time and transform_matrix")
         missing = [key for key in ("file_path", "time", "transform_matrix") if key not in frame]
         if missing:
-            raise ValueError(f"{where}: missing key(s) {', '.join(repr(key) for key in missing)}")
+            raise InputError(f"{where}: missing key(s) {', '.join(repr(key) for key in missing)}")
         files.append(_image_path(source, frame["file_path"], where))
     require_files(files, f"image listed in {path}:")
     # One image gives the split's size; every frame is checked against it when decoded.
@@ -130,7 +130,7 @@ def _parse_split(path: Path, source: Path, split: str, scale: float) -> tuple[li
 def _image_path(source: Path, file_path: Any, where: str) -> Path:
     """The image file of ``file_path``, with ``.png`` appended when it names no image file."""
     if not isinstance(file_path, str) or not file_path:
-        raise ValueError(f"{where}: 'file_path' must be a non-empty string, got {file_path!r}")
+        raise InputError(f"{where}: 'file_path' must be a non-empty string, got {file_path!r}")
     path = source / file_path
     return path if path.suffix.lower() in _IMAGE_SUFFIXES else path.with_name(path.name + ".png")
 
@@ -138,7 +138,7 @@ def _image_path(source: Path, file_path: Any, where: str) -> Path:
 def _number(where: Path | str, key: str, value: Any) -> float:
     """``value`` as a finite float, or an error naming ``key``."""
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
-        raise ValueError(f"{where}: {key!r} must be a finite number, got {value!r}")
+        raise InputError(f"{where}: {key!r} must be a finite number, got {value!r}")
     return float(value)
 
 
@@ -147,12 +147,12 @@ def _pose(where: str, value: Any) -> np.ndarray:
     try:
         matrix = np.array(value, dtype=np.float64)
     except (TypeError, ValueError):
-        raise ValueError(f"{where}: 'transform_matrix' must be a 4×4 matrix of numbers") from None
+        raise InputError(f"{where}: 'transform_matrix' must be a 4×4 matrix of numbers") from None
     if matrix.shape not in ((4, 4), (3, 4)) or not np.all(np.isfinite(matrix)):
-        raise ValueError(f"{where}: 'transform_matrix' must be a finite 4×4 matrix, got shape {matrix.shape}")
+        raise InputError(f"{where}: 'transform_matrix' must be a finite 4×4 matrix, got shape {matrix.shape}")
     rotation = matrix[:3, :3]
     if not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-5) or np.linalg.det(rotation) < 0:
-        raise ValueError(f"{where}: 'transform_matrix' is not a rigid transform (its 3×3 part is not a rotation)")
+        raise InputError(f"{where}: 'transform_matrix' is not a rigid transform (its 3×3 part is not a rotation)")
     return np.vstack([matrix[:3], [0.0, 0.0, 0.0, 1.0]])
 
 
@@ -175,7 +175,7 @@ class DNeRFRecording(Recording):
                 t = int(np.searchsorted(self._times, round(image.time, _DECIMALS)))
                 if t in by_index:
                     other = by_index[t]
-                    raise ValueError(f"{image.json}: frames[{other.index}] and frames[{image.index}] have the same pose "
+                    raise InputError(f"{image.json}: frames[{other.index}] and frames[{image.index}] have the same pose "
                                      f"and time {image.time}")
                 by_index[t] = image
         self._cameras = {camera.name: camera for camera in cameras}
@@ -206,7 +206,7 @@ class DNeRFRecording(Recording):
                 continue
             rgb, alpha = read_image(image.path)
             if rgb.shape[:2] != expected:
-                raise ValueError(f"image {image.path} is {rgb.shape[1]}×{rgb.shape[0]}, but the first image of "
+                raise InputError(f"image {image.path} is {rgb.shape[1]}×{rgb.shape[0]}, but the first image of "
                                  f"{image.json.name} is {expected[1]}×{expected[0]}")
             mask = None
             if alpha is not None:

@@ -11,13 +11,12 @@ from __future__ import annotations
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
-from mmcsplat.camera import Camera
-from mmcsplat.interfaces import RecordedFrame, Reader, Recording
-from mmcsplat.ingest import PLATES_FOLDER
-
-from .calibration import read_calibration
-from .files import read_image
-from .rig import RigRecording, check_size_mismatch, common_length, find_calibration, fit_camera, match_cameras, natural_key
+from mmcsplat.datasets.rig import RigRecording, check_size_mismatch, common_length, find_calibration, fit_camera, match_cameras, natural_key
+from mmcsplat.plugin_api.errors import InputError, NotAFolderError
+from mmcsplat.plugin_api.interfaces import Reader, RecordedFrame, Recording
+from mmcsplat.scene.camera import Camera
+from mmcsplat.storage.calibration import read_calibration
+from mmcsplat.storage.capture_files import PLATES_FOLDER, read_image
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 
@@ -44,7 +43,7 @@ class ImageSequenceReader(Reader):
 
     def __init__(self, fps: float = 30.0, size_mismatch: str = "scale") -> None:
         if not fps > 0:
-            raise ValueError(f"images reader: fps must be positive, got {fps}")
+            raise InputError(f"images reader: fps must be positive, got {fps}")
         self.fps = float(fps)
         self.size_mismatch = check_size_mismatch(size_mismatch)
 
@@ -55,7 +54,7 @@ class ImageSequenceReader(Reader):
     def open(self, source: Path, calibration: Path | None = None, units: str = "m") -> Recording:
         source = Path(source)
         if not source.is_dir():
-            raise NotADirectoryError(f"images source {source} is not a folder")
+            raise NotAFolderError(f"images source {source} is not a folder")
         calibration = find_calibration(source, calibration)
         calibrated = read_calibration(calibration, units)
         folders = match_cameras(calibrated, camera_folders(source), "image folder", source)

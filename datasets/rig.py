@@ -19,9 +19,9 @@ from pathlib import Path
 import attrs
 import numpy as np
 
-from mmcsplat.camera import Camera
-from mmcsplat.interfaces import RecordedFrame, Recording
-
+from mmcsplat.plugin_api.errors import InputError, MissingFileError
+from mmcsplat.plugin_api.interfaces import RecordedFrame, Recording
+from mmcsplat.scene.camera import Camera
 
 #: How a decoded size that differs from the calibration's is reconciled (see :func:`fit_camera`).
 SIZE_MISMATCH_POLICIES = ("scale", "crop", "error")
@@ -45,7 +45,7 @@ def find_calibration(source: Path, calibration: Path | None) -> Path:
     if calibration is not None:
         calibration = Path(calibration)
         if not calibration.is_file():
-            raise FileNotFoundError(f"calibration file {calibration} does not exist")
+            raise MissingFileError(f"calibration file {calibration} does not exist")
         return calibration
     default = source / "calibration.toml"
     if default.is_file():
@@ -54,9 +54,9 @@ def find_calibration(source: Path, calibration: Path | None) -> Path:
     if len(candidates) == 1:
         return candidates[0]
     if not candidates:
-        raise FileNotFoundError(f"{source}: no calibration.toml (or other *.toml) found; pass --calibration")
+        raise MissingFileError(f"{source}: no calibration.toml (or other *.toml) found; pass --calibration")
     names = ", ".join(path.name for path in candidates)
-    raise ValueError(f"{source}: several calibration files ({names}); choose one with --calibration")
+    raise InputError(f"{source}: several calibration files ({names}); choose one with --calibration")
 
 
 def match_cameras(cameras: Sequence[Camera], paths: Iterable[Path], what: str, where: Path) -> dict[str, Path]:
@@ -78,10 +78,10 @@ def match_cameras(cameras: Sequence[Camera], paths: Iterable[Path], what: str, w
         candidates = by_key.get(name_key(camera.name), [])
         if len(candidates) > 1:
             names = ", ".join(sorted(path.name for path in candidates))
-            raise ValueError(f"{where}: camera {camera.name!r} matches several {what}s ({names}); rename them")
+            raise InputError(f"{where}: camera {camera.name!r} matches several {what}s ({names}); rename them")
         if not candidates:
             available = ", ".join(sorted(by_stem, key=natural_key)) or "none"
-            raise FileNotFoundError(f"{where}: no {what} for calibrated camera {camera.name!r} (found: {available})")
+            raise MissingFileError(f"{where}: no {what} for calibrated camera {camera.name!r} (found: {available})")
         matched[camera.name] = candidates[0]
     unused = sorted(set(by_stem.values()) - set(matched.values()))
     if unused:
@@ -92,7 +92,7 @@ def match_cameras(cameras: Sequence[Camera], paths: Iterable[Path], what: str, w
 def check_size_mismatch(policy: str) -> str:
     """``policy`` if it is one of :data:`SIZE_MISMATCH_POLICIES`, else a clear error."""
     if policy not in SIZE_MISMATCH_POLICIES:
-        raise ValueError(f"unknown size_mismatch policy {policy!r}; choose one of {', '.join(SIZE_MISMATCH_POLICIES)}")
+        raise InputError(f"unknown size_mismatch policy {policy!r}; choose one of {', '.join(SIZE_MISMATCH_POLICIES)}")
     return policy
 
 
@@ -108,15 +108,15 @@ def fit_camera(camera: Camera, width: int, height: int, policy: str, what: str) 
         return camera
     mismatch = f"{what} decodes at {width}×{height} but camera {camera.name!r} is calibrated at {camera.width}×{camera.height}"
     if policy == "error":
-        raise ValueError(f"{mismatch} (size_mismatch='error')")
+        raise InputError(f"{mismatch} (size_mismatch='error')")
     if policy == "crop":
         if width > camera.width or height > camera.height:
-            raise ValueError(f"{mismatch}: larger than calibrated, so it cannot be a crop")
+            raise InputError(f"{mismatch}: larger than calibrated, so it cannot be a crop")
         warnings.warn(f"{mismatch}; keeping K and treating the images as the top-left crop (size_mismatch='crop')", stacklevel=3)
         return attrs.evolve(camera, width=width, height=height)
     sx, sy = width / camera.width, height / camera.height
     if abs(sx / sy - 1.0) > MAX_ANISOTROPY:
-        raise ValueError(f"{mismatch}: the aspect ratio differs too much to rescale K (rotated or wrong file?)")
+        raise InputError(f"{mismatch}: the aspect ratio differs too much to rescale K (rotated or wrong file?)")
     warnings.warn(f"{mismatch}; scaling K by ({sx:.5f}, {sy:.5f}) to match (size_mismatch='scale')", stacklevel=3)
     return camera.scaled(sx, sy)
 
@@ -126,7 +126,7 @@ def common_length(counts: Mapping[str, int], what: str, where: Path) -> int:
     shortest = min(counts.values())
     if shortest <= 0:
         empty = ", ".join(name for name, count in counts.items() if count <= 0)
-        raise ValueError(f"{where}: no frames in the {what}s of {empty}")
+        raise InputError(f"{where}: no frames in the {what}s of {empty}")
     if max(counts.values()) != shortest:
         detail = ", ".join(f"{name}: {count}" for name, count in counts.items())
         warnings.warn(f"{where}: {what}s differ in length ({detail}); truncating every camera to {shortest} frames", stacklevel=3)
@@ -153,7 +153,7 @@ class GroundTruth:
         try:
             group = zarr.open_group(str(path), mode="r")
         except Exception as error:
-            raise ValueError(f"{path}: not a readable zarr group: {error}") from error
+            raise InputError(f"{path}: not a readable zarr group: {error}") from error
         fields: dict[str, dict[str, object]] = {}
         for field in ("masks", "depth"):
             if field not in group:
@@ -162,10 +162,10 @@ class GroundTruth:
             arrays = {}
             for camera in cameras:
                 if camera.name not in group[field]:
-                    raise ValueError(f"{path}: {field} has no array for camera {camera.name!r}")
+                    raise InputError(f"{path}: {field} has no array for camera {camera.name!r}")
                 array = group[field][camera.name]
                 if tuple(array.shape[1:]) != (camera.height, camera.width) or array.shape[0] < num_frames:
-                    raise ValueError(
+                    raise InputError(
                         f"{path}: {field}/{camera.name} has shape {tuple(array.shape)}, expected at least "
                         f"({num_frames}, {camera.height}, {camera.width}) to match the frames"
                     )
@@ -205,7 +205,7 @@ class RigRecording(Recording):
             raise IndexError(f"frames {indices.start}:{indices.stop}:{indices.step} exceed the recording's {self.num_frames}")
         for frame in self._decode(camera, indices):
             if frame.rgb.shape != (expected.height, expected.width, 3):
-                raise ValueError(
+                raise InputError(
                     f"camera {camera!r} frame {frame.t}: decoded shape {frame.rgb.shape}, expected "
                     f"({expected.height}, {expected.width}, 3) like its first frame"
                 )

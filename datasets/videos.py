@@ -17,11 +17,11 @@ from pathlib import Path
 import attrs
 import numpy as np
 
-from mmcsplat.camera import Camera
-from mmcsplat.interfaces import RecordedFrame, Reader, Recording
-
-from .calibration import read_calibration
-from .rig import RigRecording, check_size_mismatch, common_length, find_calibration, fit_camera, match_cameras
+from mmcsplat.datasets.rig import RigRecording, check_size_mismatch, common_length, find_calibration, fit_camera, match_cameras
+from mmcsplat.plugin_api.errors import InputError, NotAFolderError
+from mmcsplat.plugin_api.interfaces import Reader, RecordedFrame, Recording
+from mmcsplat.scene.camera import Camera
+from mmcsplat.storage.calibration import read_calibration
 
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv")
 #: Frame rate assumed for a video whose container states none.
@@ -56,10 +56,10 @@ def probe(path: Path) -> VideoInfo:
     capture = cv2.VideoCapture(str(path))
     try:
         if not capture.isOpened():
-            raise ValueError(f"video {path}: cannot be opened (not a video, or an unsupported codec)")
+            raise InputError(f"video {path}: cannot be opened (not a video, or an unsupported codec)")
         ok, image = capture.read()
         if not ok or image is None:
-            raise ValueError(f"video {path}: cannot decode its first frame")
+            raise InputError(f"video {path}: cannot decode its first frame")
         frames = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
         if frames <= 0:  # some containers do not state it: count by decoding
             frames = 1
@@ -84,7 +84,7 @@ class VideoReader(Reader):
     def open(self, source: Path, calibration: Path | None = None, units: str = "m") -> Recording:
         source = Path(source)
         if not source.is_dir():
-            raise NotADirectoryError(f"videos source {source} is not a folder")
+            raise NotAFolderError(f"videos source {source} is not a folder")
         calibration = find_calibration(source, calibration)
         calibrated = read_calibration(calibration, units)
         paths = match_cameras(calibrated, video_files(source), "video", source)
@@ -134,12 +134,12 @@ class VideoRecording(RigRecording):
             for t in indices:
                 while position < t:  # skip frames between steps without converting them
                     if not capture.grab():
-                        raise ValueError(f"video {path}: ends before frame {t}")
+                        raise InputError(f"video {path}: ends before frame {t}")
                     position += 1
                 ok, image = capture.read()
                 position += 1
                 if not ok or image is None:
-                    raise ValueError(f"video {path}: cannot decode frame {t}")
+                    raise InputError(f"video {path}: cannot decode frame {t}")
                 yield RecordedFrame(t=t, rgb=cv2.cvtColor(image, cv2.COLOR_BGR2RGB))
         finally:
             capture.release()

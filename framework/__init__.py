@@ -1,14 +1,17 @@
 """mmcsplat: markerless motion capture of infants with dynamic 3D Gaussian splatting.
 
-The core package: plugin interfaces (:mod:`mmcsplat.interfaces`), the registry (:mod:`mmcsplat.registry`),
-the hook specifications plugins implement (:mod:`mmcsplat.hookspecs`), cameras, the session store and the CLI.
-Concrete implementations live in :mod:`mmcsplat.backends`, :mod:`mmcsplat.plugins` and
-:mod:`mmcsplat.datasets` and are reached only through the registry.
+The core package, in rooms by layer (docs/architecture.md): :mod:`mmcsplat.plugin_api` (all a plugin may
+import, with :mod:`mmcsplat.scene`, :mod:`mmcsplat.storage` and :mod:`mmcsplat.training`),
+:mod:`mmcsplat.configuration` (configurations and the plugin registry), :mod:`mmcsplat.pipeline` (one
+module per step of the data flow), :mod:`mmcsplat.analysis`, :mod:`mmcsplat.outputs`,
+:mod:`mmcsplat.studies`, :mod:`mmcsplat.bench`, :mod:`mmcsplat.synthetic`, :mod:`mmcsplat.jobs` and
+:mod:`mmcsplat.cli`. Concrete implementations live in :mod:`mmcsplat.backends`, :mod:`mmcsplat.plugins`
+and :mod:`mmcsplat.datasets` and are reached only through the registry.
 """
 
-from .hookspecs import hookimpl
-from .registry import Registration, default_registry, needs_modules
+from .plugin_api.hookspecs import hookimpl
+from .plugin_api.registration import Registration, needs_modules
 
 __version__ = "0.1.0"
 
-__all__ = ["Registration", "__version__", "default_registry", "hookimpl", "needs_modules"]
+__all__ = ["Registration", "__version__", "hookimpl", "needs_modules"]

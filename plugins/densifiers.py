@@ -6,10 +6,11 @@ from typing import Any
 
 import torch
 
-from mmcsplat.geometry import quat_to_rotmat
-from mmcsplat.interfaces import Densifier
-from mmcsplat.model import GaussianModel
-from mmcsplat.rendering import RenderOutput
+from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.plugin_api.interfaces import Densifier
+from mmcsplat.plugin_api.render_contract import RenderOutput
+from mmcsplat.scene.quaternions import quat_to_rotmat
+from mmcsplat.training.model import GaussianModel
 
 
 def _rows(model: GaussianModel, index: torch.Tensor) -> dict[str, torch.Tensor]:
@@ -109,7 +110,7 @@ class DefaultDensifier(Densifier):
         edit = {name: rows[fresh] for name, rows in edit.items()}
         doomed = split | self._faint_or_oversized(model.params["opacity_logits"].detach(), model.params["log_scales"].detach(), scene_scale)
         if edit["means"].shape[0] or doomed.any():
-            model.replace(edit, keep=~doomed, source=None)
+            model.replace(edit, keep=~doomed)
         state["grad_sum"] = torch.zeros(model.count)
         state["count"] = torch.zeros(model.count)
 
@@ -130,7 +131,7 @@ class BudgetDensifier(Densifier):
         self, cap: int = 20_000, growth: float = 0.05, dead_opacity: float = 0.005, start: int = 500, stop: int = 15_000, every: int = 100
     ) -> None:
         if cap < 1:
-            raise ValueError(f"budget densifier: cap must be positive, got {cap}")
+            raise InputError(f"budget densifier: cap must be positive, got {cap}")
         self.cap = cap
         self.growth = growth
         self.dead_opacity = dead_opacity
@@ -146,7 +147,7 @@ class BudgetDensifier(Densifier):
         if model.count > self.cap:
             keep = torch.zeros(model.count, dtype=torch.bool)
             keep[opacity.topk(self.cap).indices] = True
-            model.replace({}, keep=keep, source=None)
+            model.replace({}, keep=keep)
             return
         if not (self.start <= step < self.stop and step % self.every == 0):
             return
@@ -166,4 +167,4 @@ class BudgetDensifier(Densifier):
         shared = 1 - (1 - opacity).pow(1 / (per_source + 1))
         new_logits = torch.where(per_source > 0, torch.logit(shared.clamp(1e-6, 1 - 1e-6)), model.params["opacity_logits"].detach())
         _set_opacity(model, new_logits)
-        model.replace(_rows(model, sources), keep=~dead, source=None)
+        model.replace(_rows(model, sources), keep=~dead)

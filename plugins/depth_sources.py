@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from mmcsplat.camera import Camera
-from mmcsplat.interfaces import DepthSource
-from mmcsplat.store import SessionReader
+from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.plugin_api.interfaces import DepthSource
+from mmcsplat.scene.camera import Camera
+from mmcsplat.storage.session import SessionReader
 
 
 class SessionDepth(DepthSource):
@@ -16,14 +17,14 @@ class SessionDepth(DepthSource):
 
     def __init__(self, noise: float = 0.0, seed: int = 0) -> None:
         if noise < 0:
-            raise ValueError(f"session depth source: noise must be ≥ 0, got {noise}")
+            raise InputError(f"session depth source: noise must be ≥ 0, got {noise}")
         self.noise = noise
         self.seed = seed
 
     def depth(self, session: SessionReader, frame: int, camera: Camera) -> np.ndarray:
         data = session.frame(frame, camera.name)
         if data.depth is None:
-            raise ValueError(f"session depth source: camera {camera.name!r} has no depth map at frame {frame} in {session.url}")
+            raise InputError(f"session depth source: camera {camera.name!r} has no depth map at frame {frame} in {session.url}")
         depth = np.asarray(data.depth, dtype=np.float32)
         if self.noise:
             generator = np.random.default_rng([self.seed, frame, *camera.name.encode()])

@@ -14,10 +14,11 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
-from mmcsplat.interfaces import DepthSource, Initializer, SceneContext
-from mmcsplat.registry import Registry, default_registry
-from mmcsplat.rendering import Gaussians, RenderOutput
-from mmcsplat.visual_hull import in_hull, mask_hits, mask_votes
+from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.plugin_api.interfaces import DepthSource, Initializer, SceneContext
+from mmcsplat.plugin_api.registration import PluginBuilder
+from mmcsplat.plugin_api.render_contract import Gaussians, RenderOutput
+from mmcsplat.scene.visual_hull import in_hull, mask_hits, mask_votes
 
 INITIAL_OPACITY = 0.1
 INITIAL_SEG = 0.5
@@ -29,7 +30,7 @@ def gaussians_at(points: np.ndarray, colors: np.ndarray | None, generator: torch
     segmentation colours (default 0.5 each)."""
     n = len(points)
     if n == 0:
-        raise ValueError("no points to place Gaussians at")
+        raise InputError("no points to place Gaussians at")
     k = min(4, n)
     distances, _ = cKDTree(points).query(points, k=k)
     spacing = np.sqrt(np.mean(np.square(distances[:, 1:]), axis=1)) if k > 1 else np.full(n, 0.01)
@@ -74,7 +75,7 @@ class RandomInitializer(Initializer):
 
     def __init__(self, num_points: int = 10_000, half_size: float = 0.75) -> None:
         if num_points < 1 or half_size <= 0:
-            raise ValueError(f"random initializer: num_points ({num_points}) and half_size ({half_size}) must be positive")
+            raise InputError(f"random initializer: num_points ({num_points}) and half_size ({half_size}) must be positive")
         self.num_points = num_points
         self.half_size = half_size
 
@@ -93,7 +94,7 @@ class MaskedInitializer(Initializer):
 
     def prepare_target(self, image: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
         if mask is None:
-            raise ValueError("the masked initializer needs subject masks in the session: run `mmcsplat segment` first")
+            raise InputError("the masked initializer needs subject masks in the session: run `mmcsplat segment` first")
         return image * mask[..., None].to(image.dtype)
 
     def prune_mask(self, step: int, gaussians: Gaussians, scene: SceneContext) -> torch.Tensor | None:
@@ -130,7 +131,7 @@ class InViewInitializer(Initializer):
 
     def __init__(self, every: int = 500) -> None:
         if every < 1:
-            raise ValueError(f"in-view initializer: every must be ≥ 1, got {every}")
+            raise InputError(f"in-view initializer: every must be ≥ 1, got {every}")
         self.every = every
 
     def prune_mask(self, step: int, gaussians: Gaussians, scene: SceneContext) -> torch.Tensor | None:
@@ -166,7 +167,7 @@ class VisualHullInitializer(Initializer):
         for camera in scene.cameras:
             frame = scene.session.frame(scene.frame, camera.name)
             if frame.mask is None:
-                raise ValueError(f"visual-hull initializer: camera {camera.name!r} has no mask at frame {scene.frame}: run `mmcsplat segment` first")
+                raise InputError(f"visual-hull initializer: camera {camera.name!r} has no mask at frame {scene.frame}: run `mmcsplat segment` first")
             views.append((camera, frame.mask, frame.rgb))
         kept_points: list[np.ndarray] = []
         kept_colors: list[np.ndarray] = []
@@ -181,7 +182,7 @@ class VisualHullInitializer(Initializer):
             if total >= self.num_points:
                 break
         if total == 0:
-            raise ValueError("visual-hull initializer: no point lies inside every view's mask — are the masks and calibration consistent?")
+            raise InputError("visual-hull initializer: no point lies inside every view's mask — are the masks and calibration consistent?")
         points = np.concatenate(kept_points)[: self.num_points]
         colors = np.concatenate(kept_colors)[: self.num_points]
         return gaussians_at(points, colors, generator, segmentation_start(points, scene))
@@ -207,13 +208,13 @@ class DepthSupervisedInitializer(Initializer):
     ``weight``; pixels without depth are ignored."""
 
     def __init__(
-        self, weight: float = 0.1, lr: float = 1e-3, source: str | Mapping[str, Any] = "session", *, registry: Registry | None = None
+        self, weight: float = 0.1, lr: float = 1e-3, source: str | Mapping[str, Any] = "session", *, registry: PluginBuilder
     ) -> None:
         options = {"name": source} if isinstance(source, str) else dict(source)
         name = options.pop("name", None)
         if not isinstance(name, str):
-            raise ValueError(f"depth-supervised initializer: source must be a depth-source name or a table with a 'name', got {source!r}")
-        self.source: DepthSource = (registry or default_registry()).create("depth-source", name, **options)
+            raise InputError(f"depth-supervised initializer: source must be a depth-source name or a table with a 'name', got {source!r}")
+        self.source: DepthSource = registry.create("depth-source", name, **options)
         self.weight = weight
         self.lr = lr
         self._maps: dict[str, torch.Tensor] = {}
@@ -226,7 +227,7 @@ class DepthSupervisedInitializer(Initializer):
             try:
                 depth = self.source.depth(scene.session, scene.frame, camera)
             except ValueError as error:
-                raise ValueError(f"depth-supervised initializer: {error}") from error
+                raise InputError(f"depth-supervised initializer: {error}") from error
             self._maps[camera.name] = torch.tensor(np.asarray(depth, dtype=np.float32))  # a copy: the source's may be shared
             self._affine[camera.name] = torch.tensor([1.0, 0.0], requires_grad=True)
         self._optimizer = torch.optim.Adam(list(self._affine.values()), lr=self.lr)

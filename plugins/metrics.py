@@ -1,26 +1,27 @@
-"""Image-quality metrics, computed with the same code as the training losses (mmcsplat.losses)."""
+"""Image-quality metrics, computed with the same code as the training losses (mmcsplat.training.losses)."""
 
 from __future__ import annotations
 
 import numpy as np
 import torch
 
-from mmcsplat import losses
-from mmcsplat.interfaces import Metric
+from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.plugin_api.interfaces import Metric
+from mmcsplat.training import losses
 
 
 def _as_tensors(prediction: np.ndarray, target: np.ndarray, mask: np.ndarray | None, metric: str):
     prediction_t = torch.as_tensor(np.asarray(prediction, dtype=np.float64))
     target_t = torch.as_tensor(np.asarray(target, dtype=np.float64))
     if prediction_t.shape != target_t.shape or prediction_t.dim() != 3:
-        raise ValueError(f"{metric}: prediction {tuple(prediction_t.shape)} and target {tuple(target_t.shape)} must be equal [H, W, C]")
+        raise InputError(f"{metric}: prediction {tuple(prediction_t.shape)} and target {tuple(target_t.shape)} must be equal [H, W, C]")
     if mask is None:
         return prediction_t, target_t, None
     mask_t = torch.from_numpy(np.array(mask, dtype=bool))  # a copy: session frames are read-only
     if tuple(mask_t.shape) != tuple(target_t.shape[:2]):
-        raise ValueError(f"{metric}: mask {tuple(mask_t.shape)} does not match image {tuple(target_t.shape[:2])}")
+        raise InputError(f"{metric}: mask {tuple(mask_t.shape)} does not match image {tuple(target_t.shape[:2])}")
     if not mask_t.any():
-        raise ValueError(f"{metric}: the mask is empty")
+        raise InputError(f"{metric}: the mask is empty")
     return prediction_t, target_t, mask_t
 
 

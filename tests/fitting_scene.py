@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 import torch
 
-from mmcsplat.camera import Camera
-from mmcsplat.interfaces import SceneContext
-from mmcsplat.rendering import Gaussians, RenderCameras
-from mmcsplat.store import SessionReader, SessionWriter
+from mmcsplat.plugin_api.interfaces import SceneContext
+from mmcsplat.plugin_api.render_contract import Gaussians, RenderCameras
+from mmcsplat.scene.camera import Camera, look_at
+from mmcsplat.storage.session import SessionReader, SessionWriter
 
 WIDTH, HEIGHT, FOCAL = 48, 36, 40.0
 
@@ -22,11 +22,7 @@ WIDTH, HEIGHT, FOCAL = 48, 36, 40.0
 def ring_camera(name: str, angle: float, radius: float = 1.2, height: float = 0.8, zoom: int = 1) -> Camera:
     """A camera on a ring around the origin, looking at it; ``zoom`` multiplies its resolution."""
     center = np.array([radius * np.cos(angle), radius * np.sin(angle), height])
-    forward = -center / np.linalg.norm(center)
-    right = np.cross(forward, [0.0, 0.0, 1.0])
-    right /= np.linalg.norm(right)
-    down = np.cross(forward, right)
-    R = np.stack([right, down, forward])
+    R = look_at(center, np.zeros(3))
     width, height, focal = WIDTH * zoom, HEIGHT * zoom, FOCAL * zoom
     K = [[focal, 0, width / 2 - 0.5], [0, focal, height / 2 - 0.5], [0, 0, 1]]
     return Camera(name, width, height, K, R, -R @ center)
@@ -51,7 +47,7 @@ def single_precision(gaussians: Gaussians) -> Gaussians:
 def moved(gaussians: Gaussians, t: int, step: float = 0.005, bend: float = 0.04) -> Gaussians:
     """The subject at frame ``t``: translated ``step`` metres per frame along x, its x > 0 half bent
     ``t·bend`` radians about the y axis through the origin, smoothly (an articulated limb on a body)."""
-    from mmcsplat.geometry import quat_multiply
+    from mmcsplat.scene.quaternions import quat_multiply
 
     means = gaussians.means
     angle = t * bend * torch.clamp(means[:, 0] / 0.05, 0, 1)
@@ -74,7 +70,7 @@ def write_session(path: Path, cameras: int = 5, heldout: tuple[str, ...] = ("cam
     clean plate; ``supersample`` > 1 makes each pixel the mean of that many sub-pixels per side (a pixel
     integrating over its area)."""
     from mmcsplat.backends.torch_reference import TorchReferenceRenderer
-    from mmcsplat.supersampling import supersampled
+    from mmcsplat.training.supersampling import supersampled
 
     renderer = supersampled(TorchReferenceRenderer(), supersample)
     rig = [ring_camera(f"cam_{i}", 2 * np.pi * i / cameras, zoom=zoom) for i in range(cameras)]
@@ -110,9 +106,9 @@ def plate(camera: Camera) -> np.ndarray:
 
 def scene_context(session: SessionReader, frame: int = 0) -> SceneContext:
     """What a first-frame fit of ``session`` shows its initializers: its training cameras (the session's
-    held-out ones left out) and the calibration's centre and scale, built as :class:`~mmcsplat.fit.FirstFrameFit` does."""
-    from mmcsplat.fit import select_cameras
-    from mmcsplat.geometry import rig_center, rig_scale
+    held-out ones left out) and the calibration's centre and scale, built as :class:`~mmcsplat.pipeline.fit.FirstFrameFit` does."""
+    from mmcsplat.pipeline.fit import select_cameras
+    from mmcsplat.scene.rig import rig_center, rig_scale
 
     train, _ = select_cameras(session, None)
     center = rig_center(session.cameras)
@@ -138,8 +134,8 @@ def write_fitted_run(run: Path, session: Path, truth: Gaussians | None = None, b
     ``[fit]`` values."""
     import json
 
-    from mmcsplat.geometry import rig_center, rig_scale
-    from mmcsplat.model import GaussianModel, LearningRates
+    from mmcsplat.scene.rig import rig_center, rig_scale
+    from mmcsplat.training.model import GaussianModel, LearningRates
 
     reader = SessionReader(session)
     train = list(reader.train_cameras)
@@ -198,7 +194,7 @@ def write_config(path: Path, iterations: int = 60, checkpoint_every: int = 20, b
 
 def every_renderer() -> list:
     """Each registered renderer's name as a pytest parameter, skipped (saying why) where it is unusable."""
-    from mmcsplat.registry import default_registry
+    from mmcsplat.configuration.registry import default_registry
 
     registry = default_registry()
     return [pytest.param(name, marks=pytest.mark.skipif(bool(reason := registry.get("renderer", name).unavailable_reason()), reason=str(reason)))

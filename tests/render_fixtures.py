@@ -10,10 +10,10 @@ import numpy as np
 import torch
 from fitting_scene import write_config, write_session
 
-from mmcsplat.config import load_config
-from mmcsplat.fit import FirstFrameFit, load_fitted
-from mmcsplat.store import SessionReader
-from mmcsplat.tracks import TrackWriter
+from mmcsplat.configuration.config import load_config
+from mmcsplat.pipeline.fit import FirstFrameFit, load_fitted
+from mmcsplat.storage.session import SessionReader
+from mmcsplat.storage.tracks import TrackWriter
 
 FRAMES = 6
 STATIC = ("log_scales", "opacity_logits", "color_logits", "seg_logits")

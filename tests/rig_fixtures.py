@@ -9,8 +9,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from mmcsplat.camera import Camera
-from mmcsplat.datasets.calibration import write_calibration
+from mmcsplat.scene.camera import Camera, look_at
+from mmcsplat.storage.calibration import write_calibration
 
 #: Strong barrel distortion, so that skipping undistortion moves the markers by pixels.
 DISTORTION = (-0.3, 0.1, 0.0, 0.0, 0.0)
@@ -24,11 +24,7 @@ def ring_cameras(names: Sequence[str], width: int = 128, height: int = 96, disto
     for i, name in enumerate(names):
         angle = 2 * np.pi * i / len(names)
         centre = np.array([1.5 * np.cos(angle), 1.5 * np.sin(angle), 1.2])
-        forward = -centre / np.linalg.norm(centre)
-        right = np.cross(forward, [0.0, 0.0, 1.0])
-        right /= np.linalg.norm(right)
-        down = np.cross(forward, right)
-        R = np.stack([right, down, forward])
+        R = look_at(centre, np.zeros(3))
         K = [[0.8 * width, 0, (width - 1) / 2 + 1.5], [0, 0.8 * width, (height - 1) / 2 - 1.0], [0, 0, 1]]
         cameras.append(Camera(name, width, height, K, R, -R @ centre, distortion))
     return cameras

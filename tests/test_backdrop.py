@@ -5,16 +5,16 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import torch
-
 from fitting_scene import plate, subject, write_config, write_fitted_run, write_session
-from mmcsplat.backdrop import PLATE, camera_backdrop, parse_background
-from mmcsplat.config import load_config
-from mmcsplat.evaluate import evaluate
-from mmcsplat.fit import FirstFrameFit, load_view
-from mmcsplat.registry import default_registry
-from mmcsplat.store import SessionReader
-from mmcsplat.track import track_run
+
+from mmcsplat.configuration.config import load_config
+from mmcsplat.configuration.registry import default_registry
+from mmcsplat.pipeline.evaluate import evaluate
+from mmcsplat.pipeline.fit import FirstFrameFit
+from mmcsplat.pipeline.track import track_run
+from mmcsplat.storage.session import SessionReader
+from mmcsplat.training.backdrop import PLATE, camera_backdrop, parse_background
+from mmcsplat.training.views import load_view
 
 TRUTH = subject(count=60, scale=0.02)
 

@@ -8,12 +8,12 @@ import types
 
 import torch
 
-from mmcsplat.benchmark import BenchReport, SceneResult, Timing, build_scene, run_benchmark, to_json, to_markdown
 from mmcsplat import Registration, hookimpl
+from mmcsplat.bench.benchmark import BenchReport, SceneResult, Timing, build_scene, run_benchmark, to_json, to_markdown
 from mmcsplat.cli import main
-from mmcsplat.interfaces import Renderer
-from mmcsplat.registry import Registry
-from mmcsplat.rendering import RenderOutput
+from mmcsplat.configuration.registry import Registry
+from mmcsplat.plugin_api.interfaces import Renderer
+from mmcsplat.plugin_api.render_contract import RenderOutput
 
 
 def test_scene_a_is_drawn_in_readme_order():
@@ -113,7 +113,7 @@ def test_bench_command_writes_the_report(tmp_path, capsys, monkeypatch):
     plugin.mmcsplat_renderers = hookimpl(lambda: [Registration("stub", "bench_stub_plugin:StubRenderer")])
     monkeypatch.setitem(sys.modules, "bench_stub_plugin", plugin)
     registry = Registry(plugin_modules=[("bench-stub", "tests", plugin)])
-    monkeypatch.setattr("mmcsplat.commands.bench.default_registry", lambda: registry)
+    monkeypatch.setattr("mmcsplat.cli.bench.default_registry", lambda: registry)
     path = tmp_path / "docs" / "performance.md"
     assert main(["bench", "--scene", "A", "C", "--backend", "stub", "--repeats", "2", "--json", "--write", str(path)]) == 0
     data = json.loads(capsys.readouterr().out)

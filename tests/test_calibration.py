@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 import tomli_w
 
-from mmcsplat.camera import Camera
-from mmcsplat.datasets.calibration import read_calibration, write_calibration
+from mmcsplat.scene.camera import Camera
+from mmcsplat.storage.calibration import read_calibration, write_calibration
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 ANIPOSE = SHARED / "aniposelib_calibrations"

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from mmcsplat.config import ConfigError, apply_override, load_config, set_value
+from mmcsplat.configuration.config import ConfigError, apply_override, load_config, set_value
 
 
 def write(tmp_path, text: str):

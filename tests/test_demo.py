@@ -10,8 +10,8 @@ from io import StringIO
 import pytest
 
 from mmcsplat.cli import main
-from mmcsplat.config import load_config
-from mmcsplat.demo import TRACK_ITERATIONS, DemoPaths, tracking_choice
+from mmcsplat.configuration.config import load_config
+from mmcsplat.jobs.demo import TRACK_ITERATIONS, DemoPaths, tracking_choice
 
 TINY = ["--frames", "3", "--width", "64", "--height", "48", "--track-iterations", "2", "--no-progress",
         "--set", "fit.iterations=10"]  # fmt: skip

@@ -7,12 +7,13 @@ from __future__ import annotations
 
 import pytest
 import torch
-
 from fitting_scene import scene_context, write_session
-from mmcsplat.model import GAUSSIAN_PARAMETERS, GaussianModel, LearningRates
-from mmcsplat.registry import default_registry
-from mmcsplat.rendering import Gaussians, RenderCameras
-from mmcsplat.store import SessionReader
+
+from mmcsplat.configuration.registry import default_registry
+from mmcsplat.plugin_api.render_contract import Gaussians, RenderCameras
+from mmcsplat.scene.gaussian_table import GAUSSIAN_PARAMETERS
+from mmcsplat.storage.session import SessionReader
+from mmcsplat.training.model import GaussianModel, LearningRates
 
 SMALL, LARGE = 0.005, 0.05  # metres: below and above size_fraction (0.01) × the scene scale (1.44 m)
 IN_VIEW = [[-0.1, 0.0, 0.0], [0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [-0.1, 0.08, 0.0], [0.0, 0.08, 0.0], [0.1, 0.08, 0.0]]

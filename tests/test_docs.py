@@ -4,14 +4,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from mmcsplat.cli import COMMANDS, reference_markdown
+from mmcsplat.cli.main import COMMANDS, reference_markdown
 
 REPO = Path(__file__).resolve().parents[1]
 
 
 def test_cli_reference_is_generated_from_the_commands():
     page = (REPO / "docs" / "cli.md").read_text(encoding="utf-8")
-    assert page == reference_markdown(), "docs/cli.md is stale: regenerate it (see mmcsplat.cli.reference_markdown)"
+    assert page == reference_markdown(), "docs/cli.md is stale: regenerate it (see mmcsplat.cli.main.reference_markdown)"
 
 
 def test_readme_lists_every_command():

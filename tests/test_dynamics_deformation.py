@@ -12,16 +12,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-
 from fitting_scene import WIDTH, moved, ring_camera, subject, write_fitted_run, write_session
-from mmcsplat.evaluate import evaluate
+
+from mmcsplat.configuration.registry import default_registry
+from mmcsplat.pipeline.evaluate import evaluate
+from mmcsplat.pipeline.track import track_run
+from mmcsplat.plugin_api.render_contract import Gaussians, RenderCameras
 from mmcsplat.plugins.dynamics.deformation import CHECKPOINT, DeformationDynamics, DeformationSettings, _Run
 from mmcsplat.plugins.dynamics.deformation_field import DeformationField, sinusoidal_encoding
-from mmcsplat.registry import default_registry
-from mmcsplat.rendering import Gaussians, RenderCameras
-from mmcsplat.store import SessionWriter
-from mmcsplat.track import track_run
-from mmcsplat.tracks import TrackReader
+from mmcsplat.storage.session import SessionWriter
+from mmcsplat.storage.tracks import TrackReader
 
 FRAMES = 6
 
@@ -116,7 +116,7 @@ def test_killed_run_resumes_to_the_same_tracks(session, tmp_path, monkeypatch):
 STREAM_WIDTH, STREAM_HEIGHT, STREAM_CAMERAS = 640, 480, 4
 PEAK_RSS = """
 import resource, sys
-from mmcsplat.track import track_run
+from mmcsplat.pipeline.track import track_run
 track_run(sys.argv[1], dynamics="deformation", progress=False,
           overrides=["dynamics.iterations=60", "dynamics.cache_bytes=4000000", "dynamics.densifier.stop=0"])
 print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024)

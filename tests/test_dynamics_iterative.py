@@ -9,17 +9,17 @@ import json
 import numpy as np
 import pytest
 import torch
-
 from fitting_scene import moved, subject, write_fitted_run, write_ground_truth, write_session
+
+from mmcsplat.analysis.drift import detect_drift
 from mmcsplat.cli import main
-from mmcsplat.drift import detect_drift
-from mmcsplat.geometry import quat_multiply
-from mmcsplat.model import GaussianModel, LearningRates
+from mmcsplat.pipeline.track import TRACK_INFO, track_run
 from mmcsplat.plugins.dynamics.iterative import IterativeDynamics
 from mmcsplat.plugins.dynamics.rigidity import NeighbourGraph, RigidityPrior
-from mmcsplat.store import SessionReader
-from mmcsplat.track import TRACK_INFO, track_run
-from mmcsplat.tracks import TrackReader
+from mmcsplat.scene.quaternions import quat_multiply
+from mmcsplat.storage.session import SessionReader
+from mmcsplat.storage.tracks import TrackReader
+from mmcsplat.training.model import GaussianModel, LearningRates
 
 FRAMES = 3
 # 60 Gaussians of 2 cm seen at 96 × 72 px: sparse enough that each one can be followed.
@@ -51,7 +51,7 @@ def test_rigid_motion_costs_nothing_and_bending_does():
     prior.remember(means, quats)
 
     rotation = random_rotation(g)
-    from mmcsplat.geometry import quat_to_rotmat
+    from mmcsplat.scene.quaternions import quat_to_rotmat
 
     R = quat_to_rotmat(rotation[None])[0]
     moved_means = means @ R.T + torch.tensor([0.1, -0.2, 0.05], dtype=torch.float64)

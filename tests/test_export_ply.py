@@ -10,8 +10,8 @@ import torch
 from render_fixtures import add_tracks, expected_means, fitted_run
 
 from mmcsplat.cli import main
-from mmcsplat.fit import load_fitted
-from mmcsplat.ply import PROPERTIES, SH_C0
+from mmcsplat.outputs.ply import PROPERTIES, SH_C0
+from mmcsplat.pipeline.fit import load_fitted
 
 FRAMES = 3
 

@@ -6,13 +6,14 @@ import json
 
 import pytest
 import torch
-
 from fitting_scene import every_renderer, write_config, write_session
+
 from mmcsplat.cli import main
-from mmcsplat.config import load_config
-from mmcsplat.evaluate import evaluate
-from mmcsplat.fit import CHECKPOINT, FirstFrameFit, NonFiniteError
-from mmcsplat.store import SessionReader
+from mmcsplat.configuration.config import load_config
+from mmcsplat.pipeline.evaluate import evaluate
+from mmcsplat.pipeline.fit import CHECKPOINT, FirstFrameFit
+from mmcsplat.storage.session import SessionReader
+from mmcsplat.training.finite import NonFiniteError
 
 
 @pytest.fixture(scope="module")

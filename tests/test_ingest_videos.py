@@ -10,14 +10,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+import rig_fixtures as rig
 import tomli_w
 
-import rig_fixtures as rig
 from mmcsplat.cli import main
-from mmcsplat.datasets.calibration import read_calibration, write_calibration
 from mmcsplat.datasets.videos import VideoReader
-from mmcsplat.ingest import Undistorter, detect_format, ingest, parse_frames
-from mmcsplat.store import SessionReader
+from mmcsplat.pipeline.ingest import Undistorter, detect_format, ingest, parse_frames
+from mmcsplat.storage.calibration import read_calibration, write_calibration
+from mmcsplat.storage.session import SessionReader
 
 POSE2SIM = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "pose2sim_demo"
 
@@ -193,7 +193,7 @@ def test_cli_reports_bad_input_and_succeeds_on_good(tmp_path: Path, capsys: pyte
 def test_a_relative_source_is_recorded_as_an_absolute_path(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     import zarr
 
-    from mmcsplat.tracking import find_ground_truth
+    from mmcsplat.analysis.trajectory_error import find_ground_truth
 
     source = (tmp_path / "capture").resolve()
     rig.make_capture(source, frames=2)

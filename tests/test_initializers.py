@@ -9,16 +9,16 @@ import types
 import numpy as np
 import pytest
 import torch
+from fitting_scene import scene_context, single_precision, subject, write_session
 from scipy.spatial import cKDTree
 
-from fitting_scene import scene_context, single_precision, subject, write_session
-from mmcsplat.fit import load_view
-from mmcsplat.plugins.initializers import segmentation_start
 from mmcsplat import Registration, hookimpl
-from mmcsplat.interfaces import DepthSource
-from mmcsplat.registry import PluginError, Registry, UnknownPluginError, default_registry
-from mmcsplat.rendering import Gaussians, RenderCameras
-from mmcsplat.store import SessionReader
+from mmcsplat.configuration.registry import PluginError, Registry, UnknownPluginError, default_registry
+from mmcsplat.plugin_api.interfaces import DepthSource
+from mmcsplat.plugin_api.render_contract import Gaussians, RenderCameras
+from mmcsplat.plugins.initializers import segmentation_start
+from mmcsplat.storage.session import SessionReader
+from mmcsplat.training.views import load_view
 
 
 def initializer(name: str, registry: Registry | None = None, **params):

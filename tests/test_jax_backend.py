@@ -17,7 +17,7 @@ from mmcsplat.backends.jax_buckets import JaxRasterizer, bucket  # noqa: E402
 from mmcsplat.backends.jax_raster import CameraArrays, GaussianArrays, RasterSpec, rasterize_fixed  # noqa: E402
 from mmcsplat.backends.jax_renderer import JaxRenderer, to_jax, to_torch  # noqa: E402
 from mmcsplat.backends.torch_reference import rasterize as reference  # noqa: E402
-from mmcsplat.rendering import Gaussians, RenderCameras  # noqa: E402
+from mmcsplat.plugin_api.render_contract import Gaussians, RenderCameras  # noqa: E402
 
 WIDTH, HEIGHT = 40, 24  # 3 × 2 tiles, the last column partial
 FIELDS = ("means", "quats", "log_scales", "opacity_logits", "colors", "features")

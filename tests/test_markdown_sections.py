@@ -1,6 +1,6 @@
 """Generated sections replace only their own part of a markdown page."""
 
-from mmcsplat.markdown_sections import replace_section
+from mmcsplat.outputs.markdown_sections import replace_section
 
 
 def test_sections_are_replaced_in_place_and_others_kept(tmp_path):

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from mmcsplat import losses
-from mmcsplat.registry import default_registry
+from mmcsplat.configuration.registry import default_registry
+from mmcsplat.training import losses
 
 
 def test_psnr_known_values_and_mask():

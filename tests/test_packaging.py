@@ -5,7 +5,6 @@ from __future__ import annotations
 import shutil
 import subprocess
 import sys
-import textwrap
 import zipfile
 from pathlib import Path
 
@@ -15,12 +14,12 @@ import pluggy
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-SOURCES = ("pyproject.toml", "README.md", "framework", "plugins", "backends", "datasets", "studies")
+SOURCES = ("pyproject.toml", "README.md", "framework", "plugins", "backends", "datasets")
 
 CHECK = """
 import importlib, importlib.metadata, json, sys
-modules = ["mmcsplat", "mmcsplat.cli", "mmcsplat.commands", "mmcsplat.plugins", "mmcsplat.backends",
-           "mmcsplat.datasets", "mmcsplat.datasets.synthetic", "mmcsplat.plugins.registrations",
+modules = ["mmcsplat", "mmcsplat.cli", "mmcsplat.plugin_api", "mmcsplat.pipeline", "mmcsplat.plugins", "mmcsplat.backends",
+           "mmcsplat.datasets", "mmcsplat.synthetic", "mmcsplat.plugins.registrations",
            "mmcsplat.backends.registrations", "mmcsplat.datasets.registrations"]
 import mmcsplat.plugins.registrations, mmcsplat.backends.registrations, mmcsplat.datasets.registrations
 # find_spec locates a module (importing its parents) without running it: enough to prove where it resolves.

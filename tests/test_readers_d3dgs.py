@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from mmcsplat.configuration.registry import default_registry
 from mmcsplat.datasets.d3dgs import D3DGSReader
-from mmcsplat.registry import default_registry
 
 W, H, T = 16, 12, 3
 TRAIN_IDS, TEST_IDS = (0, 1, 3), (2,)
@@ -112,8 +112,8 @@ def test_units_and_sparse_presence(tmp_path):
 
 
 def test_calibration_replaces_cameras_by_name(tmp_path):
-    from mmcsplat.camera import Camera
-    from mmcsplat.datasets.calibration import write_calibration
+    from mmcsplat.scene.camera import Camera
+    from mmcsplat.storage.calibration import write_calibration
 
     root = make_d3dgs(tmp_path / "src")
     names = ["cam_00", "cam_01", "cam_02", "cam_03"]
@@ -161,7 +161,7 @@ def test_wrong_image_size_names_the_file(tmp_path):
 
 
 def test_ingest_auto_detects_and_stores_everything(tmp_path):
-    from mmcsplat.ingest import ingest
+    from mmcsplat.pipeline.ingest import ingest
 
     root = make_d3dgs(tmp_path / "src")
     session = ingest(root, tmp_path / "session.zarr", progress=False)

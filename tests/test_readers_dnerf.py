@@ -9,8 +9,9 @@ import cv2
 import numpy as np
 import pytest
 
+from mmcsplat.configuration.registry import default_registry
 from mmcsplat.datasets.dnerf import DNeRFReader
-from mmcsplat.registry import default_registry
+from mmcsplat.scene.camera import look_at
 
 W, H, ANGLE = 16, 12, 0.9
 #: (split, time) of each frame; every frame has its own pose except where a test says otherwise.
@@ -21,12 +22,10 @@ TIMES = [0.0, 1 / 3, 0.5, 2 / 3, 1.0]
 def _c2w_gl(angle: float) -> np.ndarray:
     """An OpenGL camera-to-world pose on a circle of radius 4 at height 1, looking at the origin."""
     centre = np.array([4 * np.cos(angle), 4 * np.sin(angle), 1.0])
-    back = centre / np.linalg.norm(centre)  # the camera looks along −z, so +z points away from the origin
-    right = np.cross([0.0, 0.0, 1.0], back)
-    right /= np.linalg.norm(right)
-    up = np.cross(back, right)
+    # OpenCV's right, down, forward rows are OpenGL's x, −y, −z camera axes.
+    right, down, forward = look_at(centre, np.zeros(3))
     c2w = np.eye(4)
-    c2w[:3, :3] = np.stack([right, up, back], axis=1)
+    c2w[:3, :3] = np.stack([right, -down, -forward], axis=1)
     c2w[:3, 3] = centre
     return c2w
 
@@ -160,8 +159,8 @@ def test_missing_image_and_calibration_are_refused_clearly(tmp_path):
 
 
 def test_ingest_stores_the_sparse_monocular_capture(tmp_path):
-    from mmcsplat.ingest import ingest
-    from mmcsplat.store import AbsentFrameError
+    from mmcsplat.pipeline.ingest import ingest
+    from mmcsplat.storage.session import AbsentFrameError
 
     root = make_dnerf(tmp_path / "src")
     session = ingest(root, tmp_path / "session.zarr", progress=False)

@@ -7,12 +7,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-
 import rig_fixtures as rig
-from mmcsplat.datasets.calibration import write_calibration
+
 from mmcsplat.datasets.images import ImageSequenceReader
 from mmcsplat.datasets.rig import name_key, natural_key
-from mmcsplat.ingest import detect_format, ingest
+from mmcsplat.pipeline.ingest import detect_format, ingest
+from mmcsplat.storage.calibration import write_calibration
 
 
 def _capture(folder: Path, names=("c1", "c2", "c3"), frames: int = 3) -> list:

@@ -13,8 +13,7 @@ from pathlib import Path
 import pytest
 
 from mmcsplat import Registration, hookimpl
-from mmcsplat.registry import (
-    KINDS,
+from mmcsplat.configuration.registry import (
     BrokenPluginError,
     DuplicatePluginError,
     PluginUnavailableError,
@@ -22,6 +21,7 @@ from mmcsplat.registry import (
     UnknownPluginError,
     default_registry,
 )
+from mmcsplat.plugin_api.kinds import KIND_NAMES
 
 THIRDPARTY = Path(__file__).parent / "thirdparty"
 
@@ -50,7 +50,7 @@ def test_listing_needs_no_heavy_imports():
     result = run_python(
         """
         import sys
-        from mmcsplat.registry import default_registry
+        from mmcsplat.configuration.registry import default_registry
         default_registry()
         heavy = [m for m in ("torch", "jax", "cv2", "zarr", "numba") if m in sys.modules]
         print(heavy)
@@ -72,7 +72,7 @@ def test_cli_lists_every_kind_with_availability():
         assert cuda["reason"] and ("CUDA" in cuda["reason"] or "gsplat" in cuda["reason"])
     text = run_cli("plugins")
     assert text.returncode == 0
-    for kind in KINDS:
+    for kind in KIND_NAMES:
         assert f"{kind}:" in text.stdout
 
 
@@ -82,9 +82,9 @@ def test_third_party_initializer_selected_by_configuration(tmp_path):
     result = run_python(
         f"""
         import numpy as np, torch
-        from mmcsplat.config import load_config
-        from mmcsplat.interfaces import SceneContext
-        from mmcsplat.registry import default_registry
+        from mmcsplat.configuration.config import load_config
+        from mmcsplat.plugin_api.interfaces import SceneContext
+        from mmcsplat.configuration.registry import default_registry
         entry = default_registry().get("initializer", "example-grid")
         print(entry.distribution)
         (choice,) = load_config({str(config)!r}).plugins("initializer")
@@ -118,7 +118,7 @@ def test_broken_and_clashing_plugins_are_reported_without_breaking_others():
 
     clash = run_python(
         """
-        from mmcsplat.registry import default_registry
+        from mmcsplat.configuration.registry import default_registry
         default_registry().get("metric", "psnr")
         """,
         THIRDPARTY / "broken",

@@ -16,10 +16,10 @@ from fitting_scene import write_fitted_run, write_ground_truth, write_session
 from render_fixtures import add_tracks
 
 from mmcsplat.cli import main
-from mmcsplat.registry import default_registry
-from mmcsplat.study import expand, load_study
-from mmcsplat.study_cells import COMPLETE, CellOutcome
-from mmcsplat.study_runner import write_results
+from mmcsplat.configuration.registry import default_registry
+from mmcsplat.studies.cells import COMPLETE, CellOutcome
+from mmcsplat.studies.runner import write_results
+from mmcsplat.studies.spec import expand, load_study
 
 FRAMES = 4
 CHROMIUM = Path("/usr/bin/chromium")

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 import zarr
 
-from mmcsplat.camera import Camera
 from mmcsplat.cli import main
-from mmcsplat.registry import default_registry
-from mmcsplat.store import SessionReader, SessionWriter
+from mmcsplat.configuration.registry import default_registry
+from mmcsplat.scene.camera import Camera
+from mmcsplat.storage.session import SessionReader, SessionWriter
 
 onnx = pytest.importorskip("onnx")
 
@@ -264,6 +264,7 @@ def test_precomputed_uses_the_session_masks(tmp_path: Path) -> None:
 
 def test_segmenting_again_starts_from_the_ingested_masks(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     import rig_fixtures as rig
+
     from mmcsplat.plugins.segmenters.postprocess import dilate, largest_component
 
     source, path = tmp_path / "capture", tmp_path / "s.zarr"

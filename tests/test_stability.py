@@ -7,13 +7,13 @@ from __future__ import annotations
 import json
 
 import pytest
-
 from fitting_scene import write_session
+
 from mmcsplat.cli import main
-from mmcsplat.stability import AGREEMENT_THRESHOLD, BLOWUP_FACTOR, FLOATER_THRESHOLD, GAP_DB, classify, run_stability
-from mmcsplat.store import SessionReader
-from mmcsplat.study import StudyError, load_study
-from mmcsplat.study_cells import CellOutcome
+from mmcsplat.storage.session import SessionReader
+from mmcsplat.studies.cells import CellOutcome
+from mmcsplat.studies.spec import StudyError, load_study
+from mmcsplat.studies.stability import AGREEMENT_THRESHOLD, BLOWUP_FACTOR, FLOATER_THRESHOLD, GAP_DB, classify, run_stability
 
 FIT = """
 [fit]

@@ -8,8 +8,8 @@ import fsspec
 import numpy as np
 import pytest
 
-from mmcsplat.camera import Camera
-from mmcsplat.store import (
+from mmcsplat.scene.camera import Camera
+from mmcsplat.storage.session import (
     AbsentFrameError,
     FrameCache,
     IncompleteSessionError,
@@ -170,11 +170,11 @@ def test_frame_cache_is_bounded_in_bytes_and_evicts_least_recently_used():
 
 
 def test_frame_cache_returns_freed_memory_after_every_trim_bytes_stored(monkeypatch):
-    import mmcsplat.store as store
+    import mmcsplat.storage.session.cache as cache
 
     released = []
-    monkeypatch.setattr(store, "TRIM_BYTES", 250)
-    monkeypatch.setattr(store, "release_freed_memory", lambda: released.append(True) or True)
+    monkeypatch.setattr(cache, "TRIM_BYTES", 250)
+    monkeypatch.setattr(cache, "release_freed_memory", lambda: released.append(True) or True)
     cache = FrameCache(300)
     for index in range(6):  # 100 bytes at a time, evicting as it goes: a return after the 3rd and the 6th
         cache.put(index, SessionFrame(rgb=np.zeros(100, dtype=np.uint8)))
@@ -186,10 +186,10 @@ def test_frame_cache_returns_freed_memory_after_every_trim_bytes_stored(monkeypa
 def test_release_freed_memory_finds_malloc_trim_on_glibc():
     import platform
 
-    from mmcsplat.memory import _malloc_trim, release_freed_memory
+    from mmcsplat.storage.memory import malloc_trim_function, release_freed_memory
 
     if platform.libc_ver()[0] == "glibc":
-        assert _malloc_trim() is not None
+        assert malloc_trim_function() is not None
     assert isinstance(release_freed_memory(), bool)
 
 

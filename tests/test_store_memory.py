@@ -47,8 +47,8 @@ def synthetic_frame(t: int, camera: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def write(path: str, num_frames: int) -> dict:
-    from mmcsplat.camera import Camera
-    from mmcsplat.store import SessionWriter
+    from mmcsplat.scene.camera import Camera
+    from mmcsplat.storage.session import SessionWriter
 
     K = [[300.0, 0, WIDTH / 2 - 0.5], [0, 300.0, HEIGHT / 2 - 0.5], [0, 0, 1]]
     cameras = [Camera(name, WIDTH, HEIGHT, K, np.eye(3), [0, 0, 2.0]) for name in CAMERAS]
@@ -63,7 +63,7 @@ def write(path: str, num_frames: int) -> dict:
 
 
 def read(path: str) -> dict:
-    from mmcsplat.store import SessionReader
+    from mmcsplat.storage.session import SessionReader
 
     reader = SessionReader(path, cache_bytes=CACHE_BYTES)
     decoded = 0

@@ -8,17 +8,17 @@ import sys
 
 import attrs
 import pytest
-
 from fitting_scene import write_config, write_ground_truth, write_session
+
 from mmcsplat.cli import main
-from mmcsplat.fit import CHECKPOINT, FirstFrameFit
-from mmcsplat.registry import default_registry
-from mmcsplat.store import SessionReader
-from mmcsplat.study import StudyError, cell_key, expand, load_study
-from mmcsplat.study_cells import RESULT_FILE
-from mmcsplat.study_results import derive_columns, pareto_front
-from mmcsplat.study_runner import publish, run_study
-from mmcsplat.study_sessions import prepare_session
+from mmcsplat.configuration.registry import default_registry
+from mmcsplat.pipeline.fit import CHECKPOINT, FirstFrameFit
+from mmcsplat.storage.session import SessionReader
+from mmcsplat.studies.cells import RESULT_FILE
+from mmcsplat.studies.results import derive_columns, pareto_front
+from mmcsplat.studies.runner import publish, run_study
+from mmcsplat.studies.sessions import prepare_session
+from mmcsplat.studies.spec import StudyError, cell_key, expand, load_study
 
 
 @pytest.fixture(scope="module")

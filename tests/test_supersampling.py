@@ -7,17 +7,18 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-
 from fitting_scene import every_renderer, ring_camera, subject, write_config, write_fitted_run, write_session
+
 from mmcsplat.backends.torch_reference import TorchReferenceRenderer
-from mmcsplat.config import load_config
-from mmcsplat.evaluate import evaluate
-from mmcsplat.fit import FirstFrameFit, FitSettings
-from mmcsplat.registry import default_registry
-from mmcsplat.rendering import Gaussians, RenderCameras
-from mmcsplat.store import SessionReader
-from mmcsplat.supersampling import SupersampledRenderer, subpixel_cameras, supersampled
-from mmcsplat.track import track_run
+from mmcsplat.configuration.config import load_config
+from mmcsplat.configuration.registry import default_registry
+from mmcsplat.pipeline.evaluate import evaluate
+from mmcsplat.pipeline.fit import FirstFrameFit
+from mmcsplat.pipeline.track import track_run
+from mmcsplat.plugin_api.render_contract import Gaussians, RenderCameras
+from mmcsplat.storage.session import SessionReader
+from mmcsplat.training.settings import FitSettings
+from mmcsplat.training.supersampling import SupersampledRenderer, subpixel_cameras, supersampled
 
 TRUTH = subject(count=60, scale=0.01)
 

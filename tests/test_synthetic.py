@@ -12,11 +12,11 @@ import pytest
 import zarr
 
 from mmcsplat.cli import main
-from mmcsplat.datasets.calibration import read_calibration
-from mmcsplat.datasets.synthetic import SynthConfig, SynthGroundTruth, synthesize
-from mmcsplat.datasets.synthetic.body import BodyPose, forward_kinematics, infant_parts, surface_points
-from mmcsplat.datasets.synthetic.motion import Motion
-from mmcsplat.datasets.synthetic.scene import AdultLeg, ViewRenderer, cast_body, paint_body
+from mmcsplat.storage.calibration import read_calibration
+from mmcsplat.synthetic import SynthConfig, SynthGroundTruth, synthesize
+from mmcsplat.synthetic.body import BodyPose, forward_kinematics, infant_parts, surface_points
+from mmcsplat.synthetic.motion import Motion
+from mmcsplat.synthetic.scene import AdultLeg, ViewRenderer, cast_body, paint_body
 
 TINY = SynthConfig(frames=4, cameras=3, width=64, height=48, seed=3)
 
@@ -301,7 +301,7 @@ def test_cli(tmp_path, capsys):
 
 def test_ingested_capture_keeps_masks_aligned_with_the_surface(capture, tmp_path):
     """Through the videos reader and undistortion at ingest, the masks stay on the infant."""
-    from mmcsplat.ingest import ingest
+    from mmcsplat.pipeline.ingest import ingest
 
     session = ingest(capture.out_dir, tmp_path / "session.zarr", progress=False)
     assert session.has("mask") and session.has("depth")

@@ -20,7 +20,7 @@ import torch
 
 from mmcsplat.backends import cpu_projection, cpu_raster, torch_cpu
 from mmcsplat.backends.torch_reference import rasterize as reference_rasterize
-from mmcsplat.rendering import NEAR_PLANE, Gaussians, RenderCameras
+from mmcsplat.plugin_api.render_contract import NEAR_PLANE, Gaussians, RenderCameras
 
 FIELDS = ("means", "quats", "log_scales", "opacity_logits", "colors", "features")
 

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 import torch
 import zarr
-
 from fitting_scene import ring_camera
-from mmcsplat.drift import off_subject
-from mmcsplat.tracking import (
+
+from mmcsplat.analysis.drift import off_subject
+from mmcsplat.analysis.trajectory_error import (
     GROUND_TRUTH_DIR,
     NothingFollowedError,
     capture_frames,
@@ -22,7 +22,7 @@ from mmcsplat.tracking import (
     read_surface_points,
     tracking_accuracy,
 )
-from mmcsplat.tracks import TrackReader, TrackWriter
+from mmcsplat.storage.tracks import TrackReader, TrackWriter
 
 T, P = 4, 30
 

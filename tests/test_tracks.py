@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import torch
 
-from mmcsplat.model import GAUSSIAN_PARAMETERS
-from mmcsplat.rendering import Gaussians
-from mmcsplat.tracks import TRACKS_DIR, TrackReader, TrackWriter
+from mmcsplat.plugin_api.render_contract import Gaussians
+from mmcsplat.scene.gaussian_table import GAUSSIAN_PARAMETERS
+from mmcsplat.storage.tracks import TRACKS_DIR, TrackReader, TrackWriter
 
 N, T = 7, 4
 

@@ -1,14 +1,15 @@
-"""Pixel rays and the mask agreement of :mod:`mmcsplat.visual_hull`, on a sphere's exact silhouettes
+"""Pixel rays and the mask agreement of :mod:`mmcsplat.analysis.visual_hull`, on a sphere's exact silhouettes
 (computed here, no rendering)."""
 
 from __future__ import annotations
 
 import attrs
 import numpy as np
-
 from fitting_scene import ring_camera
-from mmcsplat.study_sessions import perturbed
-from mmcsplat.visual_hull import mask_agreement, pixel_rays
+
+from mmcsplat.analysis.visual_hull import mask_agreement
+from mmcsplat.scene.visual_hull import pixel_rays
+from mmcsplat.studies.sessions import perturbed
 
 RADIUS = 0.1
 
@@ -53,7 +54,7 @@ def test_a_camera_turned_away_disagrees_with_the_others_and_only_it():
 
 
 def test_eroded_drops_the_edge_band_and_keeps_the_image_border():
-    from mmcsplat.visual_hull import eroded
+    from mmcsplat.analysis.visual_hull import eroded
 
     mask = np.zeros((8, 10), bool)
     mask[2:7, 0:6] = True  # touches the image's left border

@@ -23,10 +23,9 @@ import attrs
 import pytest
 import torch
 
-from ..benchmark import look_at
-from ..interfaces import Renderer
-from ..registry import default_registry
-from ..rendering import (
+from mmcsplat.configuration.registry import default_registry
+from mmcsplat.plugin_api.interfaces import Renderer
+from mmcsplat.plugin_api.render_contract import (
     ALPHA_MAX,
     ALPHA_MIN,
     LOW_PASS,
@@ -36,6 +35,7 @@ from ..rendering import (
     RenderCameras,
     RenderInputError,
     RenderOutput,
+    viewmat_looking_at,
 )
 
 REFERENCE = "torch-reference"
@@ -86,7 +86,7 @@ def ring_cameras(width: int, height: int, positions: Sequence[int]) -> RenderCam
     fx = 2.0 * width
     K = torch.tensor([[fx, 0.0, 0.52 * width], [0.0, 1.05 * fx, 0.485 * height], [0.0, 0.0, 1.0]])
     angles = [math.radians(45 * k + 10) for k in positions]
-    viewmats = torch.stack([look_at((1.5 * math.cos(a), 1.5 * math.sin(a), 1.0)) for a in angles])
+    viewmats = torch.stack([viewmat_looking_at((1.5 * math.cos(a), 1.5 * math.sin(a), 1.0)) for a in angles])
     return RenderCameras(K.expand(len(angles), 3, 3).clone(), viewmats, width, height)
 
 

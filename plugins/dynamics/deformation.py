@@ -24,15 +24,16 @@ import attrs
 import numpy as np
 import torch
 
-from mmcsplat import losses
-from mmcsplat.atomic import atomic_path
-from mmcsplat.fit import FirstFrameFit, load_view
-from mmcsplat.interfaces import Densifier, Dynamics
-from mmcsplat.model import GaussianModel, gaussians_from_params
-from mmcsplat.rendering import RenderCameras
-from mmcsplat.store import SessionReader
-from mmcsplat.track import TrackingContext
-from mmcsplat.tracks import TrackWriter
+from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.plugin_api.interfaces import Densifier, Dynamics, TrackingContext
+from mmcsplat.plugin_api.render_contract import RenderCameras, gaussians_from_params
+from mmcsplat.storage.session import SessionReader
+from mmcsplat.storage.tracks import TrackWriter
+from mmcsplat.training.checkpoint import resume_checkpoint, save_checkpoint
+from mmcsplat.training.finite import check_finite
+from mmcsplat.training.model import GaussianModel
+from mmcsplat.training.objective import view_loss, view_psnr
+from mmcsplat.training.views import load_view, require_masks
 
 from .deformation_field import DeformationField
 
@@ -71,7 +72,7 @@ class DeformationSettings:
 
     def __attrs_post_init__(self) -> None:
         if self.iterations < 1 or self.depth < 1 or self.width < 1 or self.frequencies < 0:
-            raise ValueError(f"deformation: iterations, depth and width must be ≥ 1 and frequencies ≥ 0, got {self}")
+            raise InputError(f"deformation: iterations, depth and width must be ≥ 1 and frequencies ≥ 0, got {self}")
 
     def noise_std(self, step: int, frames: int) -> float:
         """Standard deviation of the time noise at ``step``, in normalised time (``frames`` frames span 1)."""
@@ -109,7 +110,7 @@ class DeformationDynamics(Dynamics):
         known = {field.name for field in attrs.fields(DeformationSettings)}
         unknown = sorted(set(params) - known)
         if unknown:
-            raise ValueError(f"deformation: unknown parameter(s) {unknown}; known: {sorted(known)}")
+            raise InputError(f"deformation: unknown parameter(s) {unknown}; known: {sorted(known)}")
         self.settings = DeformationSettings(**params)
 
     def track(self, context: TrackingContext, out: Path) -> dict[str, Any]:
@@ -166,7 +167,6 @@ class _Run:
         from tqdm import tqdm
 
         settings, context, model = self.settings, self.context, self.model
-        fit = context.settings
         checkpoint = self.out / CHECKPOINT
         if checkpoint.exists() and not context.overwrite:
             self._resume(checkpoint)
@@ -177,27 +177,22 @@ class _Run:
         for step in bar:
             k, index = self.pairs[int(torch.randint(len(self.pairs), (1,), generator=self.generator))].tolist()
             view = load_view(self.session, context.frames[k], context.cameras[index], index, context.initializers, context.backdrops[index])
-            if fit.lambda_seg > 0 and view.seg_target is None:
-                raise ValueError(f"fit.lambda_seg = {fit.lambda_seg} needs subject masks, but session {self.session.url!r} has none for "
-                                 f"camera {view.camera.name!r} at frame {context.frames[k]}: run `mmcsplat segment` or set fit.lambda_seg=0")
+            require_masks([view], context.settings, self.session, context.frames[k])
             noise = float(torch.randn((), generator=self.generator)) * settings.noise_std(step, frames)
             render = context.renderer.render(gaussians_from_params(self.deformed(k, noise)), self.cameras.select([index]))
-            image = model.correct_color(view.composite(render), index)
-            loss = fit.lambda_image * losses.photometric_loss(image, view.image, fit.ssim_weight)
-            if fit.lambda_seg > 0:
-                loss = loss + fit.lambda_seg * losses.photometric_loss(render.features[0, ..., :1], view.seg_target, fit.ssim_weight)
+            loss, image = view_loss(model, view, render, context.settings)
             self.densifier.step_pre_backward(model, self.densify_state, step, render)
             loss.backward()
-            FirstFrameFit._check_finite(loss, model, step, "gradient")
+            check_finite(loss, model, step, "gradient")
             for group in self.optimizer.param_groups:
                 group["lr"] = settings.mlp_lr(step)
             self.optimizer.step()
             self.optimizer.zero_grad(set_to_none=True)
             model.step()
             self.densifier.step_post_backward(model, self.densify_state, step, render)
-            FirstFrameFit._check_finite(loss, model, step, "parameter")
+            check_finite(loss, model, step, "parameter")
             if step % 10 == 0 or step >= settings.iterations - 100:
-                psnr = float(losses.psnr(image.detach().clamp(0, 1), view.image))
+                psnr = view_psnr(image, view)
                 self.recent = [*self.recent[-99:], (loss.item(), psnr)]
                 bar.set_postfix(loss=f"{loss.item():.4f}", psnr=f"{psnr:.2f}", n=model.count)
             self.step = step + 1
@@ -213,18 +208,14 @@ class _Run:
                 "cameras": [c.name for c in self.context.cameras]}
 
     def _checkpoint(self, path: Path) -> None:
-        payload = {
-            "key": self._key(), "step": self.step, "elapsed": self.elapsed, "recent": self.recent,
+        save_checkpoint(path, self._key(), {
+            "step": self.step, "elapsed": self.elapsed, "recent": self.recent,
             "model": self.model.state_dict(), "field": self.field.state_dict(), "optimizer": self.optimizer.state_dict(),
             "generator": self.generator.get_state(), "densifier": self.densify_state,
-        }
-        with atomic_path(path) as temporary:
-            torch.save(payload, temporary)
+        })
 
     def _resume(self, path: Path) -> None:
-        payload = torch.load(path, weights_only=False)
-        if payload["key"] != self._key():
-            raise ValueError(f"{path} was written with other deformation settings or frames; use --overwrite to start afresh")
+        payload = resume_checkpoint(path, self._key(), "other deformation settings or frames", "use --overwrite to start afresh")
         self.model.load_state_dict(payload["model"])
         self.field.load_state_dict(payload["field"])
         self.optimizer.load_state_dict(payload["optimizer"])

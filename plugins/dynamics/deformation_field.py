@@ -7,6 +7,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from mmcsplat.plugin_api.errors import InputError
+
 
 def sinusoidal_encoding(x: torch.Tensor, frequencies: int) -> torch.Tensor:
     """[..., D] → [..., D·(1 + 2L)]: ``x`` followed by sin(2ᵏ·x) and cos(2ᵏ·x) for k < L, the NeRF
@@ -25,7 +27,7 @@ class DeformationField(nn.Module):
     def __init__(self, depth: int = 4, width: int = 128, frequencies: int = 10, skip: bool = True) -> None:
         super().__init__()
         if depth < 1 or width < 1:
-            raise ValueError(f"deformation field: depth and width must be positive, got {depth} × {width}")
+            raise InputError(f"deformation field: depth and width must be positive, got {depth} × {width}")
         self.frequencies = frequencies
         inputs = 4 * (1 + 2 * frequencies)
         self.skip_at = depth // 2 if skip and depth > 1 else None

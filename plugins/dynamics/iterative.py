@@ -19,13 +19,15 @@ import attrs
 import numpy as np
 import torch
 
-from mmcsplat import losses
-from mmcsplat.fit import CameraSchedule, FirstFrameFit, NonFiniteError, TrainingView
-from mmcsplat.interfaces import Dynamics
-from mmcsplat.model import GAUSSIAN_PARAMETERS, GaussianModel
-from mmcsplat.rendering import RenderCameras
-from mmcsplat.track import TrackingContext
-from mmcsplat.tracks import TrackWriter
+from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.plugin_api.interfaces import Dynamics, TrackingContext, TrainingView
+from mmcsplat.plugin_api.render_contract import RenderCameras
+from mmcsplat.scene.gaussian_table import GAUSSIAN_PARAMETERS
+from mmcsplat.storage.tracks import TrackWriter
+from mmcsplat.training.finite import NonFiniteError, check_finite
+from mmcsplat.training.model import GaussianModel
+from mmcsplat.training.objective import view_loss, view_psnr
+from mmcsplat.training.schedule import CameraSchedule
 
 from .rigidity import NeighbourGraph, RigidityPrior
 
@@ -75,7 +77,7 @@ class IterativeDynamics(Dynamics):
         seed: int = 0,
     ) -> None:
         if iterations < 0 or neighbours < 1 or lambda_w < 0:
-            raise ValueError(f"iterative: iterations ({iterations}) must be ≥ 0, neighbours ({neighbours}) ≥ 1, lambda_w ({lambda_w}) ≥ 0")
+            raise InputError(f"iterative: iterations ({iterations}) must be ≥ 0, neighbours ({neighbours}) ≥ 1, lambda_w ({lambda_w}) ≥ 0")
         self.iterations = iterations
         self.neighbours = neighbours
         self.lambda_w = lambda_w
@@ -170,8 +172,6 @@ class IterativeDynamics(Dynamics):
         views = context.views(t)
         if not views:
             return FrameResult(t, None, None, 0, time.perf_counter() - began, time.process_time() - cpu)
-        settings = context.settings
-        lambda_seg = settings.lambda_seg if self.lambda_seg is None else self.lambda_seg
         schedule = CameraSchedule(len(views), generator)
         lambda_rigid, lambda_rot, lambda_iso = self.weights
         recent: dict[int, tuple[float, float]] = {}
@@ -179,21 +179,18 @@ class IterativeDynamics(Dynamics):
         for step in bar:
             view: TrainingView = views[schedule.next()]
             render = context.renderer.render(model.gaussians(), cameras.select([view.index]))
-            image = model.correct_color(view.composite(render), view.index)
-            loss = settings.lambda_image * losses.photometric_loss(image, view.image, settings.ssim_weight)
-            if lambda_seg > 0:
-                loss = loss + lambda_seg * losses.photometric_loss(render.features[0, ..., :1], view.seg_target, settings.ssim_weight)
+            loss, image = view_loss(model, view, render, context.settings, self.lambda_seg)
             rigid, rot, iso = prior.losses(model.params["means"], model.params["quats"])
             loss = loss + lambda_rigid * rigid + lambda_rot * rot + lambda_iso * iso
             loss.backward()
             try:
-                FirstFrameFit._check_finite(loss, model, step, "gradient")
+                check_finite(loss, model, step, "gradient")
                 model.step()
-                FirstFrameFit._check_finite(loss, model, step, "parameter")
+                check_finite(loss, model, step, "parameter")
             except NonFiniteError as error:
                 raise NonFiniteError(f"frame {t}: {error}") from error
             if step >= self.iterations - len(views) or step % 10 == 0:
-                psnr = float(losses.psnr(image.detach().clamp(0, 1), view.image))
+                psnr = view_psnr(image, view)
                 recent[view.index] = (float(loss.detach()), psnr)
                 bar.set_postfix(loss=f"{recent[view.index][0]:.4f}", psnr=f"{psnr:.2f}")
         bar.close()

@@ -11,7 +11,8 @@ import attrs
 import torch
 from scipy.spatial import cKDTree
 
-from mmcsplat.geometry import quat_conjugate, quat_multiply, quat_to_rotmat
+from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.scene.quaternions import quat_conjugate, quat_multiply, quat_to_rotmat
 
 EPSILON = 1e-20
 
@@ -31,7 +32,7 @@ class NeighbourGraph:
         """The ``k`` nearest foreground neighbours of each ``foreground`` [N] bool Gaussian at ``means``."""
         indices = torch.nonzero(foreground).flatten()
         if len(indices) < 2:
-            raise ValueError(f"rigidity needs at least two foreground Gaussians (segmentation colour > threshold), found {len(indices)}")
+            raise InputError(f"rigidity needs at least two foreground Gaussians (segmentation colour > threshold), found {len(indices)}")
         k = min(k, len(indices) - 1)
         points = means.detach()[indices].double().numpy()
         distances, neighbours = cKDTree(points).query(points, k=k + 1)  # the first is the point itself

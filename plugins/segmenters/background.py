@@ -9,9 +9,9 @@ from collections.abc import Iterator
 import cv2
 import numpy as np
 
-from mmcsplat.store import SessionReader
-
-from .postprocess import BRIDGE_PX, PostProcessedSegmenter, open_close, present_frames
+from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.plugins.segmenters.postprocess import BRIDGE_PX, PostProcessedSegmenter, open_close, present_frames
+from mmcsplat.storage.session import SessionReader
 
 #: Each method's default threshold: MOG2's squared Mahalanobis distance, KNN's squared distance, and
 #: the median method's largest per-channel difference in grey levels.
@@ -54,19 +54,19 @@ class BackgroundSegmenter(PostProcessedSegmenter):
     ) -> None:
         super().__init__(largest_component, dilation, bridge)
         if method not in DEFAULT_THRESHOLDS:
-            raise ValueError(f"background method must be one of {', '.join(DEFAULT_THRESHOLDS)}, got {method!r}")
+            raise InputError(f"background method must be one of {', '.join(DEFAULT_THRESHOLDS)}, got {method!r}")
         if not 0 < background_ratio <= 1:
-            raise ValueError(f"background_ratio must be in (0, 1], got {background_ratio}")
+            raise InputError(f"background_ratio must be in (0, 1], got {background_ratio}")
         if learn_frames is not None and (len(learn_frames) != 2 or not 0 <= learn_frames[0] < learn_frames[1]):
-            raise ValueError(f"learn_frames must be [start, stop) frame indices with 0 ≤ start < stop, got {learn_frames}")
+            raise InputError(f"learn_frames must be [start, stop) frame indices with 0 ≤ start < stop, got {learn_frames}")
         if passes < 1:
-            raise ValueError(f"passes must be ≥ 1, got {passes}")
+            raise InputError(f"passes must be ≥ 1, got {passes}")
         if samples < 2:
-            raise ValueError(f"samples must be ≥ 2 frames, got {samples}")
+            raise InputError(f"samples must be ≥ 2 frames, got {samples}")
         if history is not None and history < 1:
-            raise ValueError(f"history must be ≥ 1 frame, got {history}")
+            raise InputError(f"history must be ≥ 1 frame, got {history}")
         if open_radius < 0 or close_radius < 0:
-            raise ValueError(f"open_radius and close_radius must be ≥ 0 pixels, got {open_radius} and {close_radius}")
+            raise InputError(f"open_radius and close_radius must be ≥ 0 pixels, got {open_radius} and {close_radius}")
         self.method = method
         self.threshold = float(DEFAULT_THRESHOLDS[method] if threshold is None else threshold)
         self.background_ratio = float(background_ratio)
@@ -111,7 +111,7 @@ class BackgroundSegmenter(PostProcessedSegmenter):
         learn = frames if self.learn_frames is None else frames[(frames >= self.learn_frames[0]) & (frames < self.learn_frames[1])]
         if len(learn) < 2:
             where = "" if self.learn_frames is None else f" in learn_frames {list(self.learn_frames)}"
-            raise ValueError(
+            raise InputError(
                 f"{session.url}: camera {camera!r} has {len(learn)} frame(s){where}; background subtraction learns from at least 2"
             )
         method = self._median if self.method == "median" else self._adaptive

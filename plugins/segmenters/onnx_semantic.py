@@ -19,9 +19,9 @@ import attrs
 import cv2
 import numpy as np
 
-from mmcsplat.store import SessionReader
-
-from .postprocess import BRIDGE_PX, PostProcessedSegmenter, present_frames
+from mmcsplat.plugin_api.errors import InputError, MissingFileError
+from mmcsplat.plugins.segmenters.postprocess import BRIDGE_PX, PostProcessedSegmenter, present_frames
+from mmcsplat.storage.session import SessionReader
 
 #: The reference study's table: toys and playthings count as the person (the infant holding them).
 DEFAULT_REMAP = {"toy": "person", "plaything": "person"}
@@ -38,7 +38,7 @@ def _synonyms(label: str) -> set[str]:
 def _check_pair(name: str, minimum: float = 0.0):
     def check(instance: object, attribute: attrs.Attribute, value: tuple) -> None:
         if len(value) != 3 or not all(np.isfinite(value)) or (name == "std" and min(value) <= minimum):
-            raise ValueError(f"sidecar {name} must be 3 finite numbers{' > 0' if name == 'std' else ''}, got {list(value)}")
+            raise InputError(f"sidecar {name} must be 3 finite numbers{' > 0' if name == 'std' else ''}, got {list(value)}")
 
     return check
 
@@ -62,35 +62,35 @@ class Sidecar:
     @labels.validator
     def _check_labels(self, attribute: attrs.Attribute, value: tuple) -> None:
         if not value or not all(isinstance(label, str) and label.strip() for label in value):
-            raise ValueError("sidecar labels must be a non-empty list of label names, one per class id")
+            raise InputError("sidecar labels must be a non-empty list of label names, one per class id")
         if len(value) > np.iinfo(np.uint16).max:
-            raise ValueError(f"sidecar has {len(value)} labels; session labels are uint16")
+            raise InputError(f"sidecar has {len(value)} labels; session labels are uint16")
 
     @input_size.validator
     def _check_size(self, attribute: attrs.Attribute, value: tuple | None) -> None:
         if value is not None and (len(value) != 2 or not all(isinstance(v, int) and v > 0 for v in value)):
-            raise ValueError(f"sidecar input_size must be [width, height] in pixels, got {list(value)}")
+            raise InputError(f"sidecar input_size must be [width, height] in pixels, got {list(value)}")
 
     @classmethod
     def load(cls, path: Path) -> Sidecar:
         """Read and validate a sidecar file; errors name it."""
         if not path.is_file():
-            raise FileNotFoundError(f"segmentation sidecar {path} does not exist")
+            raise MissingFileError(f"segmentation sidecar {path} does not exist")
         try:
             data = json.loads(path.read_text(encoding="utf-8"))
         except (json.JSONDecodeError, UnicodeDecodeError) as error:
-            raise ValueError(f"segmentation sidecar {path}: invalid JSON: {error}") from error
+            raise InputError(f"segmentation sidecar {path}: invalid JSON: {error}") from error
         if not isinstance(data, dict):
-            raise ValueError(f"segmentation sidecar {path}: expected a JSON object")
+            raise InputError(f"segmentation sidecar {path}: expected a JSON object")
         unknown = sorted(set(data) - {field.name for field in attrs.fields(cls)})
         if unknown:
-            raise ValueError(f"segmentation sidecar {path}: unknown keys {unknown}")
+            raise InputError(f"segmentation sidecar {path}: unknown keys {unknown}")
         if "labels" not in data:
-            raise ValueError(f"segmentation sidecar {path}: 'labels' (one name per class id) is required")
+            raise InputError(f"segmentation sidecar {path}: 'labels' (one name per class id) is required")
         try:
             return cls(**data)
         except (TypeError, ValueError) as error:
-            raise ValueError(f"segmentation sidecar {path}: {error}") from error
+            raise InputError(f"segmentation sidecar {path}: {error}") from error
 
     def ids_of(self, name: str) -> list[int]:
         """The class ids whose label is ``name`` or lists it as a synonym (case-insensitive)."""
@@ -106,10 +106,10 @@ def label_table(sidecar: Sidecar, remap: Mapping[str, str], strict: bool) -> np.
     for source, target in remap.items():
         sources, targets = sidecar.ids_of(source), sidecar.ids_of(target)
         if len(targets) > 1:
-            raise ValueError(f"remap {source!r} → {target!r}: {target!r} names {len(targets)} classes of the sidecar, not one")
+            raise InputError(f"remap {source!r} → {target!r}: {target!r} names {len(targets)} classes of the sidecar, not one")
         missing = [name for name, ids in ((source, sources), (target, targets)) if not ids]
         if missing and strict:
-            raise ValueError(f"remap {source!r} → {target!r}: no class of the sidecar is called {missing[0]!r}")
+            raise InputError(f"remap {source!r} → {target!r}: no class of the sidecar is called {missing[0]!r}")
         if not missing:
             table[sources] = targets[0]
     return table
@@ -149,13 +149,13 @@ class OnnxSemanticSegmenter(PostProcessedSegmenter):
         super().__init__(largest_component, dilation, bridge)
         path = Path(model).expanduser()
         if not path.is_file():
-            raise FileNotFoundError(f"ONNX model {path} does not exist (mmcsplat downloads nothing: point 'model' at a local .onnx file)")
+            raise MissingFileError(f"ONNX model {path} does not exist (mmcsplat downloads nothing: point 'model' at a local .onnx file)")
         self.sidecar = Sidecar.load(Path(sidecar).expanduser() if sidecar else path.with_suffix(".json"))
         if batch_size < 1:
-            raise ValueError(f"batch_size must be ≥ 1, got {batch_size}")
+            raise InputError(f"batch_size must be ≥ 1, got {batch_size}")
         subjects = self.sidecar.ids_of(subject)
         if len(subjects) != 1:
-            raise ValueError(f"subject label {subject!r} names {len(subjects)} classes of the sidecar of {path}, not one")
+            raise InputError(f"subject label {subject!r} names {len(subjects)} classes of the sidecar of {path}, not one")
         self.subject_id = subjects[0]
         self.table = label_table(self.sidecar, DEFAULT_REMAP if remap is None else remap, strict=remap is not None)
         options = onnxruntime.SessionOptions()
@@ -164,14 +164,14 @@ class OnnxSemanticSegmenter(PostProcessedSegmenter):
         try:
             self.session = onnxruntime.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
         except Exception as error:  # onnxruntime raises its own exception types for unreadable models
-            raise ValueError(f"ONNX model {path} cannot be loaded: {error}") from error
+            raise InputError(f"ONNX model {path} cannot be loaded: {error}") from error
         self.path = path
         self._input = self._port(self.session.get_inputs(), self.sidecar.input, "input")
         self._output = self._port(self.session.get_outputs(), self.sidecar.output, "output").name
         if self._input.type not in _INPUT_DTYPES:
-            raise ValueError(f"ONNX model {path}: input {self._input.name!r} is {self._input.type}; floating-point inputs are supported")
+            raise InputError(f"ONNX model {path}: input {self._input.name!r} is {self._input.type}; floating-point inputs are supported")
         if len(self._input.shape) != 4:
-            raise ValueError(f"ONNX model {path}: input {self._input.name!r} has shape {self._input.shape}, expected 4 dimensions")
+            raise InputError(f"ONNX model {path}: input {self._input.name!r} has shape {self._input.shape}, expected 4 dimensions")
         batch = self._input.shape[0]
         self.fixed_batch = batch if isinstance(batch, int) else None
         self.batch_size = self.fixed_batch or int(batch_size)
@@ -183,7 +183,7 @@ class OnnxSemanticSegmenter(PostProcessedSegmenter):
         for port in ports:
             if port.name == name:
                 return port
-        raise ValueError(f"ONNX model {self.path}: no {what} named {name!r}; it has {[port.name for port in ports]}")
+        raise InputError(f"ONNX model {self.path}: no {what} named {name!r}; it has {[port.name for port in ports]}")
 
     def _input_size(self, width: int, height: int) -> tuple[int, int]:
         """(width, height) fed to the model: the sidecar's, else the model's static size, else the image's."""
@@ -211,7 +211,7 @@ class OnnxSemanticSegmenter(PostProcessedSegmenter):
         (output,) = self.session.run([self._output], {self._input.name: batch})
         ids = self._ids(np.asarray(output))
         if ids.min() < 0 or ids.max() >= len(self.sidecar.labels):
-            raise ValueError(f"ONNX model {self.path} produced class ids outside the {len(self.sidecar.labels)} its sidecar names")
+            raise InputError(f"ONNX model {self.path} produced class ids outside the {len(self.sidecar.labels)} its sidecar names")
         ids = ids.astype(np.uint16)
         return [cv2.resize(ids[i], (width, height), interpolation=cv2.INTER_NEAREST) for i in range(len(images))]
 
@@ -223,11 +223,11 @@ class OnnxSemanticSegmenter(PostProcessedSegmenter):
             return output[:, 0]
         if output.dtype.kind == "f" and output.ndim == 4:
             if output.shape[1] != len(self.sidecar.labels):
-                raise ValueError(
+                raise InputError(
                     f"ONNX model {self.path} outputs {output.shape[1]} classes but its sidecar names {len(self.sidecar.labels)}"
                 )
             return output.argmax(axis=1)
-        raise ValueError(
+        raise InputError(
             f"ONNX model {self.path}: output {self._output!r} {output.dtype} {list(output.shape)} is neither "
             "[N, C, h, w] scores nor [N, h, w] or [N, 1, h, w] class ids"
         )

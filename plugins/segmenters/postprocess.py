@@ -9,9 +9,9 @@ import attrs
 import cv2
 import numpy as np
 
-from mmcsplat.interfaces import Segmenter
-from mmcsplat.store import SessionReader
-
+from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.plugin_api.interfaces import Segmenter
+from mmcsplat.storage.session import SessionReader
 
 #: Mask pieces at most twice this many background pixels apart are one component: on the synthetic
 #: capture at 256 × 192 a forearm is cut off the body by a 1 px gap in 12 of its 240 ground-truth masks.
@@ -57,7 +57,7 @@ def open_close(mask: np.ndarray, open_radius: int, close_radius: int) -> np.ndar
 
 def _non_negative(instance: object, attribute: attrs.Attribute, value: int) -> None:
     if value < 0:
-        raise ValueError(f"{attribute.name} must be ≥ 0 pixels, got {value}")
+        raise InputError(f"{attribute.name} must be ≥ 0 pixels, got {value}")
 
 
 @attrs.frozen

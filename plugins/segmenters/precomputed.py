@@ -11,9 +11,9 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from mmcsplat.store import SessionReader
-
-from .postprocess import PostProcessedSegmenter, present_frames
+from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.plugins.segmenters.postprocess import PostProcessedSegmenter, present_frames
+from mmcsplat.storage.session import SessionReader
 
 
 class PrecomputedSegmenter(PostProcessedSegmenter):
@@ -21,7 +21,7 @@ class PrecomputedSegmenter(PostProcessedSegmenter):
 
     def raw(self, session: SessionReader, camera: str) -> Iterator[tuple[int, np.ndarray, np.ndarray | None]]:
         if not session.has_source_mask(camera):
-            raise ValueError(
+            raise InputError(
                 f"{session.url}: camera {camera!r} has no masks from its capture (the precomputed segmenter "
                 "needs the masks written at ingest: choose another segmenter, or ingest the capture again)"
             )

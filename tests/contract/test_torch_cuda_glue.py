@@ -13,7 +13,7 @@ import torch
 
 from mmcsplat.backends.torch_cuda import GsplatRenderer
 from mmcsplat.backends.torch_reference import rasterize_with_offset
-from mmcsplat.rendering import Gaussians, RenderCameras
+from mmcsplat.plugin_api.render_contract import Gaussians, RenderCameras
 from mmcsplat.testing.renderer_contract import RendererContract
 
 

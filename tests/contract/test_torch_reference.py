@@ -4,7 +4,7 @@
 import torch
 
 from mmcsplat.backends.torch_reference import FIELDS, rasterize, rasterize_with_offset
-from mmcsplat.rendering import Gaussians, RenderCameras
+from mmcsplat.plugin_api.render_contract import Gaussians, RenderCameras
 from mmcsplat.testing.renderer_contract import SceneSpec, infant_scene, with_grad
 
 

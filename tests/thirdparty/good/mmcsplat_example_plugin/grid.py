@@ -2,8 +2,8 @@
 
 import torch
 
-from mmcsplat.interfaces import Initializer
-from mmcsplat.rendering import Gaussians
+from mmcsplat.plugin_api.interfaces import Initializer
+from mmcsplat.plugin_api.render_contract import Gaussians
 
 
 class GridInitializer(Initializer):

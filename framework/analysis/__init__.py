@@ -1,0 +1,1 @@
+"""Geometry and error analyses of runs: the masks' visual hull, drift and floaters, trajectory error."""

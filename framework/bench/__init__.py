@@ -1,0 +1,1 @@
+"""The renderer benchmark on the shared scenes (docs/performance.md)."""

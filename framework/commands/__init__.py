@@ -1,1 +1,0 @@
-"""Sub-commands of the mmcsplat console script."""

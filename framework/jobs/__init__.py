@@ -1,0 +1,1 @@
+"""End-to-end jobs that chain the pipeline, outputs and report: the demo on the built-in capture."""

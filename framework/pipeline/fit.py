@@ -1,0 +1,261 @@
+"""The first-frame fit: Gaussians optimised against the training cameras of one frame.
+
+Every choice comes from the configuration through the registry: the renderer, the composed initializers,
+the densifier. The run directory holds an atomic checkpoint (a killed run resumes from it), ``run.json``
+(what was fitted, how long it took, how it ended, the loss record of :class:`BlockLosses`, warnings)
+and the final Gaussians.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import attrs
+import numpy as np
+import torch
+
+from mmcsplat.configuration.config import Config
+from mmcsplat.configuration.registry import Registry, default_registry
+from mmcsplat.plugin_api.errors import InputError, MissingFileError
+from mmcsplat.plugin_api.interfaces import Densifier, Initializer, Renderer, SceneContext, TrainingView
+from mmcsplat.plugin_api.render_contract import RenderCameras
+from mmcsplat.scene.camera import Camera
+from mmcsplat.scene.rig import rig_center, rig_scale
+from mmcsplat.storage.atomic import write_json_atomic
+from mmcsplat.storage.session import SessionReader
+from mmcsplat.training.backdrop import Background, camera_backdrop, parse_background
+from mmcsplat.training.checkpoint import read_checkpoint, resume_checkpoint, save_checkpoint
+from mmcsplat.training.finite import FitError, check_finite
+from mmcsplat.training.model import GaussianModel
+from mmcsplat.training.objective import view_loss, view_psnr
+from mmcsplat.training.schedule import CameraSchedule
+from mmcsplat.training.settings import FitSettings
+from mmcsplat.training.supersampling import supersampled
+from mmcsplat.training.views import load_view, require_masks, subject_warnings
+
+CHECKPOINT = "checkpoint.pt"
+RUN_INFO = "run.json"
+
+
+@attrs.define
+class BlockLosses:
+    """The loss averaged over each block of ``size`` iterations — one block of the camera schedule, every
+    training camera once — whose lowest (``lowest``) and latest (``last``) complete means run.json
+    records as ``loss_min`` and ``loss_final``. Single iterations each see another camera, so their
+    losses differ by the camera more than by the training; block means compare. A blow-up is a final
+    mean far above the lowest. Saved in the checkpoint, so a resumed fit records the same."""
+
+    size: int
+    total: float = 0.0
+    count: int = 0
+    lowest: float | None = None
+    last: float | None = None
+
+    def add(self, loss: float) -> None:
+        """Count one iteration's loss; the block's mean is taken when it is complete."""
+        self.total += loss
+        self.count += 1
+        if self.count == self.size:
+            self.last = self.total / self.size
+            self.lowest = self.last if self.lowest is None else min(self.lowest, self.last)
+            self.total, self.count = 0.0, 0
+
+
+def select_cameras(session: SessionReader, holdout: Sequence[str] | None) -> tuple[list[Camera], list[Camera]]:
+    """(training cameras, held-out cameras): ``holdout`` overrides the session's own held-out list."""
+    held = list(session.heldout if holdout is None else holdout)
+    unknown = [name for name in held if name not in session.camera_names]
+    if unknown:
+        raise InputError(f"held-out camera(s) {unknown} not in session {session.source!r}; cameras: {list(session.camera_names)}")
+    train = [session.camera(name) for name in session.camera_names if name not in held]
+    if len(train) < 2:
+        raise InputError(f"a fit needs at least two training cameras; session has {list(session.camera_names)}, held out {held}")
+    return train, [session.camera(name) for name in held]
+
+
+class FirstFrameFit:
+    """One first-frame fit, configured by a :class:`Config`; ``run()`` trains (resuming if possible)."""
+
+    def __init__(
+        self,
+        session: SessionReader,
+        config: Config,
+        out: Path,
+        holdout: Sequence[str] | None = None,
+        backend: str | None = None,
+        registry: Registry | None = None,
+        progress: bool = True,
+    ) -> None:
+        self.session = session
+        self.config = config
+        self.out = Path(out)
+        self.settings = FitSettings.from_config(config)
+        self.registry = registry or default_registry()
+        self.progress = progress
+        self.renderer_name = backend or config.plugin("renderer").name
+        renderer_params = dict(config.plugin("renderer").params) if not backend else {}
+        self.renderer: Renderer = supersampled(self.registry.create("renderer", self.renderer_name, **renderer_params), self.settings.supersample)
+        self.initializers: list[Initializer] = [choice.build(self.registry) for choice in config.plugins("initializer")]
+        densifiers = config.plugins("densifier")
+        self.densifier: Densifier | None = densifiers[0].build(self.registry) if densifiers else None
+        self.train_cameras, self.heldout_cameras = select_cameras(session, holdout)
+        center = rig_center(session.cameras)
+        self.scene = SceneContext(session, tuple(self.train_cameras), self.settings.frame, center, rig_scale(session.cameras, center))
+        self.views = self._load_views()
+
+    def _load_views(self) -> list[TrainingView]:
+        frame = self.settings.frame
+        views = [
+            load_view(self.session, frame, camera, index, self.initializers, camera_backdrop(self.settings.background, self.session, camera.name))
+            for index, camera in enumerate(self.train_cameras)
+        ]
+        require_masks(views, self.settings, self.session, frame)
+        self.warnings = subject_warnings(views, frame)
+        return views
+
+    # ------------------------------------------------------------------------------------------ setup
+
+    def _initial_model(self, generator: torch.Generator) -> GaussianModel:
+        for initializer in self.initializers:
+            gaussians = initializer.initial_gaussians(self.scene, generator)
+            if gaussians is not None:
+                break
+        else:
+            raise InputError(f"{self.config.source}: no [[initializer]] places initial Gaussians (e.g. 'random' or 'visual-hull')")
+        if gaussians.count == 0:
+            raise InputError(f"{self.config.source}: the initializers placed no Gaussians")
+        return GaussianModel(gaussians, tuple(c.name for c in self.train_cameras), self.settings.lrs, self.scene.scale)
+
+    def _render_cameras(self) -> RenderCameras:
+        return RenderCameras.from_cameras(self.train_cameras)
+
+    # -------------------------------------------------------------------------------------- training
+
+    def run(self) -> dict[str, Any]:
+        """Train to ``settings.iterations`` (resuming from a checkpoint in ``out``); returns run.json."""
+        from tqdm import tqdm
+
+        self.out.mkdir(parents=True, exist_ok=True)
+        settings = self.settings
+        generator = torch.Generator().manual_seed(settings.seed)
+        model = self._initial_model(generator)
+        schedule = CameraSchedule(len(self.views), generator)
+        record = BlockLosses(len(self.views))
+        densify_state = self.densifier.initialize_state(self.scene.scale) if self.densifier else {}
+        start, elapsed = 0, 0.0
+        checkpoint = self.out / CHECKPOINT
+        if checkpoint.exists():
+            start, elapsed, record = self._resume(checkpoint, model, generator, schedule, densify_state)
+        cameras = self._render_cameras()
+        bar = tqdm(range(start, settings.iterations), initial=start, total=settings.iterations, desc="fit", disable=not self.progress, unit="it")
+        began = time.perf_counter() - elapsed
+        try:
+            for step in bar:
+                index = schedule.next()
+                view = self.views[index]
+                render = self.renderer.render(model.gaussians(), cameras.select([index]))
+                loss, image = view_loss(model, view, render, settings)
+                for initializer in self.initializers:
+                    extra = initializer.extra_loss(step, render, view.camera, self.scene)
+                    if extra is not None:
+                        loss = loss + extra
+                if self.densifier:
+                    self.densifier.step_pre_backward(model, densify_state, step, render)
+                loss.backward()
+                check_finite(loss, model, step, "gradient")
+                model.step()
+                if self.densifier:
+                    self.densifier.step_post_backward(model, densify_state, step, render)
+                self._prune(model, step)
+                check_finite(loss, model, step, "parameter")
+                record.add(loss.item())
+                if step % 10 == 0:
+                    bar.set_postfix(loss=f"{loss.item():.4f}", psnr=f"{view_psnr(image, view):.2f}", n=model.count)
+                done = step + 1
+                if done % settings.checkpoint_every == 0 or done == settings.iterations:
+                    self._checkpoint(checkpoint, model, generator, schedule, record, densify_state, done, time.perf_counter() - began)
+        except FitError as error:
+            info = self._info(model, record, step, time.perf_counter() - began, "diverged", str(error))
+            write_json_atomic(self.out / RUN_INFO, info)
+            raise
+        finally:
+            bar.close()
+        info = self._info(model, record, settings.iterations, time.perf_counter() - began, "complete")
+        write_json_atomic(self.out / RUN_INFO, info)
+        return info
+
+    def _prune(self, model: GaussianModel, step: int) -> None:
+        remove = None
+        for initializer in self.initializers:
+            mask = initializer.prune_mask(step, model.gaussians(), self.scene)
+            if mask is not None:
+                remove = mask if remove is None else remove | mask
+        if remove is not None and remove.any():
+            if remove.all():
+                raise FitError(f"every Gaussian was pruned at iteration {step}: check the initializers' radius and the learning rates")
+            model.replace({}, keep=~remove)
+
+    # -------------------------------------------------------------------------------- checkpointing
+
+    def _checkpoint(self, path: Path, model, generator, schedule, record: BlockLosses, densify_state, step: int, elapsed: float) -> None:
+        state = {
+            "step": step,
+            "elapsed": elapsed,
+            "model": model.state_dict(),
+            "generator": generator.get_state(),
+            "schedule": list(schedule.queue),
+            "losses": attrs.asdict(record),
+            "densifier": densify_state,
+        }
+        save_checkpoint(path, self.config.values, state)
+        write_json_atomic(self.out / RUN_INFO, self._info(model, record, step, elapsed, "running" if step < self.settings.iterations else "complete"))
+
+    def _resume(self, path: Path, model, generator, schedule, densify_state) -> tuple[int, float, BlockLosses]:
+        payload = resume_checkpoint(path, self.config.values, "a different configuration", "use a new --out or delete the checkpoint")
+        model.load_state_dict(payload["model"])
+        generator.set_state(payload["generator"])
+        schedule.queue = list(payload["schedule"])
+        densify_state.clear()
+        densify_state.update(payload["densifier"])
+        return int(payload["step"]), float(payload["elapsed"]), BlockLosses(**payload["losses"])
+
+    def _info(self, model: GaussianModel, record: BlockLosses, step: int, elapsed: float, status: str, error: str | None = None) -> dict[str, Any]:
+        return {
+            "status": status,
+            "error": error,
+            "warnings": self.warnings,
+            "session": self.session.url if "://" in self.session.url else str(Path(self.session.url).resolve()),
+            "config": self.config.source,
+            "config_values": self.config.values,
+            "renderer": self.renderer_name,
+            "frame": self.settings.frame,
+            "train_cameras": [c.name for c in self.train_cameras],
+            "heldout_cameras": [c.name for c in self.heldout_cameras],
+            "iterations": step,
+            "num_gaussians": model.count,
+            "wall_s": round(elapsed, 3),
+            "loss_min": record.lowest,
+            "loss_final": record.last,
+            "scene_center": np.asarray(self.scene.center).tolist(),
+            "scene_scale": self.scene.scale,
+        }
+
+
+def load_fitted(out: Path) -> tuple[dict[str, Any], dict[str, torch.Tensor], torch.Tensor, torch.Tensor]:
+    """(run.json, final parameters, camera colour scale, offset) of a completed run directory."""
+    out = Path(out)
+    info_path, checkpoint = out / RUN_INFO, out / CHECKPOINT
+    if not info_path.exists() or not checkpoint.exists():
+        raise MissingFileError(f"{out} is not a fit run directory (needs {RUN_INFO} and {CHECKPOINT})")
+    info = json.loads(info_path.read_text())
+    model = read_checkpoint(checkpoint)["model"]
+    return info, model["params"], model["camera_scale"], model["camera_offset"]
+
+
+def fitted_background(info: Mapping[str, Any]) -> Background:
+    """The ``fit.background`` a run was fitted with, from its run.json ``info``."""
+    return parse_background(info.get("config_values", {}).get("fit", {}).get("background", (0.0, 0.0, 0.0)))

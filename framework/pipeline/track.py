@@ -1,0 +1,124 @@
+"""Dynamic tracking of a first-frame fit: a ``dynamics`` plugin carries the fitted Gaussians through the
+rest of the session and writes ``RUN/tracks.zarr``; ``RUN/track.json`` records what ran and how long.
+
+The configuration is the one the run was fitted with (``run.json``), or another one given explicitly;
+its ``[dynamics]`` table (or ``--dynamics NAME``) chooses the method and its parameters, and its ``[fit]``
+table and initializers give the image loss (weights, background, masked targets) the frames are fitted
+with, so tracking sees the same targets as the first frame did.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+from mmcsplat.configuration.config import Config, PluginChoice, apply_override, load_config
+from mmcsplat.configuration.registry import Registry, default_registry
+from mmcsplat.pipeline.fit import RUN_INFO, load_fitted
+from mmcsplat.plugin_api.errors import InputError, OutputExistsError
+from mmcsplat.plugin_api.interfaces import Dynamics, TrackingContext
+from mmcsplat.storage.atomic import write_json_atomic
+from mmcsplat.storage.session import SessionReader
+from mmcsplat.storage.tracks import TRACKS_DIR
+from mmcsplat.training.backdrop import camera_backdrop
+from mmcsplat.training.settings import FitSettings
+from mmcsplat.training.supersampling import run_renderer
+from mmcsplat.training.views import load_views
+
+TRACK_INFO = "track.json"
+
+
+def tracking_config(
+    run: Path, info: Mapping[str, Any], config: str | Path | None, overrides: Iterable[str], dynamics: str | None
+) -> tuple[Config, PluginChoice]:
+    """The configuration to track with (``config``, else the one ``run`` was fitted with, from its run.json
+    ``info``) after ``overrides``, and its dynamics choice; ``dynamics`` names the method instead of the
+    ``[dynamics]`` table (whose parameters are kept when it names the same method or none)."""
+    if config is not None:
+        loaded = load_config(config, overrides)
+    else:
+        values: Mapping[str, Any] = info["config_values"]
+        source = f"the configuration of {Path(run) / RUN_INFO}"
+        for override in overrides:
+            values = apply_override(values, override, source)
+        loaded = Config(source, values)
+    if dynamics is not None:
+        table = loaded.values.get("dynamics")
+        table = table if isinstance(table, Mapping) and table.get("name", dynamics) == dynamics else {}
+        return loaded, PluginChoice("dynamics", dynamics, {key: value for key, value in table.items() if key != "name"})
+    if not loaded.plugins("dynamics"):
+        raise InputError(f"{loaded.source} has no [dynamics] table: choose a method with --dynamics (e.g. iterative)")
+    return loaded, loaded.plugin("dynamics")
+
+
+def track_run(
+    run: Path,
+    *,
+    config: str | Path | None = None,
+    overrides: Iterable[str] = (),
+    dynamics: str | None = None,
+    backend: str | None = None,
+    registry: Registry | None = None,
+    progress: bool = True,
+    overwrite: bool = False,
+    frames: int | None = None,
+) -> dict[str, Any]:
+    """Track the first-frame fit in ``run`` through its session (only its first ``frames`` frames, the
+    fitted one included, when given); writes RUN/tracks.zarr and RUN/track.json (returned)."""
+    run = Path(run)
+    registry = registry or default_registry()
+    info, params, camera_scale, camera_offset = load_fitted(run)
+    if info.get("status") != "complete":
+        raise InputError(f"{run / RUN_INFO}: the first-frame fit is {info.get('status')!r}, not complete: finish it with `mmcsplat fit` first")
+    if (run / TRACKS_DIR).exists() and not overwrite:
+        raise OutputExistsError(f"{run / TRACKS_DIR} already exists (use --overwrite to replace it)")
+    loaded, choice = tracking_config(run, info, config, overrides, dynamics)
+    method: Dynamics = choice.build(registry)
+    session = SessionReader(info["session"])
+    settings = FitSettings.from_config(loaded)
+    first = int(info["frame"])
+    stop = session.num_frames if frames is None else min(session.num_frames, first + frames)
+    if stop - first < 2:
+        raise InputError(f"{run}: frames {first}–{stop - 1} of session {session.url!r} leave nothing to track after the fitted frame")
+    renderer_name = backend or info["renderer"]
+    cameras = tuple(session.camera(name) for name in info["train_cameras"])
+    initializers = tuple(c.build(registry) for c in loaded.plugins("initializer"))
+    backdrops = tuple(camera_backdrop(settings.background, session, name) for name in info["train_cameras"])
+
+    context = TrackingContext(
+        session=session,
+        cameras=cameras,
+        heldout=tuple(session.camera(name) for name in info["heldout_cameras"]),
+        frames=range(first, stop),
+        params=params,
+        camera_scale=camera_scale,
+        camera_offset=camera_offset,
+        renderer=run_renderer(info, registry, renderer_name),
+        settings=settings,
+        initializers=initializers,
+        backdrops=backdrops,
+        scene_center=tuple(info["scene_center"]),
+        scene_scale=float(info["scene_scale"]),
+        config=loaded,
+        registry=registry,
+        views=lambda t: load_views(session, t, cameras, initializers, backdrops, settings),
+        progress=progress,
+        overwrite=overwrite,
+    )
+    began = time.perf_counter()
+    summary = method.track(context, run)
+    wall = time.perf_counter() - began
+    record = {
+        "method": choice.name,
+        "params": dict(choice.params),
+        "config": loaded.source,
+        "renderer": renderer_name,
+        "frames": [context.frames.start, context.frames.stop],
+        "wall_s": round(wall, 3),
+        "wall_s_per_frame": round(wall / (len(context.frames) - 1), 3),
+        "summary": summary,
+    }
+    write_json_atomic(run / TRACK_INFO, record)
+    return record

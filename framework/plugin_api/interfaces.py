@@ -1,0 +1,266 @@
+"""The interface of each plugin kind. A plugin's factory (see :mod:`mmcsplat.plugin_api.hookspecs`) returns an object
+implementing one of these; docs/plugins.md explains how to write, register and test each.
+
+The core depends on these abstractions only, never on a concrete plugin. What the pipeline hands to
+plugins — :class:`SceneContext`, :class:`TrainingView`, :class:`TrackingContext` — are pure records
+defined here beside the interfaces that receive them; the render contract is in
+:mod:`mmcsplat.plugin_api.render_contract`.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import attrs
+import numpy as np
+
+from mmcsplat.scene.camera import Camera
+
+if TYPE_CHECKING:  # heavy imports only for type checkers
+    import torch
+
+    from mmcsplat.configuration.config import Config
+    from mmcsplat.configuration.registry import Registry
+    from mmcsplat.storage.session import SessionReader
+    from mmcsplat.training.model import GaussianModel
+    from mmcsplat.training.settings import FitSettings
+
+    from .render_contract import Gaussians, RenderCameras, RenderOutput
+
+
+# ----------------------------------------------------------------------------------------------- readers
+
+
+@attrs.frozen(eq=False)
+class RecordedFrame:
+    """One image of a capture as a reader yields it: ``rgb`` [H, W, 3] uint8, an optional subject ``mask``
+    [H, W] bool and ``depth`` [H, W] float metres (formats that ship them, such as the synthetic capture's
+    ground truth; 0 where there is no surface), and its frame index ``t``."""
+
+    t: int
+    rgb: np.ndarray
+    mask: np.ndarray | None = None
+    depth: np.ndarray | None = None
+
+
+class Recording(ABC):
+    """An opened capture: calibrated cameras (possibly distorted) and their frames, decoded on demand."""
+
+    #: Cameras as calibrated; ingest undistorts frames and stores zero-distortion cameras.
+    cameras: Sequence[Camera]
+    #: Frames per second, and the number of frame indices (the union over cameras).
+    fps: float
+    num_frames: int
+    #: Cameras the format itself marks as held out for evaluation (e.g. d3dgs test cameras).
+    heldout: Sequence[str] = ()
+    #: Whether frames come with subject masks and depth maps.
+    has_masks: bool = False
+    has_depth: bool = False
+
+    @abstractmethod
+    def frames(self, camera: str, indices: range) -> Iterator[RecordedFrame]:
+        """Yield the frames of ``camera`` whose index is in ``indices``, in order, skipping absent ones."""
+
+    def present(self, camera: str) -> np.ndarray:
+        """[num_frames] bool: which frame indices exist for ``camera`` (all, unless the format is sparse,
+        like D-NeRF's one camera per time step)."""
+        return np.ones(self.num_frames, dtype=bool)
+
+    def frame_times(self) -> np.ndarray:
+        """[num_frames] seconds of each frame index."""
+        return np.arange(self.num_frames, dtype=np.float64) / self.fps
+
+    def describe(self) -> dict[str, Any]:
+        """Provenance stored in the session's attributes."""
+        return {}
+
+    def close(self) -> None:
+        """Release decoders and files."""
+
+
+class Reader(ABC):
+    """A capture format: recognises a source folder and opens it as a :class:`Recording`."""
+
+    @abstractmethod
+    def detect(self, source: Path) -> bool:
+        """Whether ``source`` looks like this format (cheap: file names, not decoding)."""
+
+    @abstractmethod
+    def open(self, source: Path, calibration: Path | None = None, units: str = "m") -> Recording:
+        """Open ``source``; ``calibration`` overrides the format's own, ``units`` is the calibration's
+        length unit ("m" or "mm"). Errors name the file or camera at fault."""
+
+
+# --------------------------------------------------------------------------------------------- renderers
+
+
+class Renderer(ABC):
+    """A differentiable Gaussian rasterizer honouring the contract of :mod:`mmcsplat.plugin_api.render_contract`."""
+
+    @abstractmethod
+    def render(
+        self, gaussians: Gaussians, cameras: RenderCameras, background: torch.Tensor | None = None
+    ) -> RenderOutput:
+        """Render every camera; differentiable with respect to all Gaussian parameters."""
+
+
+# -------------------------------------------------------------------------------------------- segmenters
+
+
+class Segmenter(ABC):
+    """Produces subject masks (and optional semantic labels) for the frames of a session."""
+
+    @abstractmethod
+    def segment(self, session: SessionReader, camera: str) -> Iterator[tuple[int, np.ndarray, np.ndarray | None]]:
+        """Yield (t, mask [H, W] bool, labels [H, W] uint16 or None) for every frame of ``camera``."""
+
+
+# ------------------------------------------------------------------------------------------ initializers
+
+
+@attrs.frozen(eq=False)
+class SceneContext:
+    """What an initializer may look at: the training cameras, the first frame's session data, and the
+    scene's centre and scale (metres) derived from the calibration."""
+
+    session: SessionReader
+    cameras: Sequence[Camera]
+    frame: int
+    center: np.ndarray
+    scale: float
+
+
+class Initializer(ABC):
+    """Places the first Gaussians and may shape the first-frame fit. Initializers compose: each hook has a
+    neutral default, so one initializer can add only pruning or only a loss term."""
+
+    def initial_gaussians(self, scene: SceneContext, generator: torch.Generator) -> Gaussians | None:
+        """Initial Gaussians, or ``None`` to leave placement to another initializer in the composition."""
+        return None
+
+    def prepare_target(self, image: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
+        """The training target for one [H, W, 3] image given its subject mask. The image comes as its
+        difference from the fit's backdrop (background colour or clean plate, :mod:`mmcsplat.training.backdrop`), so
+        zeroing the outside of the subject — what masking does — leaves the backdrop there."""
+        return image
+
+    def extra_loss(self, step: int, render: RenderOutput, camera: Camera, scene: SceneContext) -> torch.Tensor | None:
+        """An extra loss term for this step, or ``None``."""
+        return None
+
+    def prune_mask(self, step: int, gaussians: Gaussians, scene: SceneContext) -> torch.Tensor | None:
+        """[N] bool of Gaussians to remove after this step, or ``None``."""
+        return None
+
+
+class DepthSource(ABC):
+    """Per-camera depth maps that the ``depth-supervised`` initializer fits the rendered depth to (up to a
+    learnt per-camera scale and offset): ground truth, a depth camera's maps, or a monocular estimate."""
+
+    @abstractmethod
+    def depth(self, session: SessionReader, frame: int, camera: Camera) -> np.ndarray:
+        """[H, W] float32 camera-z depth in metres of ``camera`` at ``frame``, 0 where unknown; a
+        ``ValueError`` naming the camera and frame when there is none."""
+
+
+# -------------------------------------------------------------------------------------------- densifiers
+
+
+class Densifier(ABC):
+    """A densification strategy with explicit hooks around the optimiser step (as gsplat's strategies).
+
+    ``model`` is the trainer's :class:`~mmcsplat.training.model.GaussianModel`; a densifier edits it only through
+    ``model.replace`` so parameters and optimiser state stay in step."""
+
+    @abstractmethod
+    def initialize_state(self, scene_scale: float) -> dict[str, Any]:
+        """Fresh running state (gradient accumulators, counters); saved in checkpoints."""
+
+    def step_pre_backward(self, model: GaussianModel, state: dict[str, Any], step: int, render: RenderOutput) -> None:
+        """Before ``loss.backward()``."""
+
+    @abstractmethod
+    def step_post_backward(self, model: GaussianModel, state: dict[str, Any], step: int, render: RenderOutput) -> None:
+        """After the optimiser step: accumulate statistics (``render.means2d.grad``, ``render.radii``) and
+        clone, split, prune or relocate Gaussians."""
+
+
+# ---------------------------------------------------------------------------------------------- dynamics
+
+
+@attrs.frozen(eq=False)
+class TrainingView:
+    """One training camera's data of one frame as tensors."""
+
+    camera: Camera
+    index: int
+    image: torch.Tensor  # [H, W, 3] float, the loss target (after initializers' prepare_target)
+    mask: torch.Tensor | None  # [H, W] bool
+    seg_target: torch.Tensor | None  # [H, W, 1] float
+    backdrop: torch.Tensor  # [3] or [H, W, 3]: what renders of this camera are composited over
+
+    def composite(self, render: RenderOutput) -> torch.Tensor:
+        """``render`` — of this view's camera alone, over black — over this view's backdrop."""
+        from .render_contract import composite  # torch: not when a reader or the listing imports this module
+
+        return composite(render, 0, self.backdrop)
+
+
+@attrs.frozen(eq=False)
+class TrackingContext:
+    """What a dynamics method works from: the session, the first-frame fit and how it was fitted.
+
+    ``cameras`` are the fit's training cameras, in the order of its per-camera colour terms
+    (``camera_scale``/``camera_offset`` [C, 3]); ``params`` the fitted ``GAUSSIAN_PARAMETERS`` at session
+    frame ``frames[0]``. Tracks frame ``k`` is session frame ``frames[k]``. ``views(t)`` gives the training
+    views of session frame ``t`` whose camera holds that frame (absent ones skipped), as loss targets
+    prepared like the first frame's.
+    """
+
+    session: SessionReader
+    cameras: tuple[Camera, ...]
+    heldout: tuple[Camera, ...]
+    frames: range
+    params: Mapping[str, torch.Tensor]
+    camera_scale: torch.Tensor
+    camera_offset: torch.Tensor
+    renderer: Renderer
+    settings: FitSettings
+    initializers: tuple[Initializer, ...]
+    #: What each training camera's renders are composited over (:mod:`mmcsplat.training.backdrop`), in ``cameras`` order.
+    backdrops: tuple[torch.Tensor, ...]
+    scene_center: Sequence[float]
+    scene_scale: float
+    config: Config
+    registry: Registry
+    views: Callable[[int], list[TrainingView]]
+    progress: bool = True
+    overwrite: bool = False
+
+
+class Dynamics(ABC):
+    """Carries the first-frame Gaussians through the sequence."""
+
+    @abstractmethod
+    def track(self, context: TrackingContext, out: Path) -> dict[str, Any]:
+        """Fit every frame of ``context.frames`` from the first-frame fit ``context.params``, streaming frames
+        from ``context.session`` (``context.views(t)``), and write the per-frame Gaussian states to the run
+        directory ``out`` with a :class:`~mmcsplat.storage.tracks.TrackWriter` (tracks frame ``k`` is session frame
+        ``context.frames[k]``; frame 0 is the first-frame fit). Returns a JSON-serialisable summary (per-frame
+        losses, timings) that ``RUN/track.json`` records."""
+
+
+# ----------------------------------------------------------------------------------------------- metrics
+
+
+class Metric(ABC):
+    """An image-quality metric between a rendered and a ground-truth image."""
+
+    higher_is_better: bool = True
+
+    @abstractmethod
+    def __call__(self, prediction: np.ndarray, target: np.ndarray, mask: np.ndarray | None = None) -> float:
+        """Compare two [H, W, 3] float images in [0, 1], optionally only inside ``mask`` [H, W] bool."""

@@ -1,0 +1,1 @@
+"""Numeric value types of a scene, without I/O: cameras, quaternions, the rig's geometry."""

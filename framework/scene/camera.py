@@ -1,0 +1,156 @@
+"""Calibrated pinhole cameras with OpenCV distortion, in metres and OpenCV axes."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import attrs
+import numpy as np
+
+from mmcsplat.plugin_api.errors import InputError
+
+
+def _float_array(shape: tuple[int, ...]):
+    """An attrs converter to a float64 array, and a validator of its shape."""
+
+    def convert(value: Any) -> np.ndarray:
+        array = np.array(value, dtype=np.float64)
+        array.setflags(write=False)
+        return array
+
+    def validate(instance: Any, attribute: attrs.Attribute, value: np.ndarray) -> None:
+        if value.shape != shape:
+            raise InputError(f"camera {getattr(instance, 'name', '?')!r}: {attribute.name} must have shape {shape}, got {value.shape}")
+        if not np.all(np.isfinite(value)):
+            raise InputError(f"camera {getattr(instance, 'name', '?')!r}: {attribute.name} is not finite")
+
+    return {"converter": convert, "validator": validate}
+
+
+def resize_matrix(sx: float, sy: float) -> np.ndarray:
+    """[3, 3] S with S @ K the intrinsics of an image resized by (sx, sy). Pixel (u, v) is centred at the
+    continuous point (u, v), so the image's edge lies at −0.5: coordinates map as x' = sx·(x + 0.5) − 0.5."""
+    return np.array([[sx, 0.0, 0.5 * (sx - 1)], [0.0, sy, 0.5 * (sy - 1)], [0.0, 0.0, 1.0]])
+
+
+def look_at(
+    centre: Sequence[float], target: Sequence[float], roll: float = 0.0, up: Sequence[float] = (0.0, 0.0, 1.0), dtype: type = np.float64
+) -> np.ndarray:
+    """The [3, 3] world-to-camera rotation (OpenCV axes: x right, y down, z forward) of a camera at
+    ``centre`` looking at ``target``: z = normalize(target − centre), x = normalize(z × up), y = z × x,
+    then turned by ``roll`` radians about the optical axis; computed in ``dtype``."""
+    centre, target = np.asarray(centre, dtype=dtype), np.asarray(target, dtype=dtype)
+    forward = (target - centre) / np.linalg.norm(target - centre)
+    right = np.cross(forward, np.asarray(up, dtype=dtype))
+    right /= np.linalg.norm(right)
+    down = np.cross(forward, right)
+    c, s = np.cos(roll), np.sin(roll)
+    return np.stack([c * right + s * down, -s * right + c * down, forward]).astype(dtype)
+
+
+def _distortion(value: Any) -> np.ndarray:
+    array = np.array(value if value is not None else [], dtype=np.float64).reshape(-1)
+    array.setflags(write=False)
+    return array
+
+
+def _check_distortion(instance: Camera, attribute: attrs.Attribute, value: np.ndarray) -> None:
+    if value.size not in (0, 4, 5) or not np.all(np.isfinite(value)):
+        raise InputError(f"camera {instance.name!r}: distortion must be 0, 4 (k1 k2 p1 p2) or 5 (… k3) finite values, got {value.tolist()}")
+
+
+def _rotation_matrix(value: Any) -> np.ndarray:
+    """Accepts a 3×3 matrix or a Rodrigues vector."""
+    array = np.array(value, dtype=np.float64)
+    if array.shape in ((3,), (3, 1), (1, 3)):
+        import cv2
+
+        array, _ = cv2.Rodrigues(array.reshape(3, 1))
+    array.setflags(write=False)
+    return array
+
+
+@attrs.frozen(eq=False)
+class Camera:
+    """One calibrated camera.
+
+    ``K`` is the 3×3 intrinsic matrix in pixels; ``distortion`` holds OpenCV's (k1, k2, p1, p2[, k3]) or is
+    empty for an ideal pinhole; ``R`` (3×3) and ``t`` (3,) map world points to camera coordinates,
+    ``x_cam = R @ x_world + t``, with OpenCV axes (x right, y down, z forward) and metres throughout.
+    """
+
+    name: str = attrs.field(validator=attrs.validators.instance_of(str))
+    width: int = attrs.field(converter=int)
+    height: int = attrs.field(converter=int)
+    K: np.ndarray = attrs.field(**_float_array((3, 3)))
+    R: np.ndarray = attrs.field(converter=_rotation_matrix, validator=_float_array((3, 3))["validator"])
+    t: np.ndarray = attrs.field(**_float_array((3,)))
+    distortion: np.ndarray = attrs.field(factory=lambda: np.zeros(0), converter=_distortion, validator=_check_distortion)
+
+    def __attrs_post_init__(self) -> None:
+        if self.width <= 0 or self.height <= 0:
+            raise InputError(f"camera {self.name!r}: image size must be positive, got {self.width}×{self.height}")
+        if abs(np.linalg.det(self.R) - 1.0) > 1e-4:
+            raise InputError(f"camera {self.name!r}: R is not a rotation (det {np.linalg.det(self.R):.6f})")
+
+    @property
+    def rvec(self) -> np.ndarray:
+        """The rotation as a Rodrigues vector (3,)."""
+        import cv2
+
+        return cv2.Rodrigues(np.ascontiguousarray(self.R))[0].reshape(3)
+
+    @property
+    def center(self) -> np.ndarray:
+        """The camera centre in world coordinates."""
+        return -self.R.T @ self.t
+
+    @property
+    def world_to_camera(self) -> np.ndarray:
+        """The 4×4 world-to-camera matrix."""
+        matrix = np.eye(4)
+        matrix[:3, :3] = self.R
+        matrix[:3, 3] = self.t
+        return matrix
+
+    @property
+    def is_distorted(self) -> bool:
+        return bool(np.any(self.distortion != 0))
+
+    def project(self, points: np.ndarray) -> np.ndarray:
+        """Project world points [N, 3] to pixels [N, 2], applying the distortion (OpenCV's model)."""
+        import cv2
+
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        if len(points) == 0:
+            return np.zeros((0, 2))
+        dist = self.distortion if self.distortion.size else None
+        pixels, _ = cv2.projectPoints(points, self.rvec, self.t, self.K, dist)
+        return pixels.reshape(-1, 2)
+
+    def scaled(self, sx: float, sy: float | None = None) -> Camera:
+        """This camera for an image resized by (sx, sy): K scaled so pixel centres stay consistent."""
+        sy = sx if sy is None else sy
+        return attrs.evolve(self, K=resize_matrix(sx, sy) @ self.K, width=round(self.width * sx), height=round(self.height * sy))
+
+    def with_units(self, metres_per_unit: float) -> Camera:
+        """This camera with its translation rescaled to metres."""
+        return attrs.evolve(self, t=self.t * metres_per_unit)
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-serialisable description (the session store keeps cameras this way)."""
+        return {
+            "name": self.name,
+            "width": self.width,
+            "height": self.height,
+            "K": self.K.tolist(),
+            "R": self.R.tolist(),
+            "t": self.t.tolist(),
+            "distortion": self.distortion.tolist(),
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> Camera:
+        """The inverse of :meth:`to_dict`."""
+        return cls(**{key: data[key] for key in ("name", "width", "height", "K", "R", "t", "distortion")})

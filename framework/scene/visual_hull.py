@@ -1,0 +1,54 @@
+"""The visual hull of subject masks: which points project inside the masks of the views that see them,
+and the rays of pixels. One projection test serves the ``visual-hull`` initializer (carving its starting
+points), the drift detector and the evaluation's floater and agreement measures
+(:mod:`mmcsplat.analysis.visual_hull`)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+
+import numpy as np
+
+from .camera import Camera
+
+#: A view: a camera and its [H, W] bool subject mask.
+View = tuple[Camera, np.ndarray]
+
+
+def mask_hits(points: np.ndarray, views: Sequence[View]) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Per (camera, [H, W] bool mask) view: (pixels [N, 2] int, seen [N] bool — in front of the camera and
+    inside its image —, inside [N] bool — seen and on the mask) of ``points`` [N, 3]."""
+    for camera, mask in views:
+        depth = (points @ camera.R.T + camera.t)[:, 2]
+        pixels = np.round(camera.project(points)).astype(int) if len(points) else np.zeros((0, 2), dtype=int)
+        seen = (depth > 0) & np.all((pixels >= 0) & (pixels < [camera.width, camera.height]), axis=1)
+        inside = np.zeros(len(points), dtype=bool)
+        inside[seen] = mask[pixels[seen, 1], pixels[seen, 0]]
+        yield pixels, seen, inside
+
+
+def mask_votes(points: np.ndarray, views: Sequence[View]) -> tuple[np.ndarray, np.ndarray]:
+    """(seen, inside) [N] int: how many views see each point, and in how many it is on the mask."""
+    seen = np.zeros(len(points), dtype=int)
+    inside = np.zeros(len(points), dtype=int)
+    for _, sees, on_mask in mask_hits(points, views):
+        seen += sees
+        inside += on_mask
+    return seen, inside
+
+
+def in_hull(seen: np.ndarray, inside: np.ndarray, tolerance: int = 0) -> np.ndarray:
+    """[N] bool: on the mask of every view that sees the point but ``tolerance``, and of at least one."""
+    return (seen - inside <= tolerance) & (inside > 0)
+
+
+def pixel_rays(camera: Camera, pixels: np.ndarray, depths: np.ndarray) -> np.ndarray:
+    """[P, D, 3] world points on the rays of ``camera``'s ``pixels`` [P, 2] at ``depths`` [D] (metres
+    along its optical axis), its lens distortion undone."""
+    import cv2
+
+    normalized = cv2.undistortPoints(np.asarray(pixels, dtype=np.float64).reshape(-1, 1, 2), camera.K,
+                                     camera.distortion if camera.distortion.size else None).reshape(-1, 2)
+    directions = np.concatenate([normalized, np.ones((len(normalized), 1))], axis=1)
+    local = directions[:, None, :] * np.asarray(depths, dtype=np.float64)[None, :, None]
+    return (local - camera.t) @ camera.R  # R^T (x - t): camera to world

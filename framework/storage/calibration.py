@@ -1,0 +1,141 @@
+"""Read and write anipose ``calibration.toml`` files, and read Pose2Sim's variant of them.
+
+anipose (``CameraGroup.dump``) writes one ``[cam_N]`` table per camera with ``name``, ``size = [w, h]``,
+``matrix`` (3×3 K), ``distortions`` (k1, k2, p1, p2, k3), ``rotation`` (a Rodrigues vector, world to
+camera) and ``translation``, plus a ``[metadata]`` table. Pose2Sim names its tables after the cameras,
+writes sizes as floats, 4 distortion values and ``fisheye = false``.
+
+Translations in a file are in the calibration board's unit (``"m"`` or ``"mm"``); the cameras returned
+are always in metres. Tables named ``cam_N`` are ordered by N (``cam_10`` after ``cam_9``); a file whose
+tables are named otherwise keeps the file's order.
+"""
+
+from __future__ import annotations
+
+import re
+import tomllib
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.scene.camera import Camera
+from mmcsplat.storage.atomic import write_text_atomic
+
+#: Metres per unit of a calibration file's translations.
+UNITS = {"m": 1.0, "mm": 1e-3}
+
+_ANIPOSE_SECTION = re.compile(r"cam_(\d+)")
+_REQUIRED = ("size", "matrix", "distortions", "rotation", "translation")
+
+
+def metres_per_unit(units: str) -> float:
+    """The scale from ``units`` ("m" or "mm") to metres; a clear error for anything else."""
+    try:
+        return UNITS[units]
+    except KeyError:
+        raise InputError(f"unknown calibration units {units!r}; choose one of {', '.join(UNITS)}") from None
+
+
+def read_calibration(path: Path, units: str = "m") -> list[Camera]:
+    """The cameras of an anipose or Pose2Sim ``calibration.toml``, in metres.
+
+    ``units`` is the unit of the file's translations. Errors name the file and the table at fault.
+    """
+    path = Path(path)
+    scale = metres_per_unit(units)
+    try:
+        with path.open("rb") as file:
+            document = tomllib.load(file)
+    except tomllib.TOMLDecodeError as error:
+        raise InputError(f"calibration {path}: not valid TOML: {error}") from error
+    sections = []
+    for key, value in document.items():
+        if key == "metadata":
+            continue
+        if not isinstance(value, dict):
+            raise InputError(f"calibration {path}: unexpected top-level key {key!r} (cameras are tables like [cam_0])")
+        sections.append(key)
+    if not sections:
+        raise InputError(f"calibration {path}: no camera tables (expected [cam_0], [cam_1], …)")
+    numbers = [_ANIPOSE_SECTION.fullmatch(key) for key in sections]
+    if all(numbers):
+        sections = [key for _, key in sorted(zip((int(m.group(1)) for m in numbers), sections))]
+    cameras = [_camera(path, key, document[key]).with_units(scale) for key in sections]
+    names = [camera.name for camera in cameras]
+    duplicates = sorted({name for name in names if names.count(name) > 1})
+    if duplicates:
+        raise InputError(f"calibration {path}: camera names {duplicates} appear more than once")
+    return cameras
+
+
+def _camera(path: Path, section: str, table: dict[str, Any]) -> Camera:
+    """One camera from its table, in the file's units."""
+    where = f"calibration {path}, [{section}]"
+    missing = [key for key in _REQUIRED if key not in table]
+    if missing:
+        raise InputError(f"{where}: missing {', '.join(missing)}")
+    if table.get("fisheye", False):
+        raise InputError(f"{where}: fisheye calibrations are not supported (only OpenCV's pinhole distortion model)")
+    name = table.get("name", section)
+    if not isinstance(name, str):
+        raise InputError(f"{where}: name must be a string, got {name!r}")
+    size = _array(where, "size", table["size"], (2,))
+    if np.any(size != np.round(size)) or np.any(size <= 0):
+        raise InputError(f"{where}: size must be two positive whole numbers [width, height], got {table['size']}")
+    distortion = _array(where, "distortions", table["distortions"], None).reshape(-1)
+    if distortion.size not in (4, 5):
+        raise InputError(f"{where}: distortions must hold 4 (k1 k2 p1 p2) or 5 (… k3) values, got {distortion.size}")
+    try:
+        return Camera(
+            name=name,
+            width=int(size[0]),
+            height=int(size[1]),
+            K=_array(where, "matrix", table["matrix"], (3, 3)),
+            R=_array(where, "rotation", table["rotation"], (3,)),
+            t=_array(where, "translation", table["translation"], (3,)),
+            distortion=distortion,
+        )
+    except ValueError as error:
+        raise InputError(f"{where}: {error}") from error
+
+
+def _array(where: str, key: str, value: Any, shape: tuple[int, ...] | None) -> np.ndarray:
+    """``value`` as a finite float array of ``shape`` (any shape when None), or an error naming ``key``."""
+    try:
+        array = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{where}: {key} must be numbers, got {value!r}") from None
+    if shape is not None and array.shape != shape:
+        raise InputError(f"{where}: {key} must have shape {list(shape)}, got {list(array.shape)}")
+    if not np.all(np.isfinite(array)):
+        raise InputError(f"{where}: {key} is not finite: {value!r}")
+    return array
+
+
+def write_calibration(path: Path, cameras: Sequence[Camera], units: str = "m", metadata: dict | None = None) -> None:
+    """Write ``cameras`` (metres) as an anipose ``calibration.toml`` with translations in ``units``.
+
+    Tables are ``[cam_0]``, ``[cam_1]``, … in the given order, each with 5 distortion values (zeros
+    padded); ``metadata`` becomes the ``[metadata]`` table. The file is replaced atomically.
+    """
+    import tomli_w
+
+    path = Path(path)
+    scale = metres_per_unit(units)
+    document: dict[str, Any] = {}
+    for index, camera in enumerate(cameras):
+        distortion = np.zeros(5)
+        distortion[: camera.distortion.size] = camera.distortion
+        document[f"cam_{index}"] = {
+            "name": camera.name,
+            "size": [camera.width, camera.height],
+            "matrix": camera.K.tolist(),
+            "distortions": distortion.tolist(),
+            "rotation": camera.rvec.tolist(),
+            "translation": (camera.t / scale).tolist(),
+        }
+    document["metadata"] = dict(metadata or {})
+    write_text_atomic(path, tomli_w.dumps(document))

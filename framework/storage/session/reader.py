@@ -1,0 +1,167 @@
+"""Reading a session lazily: frames decoded on demand through the byte-bounded cache."""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import numpy as np
+
+from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.scene.camera import Camera
+
+from .cache import DEFAULT_CACHE_BYTES, FrameCache
+from .format import (
+    FIELDS,
+    FORMAT_VERSION,
+    PLATE,
+    SOURCE_MASK,
+    AbsentFrameError,
+    IncompleteSessionError,
+    SessionFrame,
+    check_frame_index,
+    open_group,
+)
+
+
+class SessionBase:
+    """The metadata of a complete session, shared by the reader and the updater."""
+
+    def __init__(self, url: str | os.PathLike, mode: str, storage_options: dict | None) -> None:
+        self.url = os.fspath(url)
+        self._group = open_group(url, mode, storage_options)
+        attributes = self._group.attrs.asdict()
+        version = attributes.get("mmcsplat_session")
+        if version is None:
+            raise InputError(f"{self.url} is a zarr group but not an mmcsplat session")
+        if version > FORMAT_VERSION:
+            raise InputError(f"{self.url}: session format {version} is newer than this mmcsplat reads ({FORMAT_VERSION})")
+        if attributes.get("complete") is not True:
+            raise IncompleteSessionError(f"{self.url}: the session was never completed (its write was interrupted or is still going on)")
+        self.cameras = tuple(Camera.from_dict(data) for data in attributes["cameras"])
+        self.camera_names = tuple(camera.name for camera in self.cameras)
+        self.num_frames = int(attributes["num_frames"])
+        self._by_name = dict(zip(self.camera_names, self.cameras, strict=True))
+        self._field_names: dict[str, dict[str, str]] = attributes["fields"]
+        self._plates = frozenset(attributes.get("plates", ()))
+        self._attributes = attributes
+        self._present: dict[str, np.ndarray] = {}
+
+    def camera(self, name: str) -> Camera:
+        """The stored (undistorted) camera called ``name``."""
+        try:
+            return self._by_name[name]
+        except KeyError:
+            raise InputError(f"{self.url}: unknown camera {name!r}; the session has {list(self.camera_names)}") from None
+
+    def present(self, camera: str) -> np.ndarray:
+        """[T] bool (read-only): which frames exist for ``camera``."""
+        self.camera(camera)
+        if camera not in self._present:
+            present = np.asarray(self._group[f"cameras/{camera}/present"][:], dtype=bool)
+            present.setflags(write=False)
+            self._present[camera] = present
+        return self._present[camera]
+
+    def has(self, field: str, camera: str | None = None) -> bool:
+        """Whether ``camera`` (with ``None``: any camera) has ``field``, one of mask, depth, labels."""
+        if field not in FIELDS:
+            raise InputError(f"unknown session field {field!r}; fields are {list(FIELDS)}")
+        cameras = self.camera_names if camera is None else (self.camera(camera).name,)
+        return any(field in self._field_names.get(name, {}) for name in cameras)
+
+    def _source_mask_array(self, camera: str) -> str | None:
+        """The name of the array holding the masks ``camera`` was written with, or ``None``."""
+        names = self._field_names.get(camera, {})
+        if SOURCE_MASK in names:
+            return names[SOURCE_MASK]
+        return "mask" if names.get("mask") == "mask" else None  # the writer names arrays after their field
+
+    def _check_frame(self, t: int, camera: str) -> int:
+        self.camera(camera)
+        t = check_frame_index(self.url, camera, t, self.num_frames)
+        if not self.present(camera)[t]:
+            raise AbsentFrameError(f"{self.url}: frame {t} of camera {camera!r} is not in the session")
+        return t
+
+
+class SessionReader(SessionBase):
+    """A complete session, read lazily: :meth:`frame` decodes one (t, camera) on demand through a
+    :class:`FrameCache` of ``cache_bytes``. Raises FileNotFoundError for nothing at ``url`` and
+    :class:`IncompleteSessionError` for a session whose write never committed.
+
+    A reader opened before a :class:`SessionUpdater` commit must be reopened to see the new fields.
+    """
+
+    def __init__(
+        self, url: str | os.PathLike, *, cache_bytes: int = DEFAULT_CACHE_BYTES, storage_options: dict | None = None
+    ) -> None:
+        super().__init__(url, "r", storage_options)
+        attributes = self._attributes
+        self.heldout: tuple[str, ...] = tuple(attributes["heldout"])
+        self.train_cameras = tuple(name for name in self.camera_names if name not in self.heldout)
+        self.fps = float(attributes["fps"])
+        self.frame_times = np.asarray(attributes["frame_times"], dtype=np.float64)
+        self.frame_times.setflags(write=False)
+        self.source: str = attributes["source"]
+        self.provenance: dict[str, Any] = attributes["provenance"]
+        self.cache = FrameCache(cache_bytes)
+        self._arrays: dict[tuple[str, str], Any] = {}
+
+    def __repr__(self) -> str:
+        return f"SessionReader({self.url!r}: {len(self.cameras)} cameras, {self.num_frames} frames)"
+
+    def _array(self, camera: str, name: str):
+        """The zarr array ``name`` of ``camera`` (opened once)."""
+        key = (camera, name)
+        if key not in self._arrays:
+            self._arrays[key] = self._group[f"cameras/{camera}/{name}"]
+        return self._arrays[key]
+
+    def frame(self, t: int, camera: str) -> SessionFrame:
+        """Frame ``t`` of ``camera``. Errors: unknown camera (ValueError), ``t`` out of range (IndexError),
+        a frame the session lacks (:class:`AbsentFrameError`)."""
+        t = self._check_frame(t, camera)
+        cached = self.cache.get((camera, t))
+        if cached is not None:
+            return cached
+        arrays = {"rgb": self._array(camera, "rgb")[t]}
+        for field, name in self._field_names[camera].items():
+            if field in FIELDS:  # not source_mask
+                arrays[field] = self._array(camera, name)[t]
+        if "depth" in arrays:
+            arrays["depth"] = arrays["depth"].astype(np.float32)
+        for array in arrays.values():
+            array.setflags(write=False)
+        frame = SessionFrame(**arrays)
+        self.cache.put((camera, t), frame)
+        return frame
+
+    def plate(self, camera: str) -> np.ndarray | None:
+        """[H, W, 3] uint8, read-only: ``camera``'s clean plate (the empty scene), or ``None`` without one."""
+        self.camera(camera)
+        if camera not in self._plates:
+            return None
+        plate = self._group[f"cameras/{camera}/{PLATE}"][...]
+        plate.setflags(write=False)
+        return plate
+
+    def has_source_mask(self, camera: str) -> bool:
+        """Whether ``camera`` has masks from when the session was written (at ingest: the capture's own)."""
+        self.camera(camera)
+        return self._source_mask_array(camera) is not None
+
+    def source_mask(self, t: int, camera: str) -> np.ndarray:
+        """[H, W] bool, read-only: frame ``t``'s mask of ``camera`` as the session was written (at ingest:
+        the capture's own), whatever segmenters stored since; not cached. Errors as :meth:`frame`, and a
+        ValueError for a camera without such masks."""
+        t = self._check_frame(t, camera)
+        name = self._source_mask_array(camera)
+        if name is None:
+            raise InputError(f"{self.url}: camera {camera!r} has no masks from its capture")
+        mask = self._array(camera, name)[t]
+        mask.setflags(write=False)
+        return mask
+
+
+# ----------------------------------------------------------------------------------------------- updater

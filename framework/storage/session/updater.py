@@ -1,0 +1,88 @@
+"""Replacing fields of a session (masks, labels, plates) atomically, as segmenters do."""
+
+from __future__ import annotations
+
+import os
+import uuid
+from typing import Any
+
+import numpy as np
+
+from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.storage.transaction import Transaction
+
+from .format import (
+    FIELDS,
+    SOURCE_MASK,
+    checked_array,
+    coverage_error,
+    create_image_array,
+)
+from .reader import SessionBase
+
+
+class SessionUpdater(SessionBase, Transaction):
+    """Adds or replaces whole mask/labels/depth fields of a complete session, atomically.
+
+    New fields are written under fresh array names (``<field>.<token>``) that no reader looks at; one
+    write of the group attributes in :meth:`commit` swaps them all in, then the replaced arrays are
+    deleted — except the masks the session was written with, which the first replacement keeps as the
+    field :data:`SOURCE_MASK` (the ``precomputed`` segmenter starts from them). A field written for a
+    camera must cover every present frame of it. A context manager like :class:`SessionWriter`. An updater
+    killed before commit leaves only unreferenced arrays behind. One updater at a time: two committing
+    concurrently would each keep only its own fields.
+    """
+
+    def __init__(self, url: str | os.PathLike, *, storage_options: dict | None = None) -> None:
+        super().__init__(url, "r+", storage_options)
+        self._token = uuid.uuid4().hex[:8]
+        self._new: dict[tuple[str, str], tuple[Any, np.ndarray]] = {}  # (camera, field) -> (array, written)
+
+    def write(self, camera: str, field: str, t: int, array: np.ndarray) -> None:
+        """Set ``field`` (mask, labels or depth) of frame ``t`` of ``camera``."""
+        self._check_open()
+        if field not in FIELDS:
+            raise InputError(f"unknown session field {field!r}; fields are {list(FIELDS)}")
+        t = self._check_frame(t, camera)
+        value = checked_array(self.url, self.camera(camera), field, t, array)
+        if (camera, field) not in self._new:
+            name = f"cameras/{camera}/{field}.{self._token}"
+            created = create_image_array(self._group, name, self.camera(camera), self.num_frames, FIELDS[field])
+            self._new[camera, field] = (created, np.zeros(self.num_frames, dtype=bool))
+        target, written = self._new[camera, field]
+        target[t] = value
+        written[t] = True
+
+    def commit(self) -> None:
+        """Swap every written field in at once. On failure the session is left as it was."""
+        self._check_open()
+        problems = [
+            coverage_error(self.url, camera, field, written, self.present(camera))
+            for (camera, field), (_, written) in self._new.items()
+        ]
+        problems = [problem for problem in problems if problem]
+        if problems:
+            self.abort()
+            raise InputError("\n".join(problems))
+        fields = {camera: dict(names) for camera, names in self._field_names.items()}
+        replaced = []
+        for camera, field in self._new:
+            names = fields.setdefault(camera, {})
+            if names.get(field) == field == "mask":  # the masks the session was written with: kept
+                names[SOURCE_MASK] = field
+            elif field in names:
+                replaced.append(f"cameras/{camera}/{names[field]}")
+            names[field] = f"{field}.{self._token}"
+        self._group.attrs.update({"fields": fields})
+        self._field_names = fields
+        self._done = True
+        for path in replaced:
+            del self._group[path]
+
+    def abort(self) -> None:
+        """Delete the arrays written so far; the session is left as it was."""
+        if self._done:
+            return
+        self._done = True
+        for camera, field in self._new:
+            del self._group[f"cameras/{camera}/{field}.{self._token}"]

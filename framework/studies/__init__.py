@@ -1,0 +1,1 @@
+"""Studies: specifications, cells, the runner, results, charts and stability runs."""

@@ -1,0 +1,150 @@
+"""One cell of a study, run in a worker: the first-frame fit (resumed from its checkpoint), tracking when
+the configuration has a ``[dynamics]`` table, the held-out evaluation, and the outcome record.
+
+OUT/cells/KEY/ is the cell's run directory (``run.json``, ``checkpoint.pt``, ``tracks.zarr``,
+``metrics.json``), plus ``cell.json`` (what the cell is, written when it starts) and ``result.json``
+(how it ended, written last: a cell with one is done).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import attrs
+
+from mmcsplat.storage.atomic import write_json_atomic
+from mmcsplat.studies.spec import CellSpec
+
+CELL_FILE = "cell.json"
+RESULT_FILE = "result.json"
+COMPLETE, FAILED, DIVERGED = "complete", "failed", "diverged"
+
+
+@attrs.frozen
+class CellOutcome:
+    """How a cell ended and what it measured (``None`` where a metric does not apply or the cell failed).
+
+    ``wall_s`` and ``iterations_per_s`` are the first-frame fit's (time spent training, over resumes);
+    ``track_*`` the dynamics step's; ``per_frame_val_masked_psnr`` and ``tracking_per_frame_median_mm``
+    are per tracked frame; ``resumed_at`` the fit iteration a restarted cell went on from.
+    ``status`` is ``diverged`` for a fit stopped by a NaN/Inf (its message in ``error``), ``failed`` for
+    any other error. ``floater_share`` is evaluate's share of opacity mass outside the masks' visual
+    hull, ``mask_agreement`` its per-camera agreement of each mask with the other cameras' hull,
+    ``drift`` its drift verdict (tracked cells), ``loss_min``/``loss_final`` and ``warnings`` the fit's
+    (run.json).
+    """
+
+    key: str
+    status: str
+    error: str | None = None
+    val_masked_psnr: float | None = None
+    val_psnr: float | None = None
+    val_ssim: float | None = None
+    train_masked_psnr: float | None = None
+    val_interior_masked_psnr: float | None = None
+    train_psnr: float | None = None
+    num_gaussians: int | None = None
+    floater_share: float | None = None
+    mask_agreement: dict[str, float] | None = None
+    drift: bool | None = None
+    loss_min: float | None = None
+    loss_final: float | None = None
+    warnings: list[str] | None = None
+    iterations: int | None = None
+    wall_s: float | None = None
+    iterations_per_s: float | None = None
+    track_method: str | None = None
+    track_wall_s: float | None = None
+    track_wall_s_per_frame: float | None = None
+    tracking_median_mm: float | None = None
+    tracking_p90_mm: float | None = None
+    per_frame_val_masked_psnr: list[float | None] | None = None
+    tracking_per_frame_median_mm: list[float] | None = None
+    resumed_at: int | None = None
+    cell_wall_s: float | None = None
+
+    @classmethod
+    def read(cls, cell_dir: Path) -> CellOutcome | None:
+        """The recorded outcome of a done cell, ``None`` for one never finished."""
+        path = Path(cell_dir) / RESULT_FILE
+        if not path.exists():
+            return None
+        record = json.loads(path.read_text())
+        known = {field.name for field in attrs.fields(cls)}
+        return cls(**{key: value for key, value in record.items() if key in known})
+
+
+def run_cell(spec: CellSpec, cell_dir: str | Path) -> CellOutcome:
+    """Run (or finish) one cell in ``cell_dir``; an error inside the cell is its outcome, not an
+    exception, so one failing cell never stops a study. Interruptions propagate."""
+    import traceback
+
+    from mmcsplat.training.finite import NonFiniteError
+
+    cell_dir = Path(cell_dir)
+    cell_dir.mkdir(parents=True, exist_ok=True)
+    (cell_dir / RESULT_FILE).unlink(missing_ok=True)  # a retried cell is not done until it ends again
+    write_json_atomic(cell_dir / CELL_FILE, attrs.asdict(spec) | {"key": spec.key})
+    began = time.perf_counter()
+    try:
+        fields = _run(spec, cell_dir)
+        outcome = CellOutcome(spec.key, COMPLETE, **fields, cell_wall_s=round(time.perf_counter() - began, 3))
+    except Exception as error:  # the study reports it; the traceback goes to the cell's own record
+        (cell_dir / "error.txt").write_text(traceback.format_exc())
+        status = DIVERGED if isinstance(error, NonFiniteError) else FAILED
+        outcome = CellOutcome(spec.key, status, f"{type(error).__name__}: {error}", cell_wall_s=round(time.perf_counter() - began, 3))
+    write_json_atomic(cell_dir / RESULT_FILE, attrs.asdict(outcome))
+    return outcome
+
+
+def _run(spec: CellSpec, cell_dir: Path) -> dict[str, Any]:
+    from mmcsplat.pipeline.evaluate import evaluate_run
+
+    info, resumed_at = _fit(spec, cell_dir)
+    track = _track(cell_dir) if spec.has_dynamics else {}
+    metrics = evaluate_run(cell_dir, ground_truth=Path(spec.ground_truth) if spec.ground_truth else None)
+    wall = float(info["wall_s"])
+    return {
+        **{key: metrics.get(key) for key in ("val_masked_psnr", "val_psnr", "val_ssim", "train_masked_psnr", "val_interior_masked_psnr", "train_psnr",
+                                             "num_gaussians", "floater_share", "mask_agreement", "drift", "tracking_median_mm", "tracking_p90_mm",
+                                             "per_frame_val_masked_psnr", "tracking_per_frame_median_mm")},
+        "loss_min": info.get("loss_min"),
+        "loss_final": info.get("loss_final"),
+        "warnings": list(info.get("warnings", [])),
+        "iterations": int(info["iterations"]),
+        "wall_s": wall,
+        "iterations_per_s": info["iterations"] / wall if wall > 0 else None,
+        "track_method": track.get("method"),
+        "track_wall_s": track.get("wall_s"),
+        "track_wall_s_per_frame": track.get("wall_s_per_frame"),
+        "resumed_at": resumed_at,
+    }
+
+
+def _fit(spec: CellSpec, cell_dir: Path) -> tuple[dict[str, Any], int | None]:
+    """(run.json, the iteration resumed from) of the cell's first-frame fit, trained unless complete."""
+    from mmcsplat.pipeline.fit import CHECKPOINT, RUN_INFO, FirstFrameFit
+    from mmcsplat.storage.session import SessionReader
+
+    info_path = cell_dir / RUN_INFO
+    previous = json.loads(info_path.read_text()) if info_path.exists() else None
+    if previous is not None and previous["status"] == COMPLETE:
+        return previous, None
+    # run.json is rewritten with every checkpoint: its iteration count is the checkpoint's.
+    resumed_at = int(previous["iterations"]) if previous is not None and (cell_dir / CHECKPOINT).exists() else None
+    fit = FirstFrameFit(SessionReader(spec.session_url), spec.config, cell_dir, holdout=spec.holdout, progress=False)
+    return fit.run(), resumed_at
+
+
+def _track(cell_dir: Path) -> dict[str, Any]:
+    """track.json of the cell's dynamics step, run unless done (a ``tracks.zarr`` without its
+    ``track.json`` was cut short between the two and is replaced)."""
+    from mmcsplat.pipeline.track import TRACK_INFO, track_run
+    from mmcsplat.storage.tracks import TRACKS_DIR
+
+    if (cell_dir / TRACK_INFO).exists():
+        return json.loads((cell_dir / TRACK_INFO).read_text())
+    return track_run(cell_dir, progress=False, overwrite=(cell_dir / TRACKS_DIR).exists())

@@ -1,0 +1,124 @@
+"""The sessions a study reads, made ready before any cell runs: a synthetic capture synthesized and
+ingested, a copy modified (cameras dropped, one camera's extrinsics perturbed) and segmented (the user's
+own session is never modified). Each step is skipped when its output is already there, so a restarted
+study reuses them; every output appears atomically."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+
+import attrs
+import numpy as np
+
+from mmcsplat.configuration.config import PluginChoice
+from mmcsplat.scene.camera import Camera
+from mmcsplat.storage.atomic import write_json_atomic
+from mmcsplat.storage.session import IncompleteSessionError, SessionReader
+from mmcsplat.studies.spec import SessionPlan, SessionSpec, StudyError
+
+#: Written beside a prepared session once it is complete: the identity it was made from.
+IDENTITY_SUFFIX = ".json"
+
+
+def prepare_session(plan: SessionPlan, progress: bool = True) -> None:
+    """Make ``plan.url`` ready (nothing to do for a stored session read in place)."""
+    if plan.segmenter is None and not plan.spec.modifications:
+        return
+    target = Path(plan.url)
+    identity_file = target.with_suffix(IDENTITY_SUFFIX)
+    if identity_file.exists():
+        if json.loads(identity_file.read_text()) != plan.identity:
+            raise StudyError(f"{target} was prepared from other settings ({identity_file}): use a new --out or delete it")
+        return
+    source = _synthesized(plan, target.parent, progress) if plan.spec.synthetic is not None else plan.spec.path
+    if "://" in str(source):
+        raise StudyError(f"session {plan.spec.name!r}: copying it (to segment or modify) needs a local session, not the URL {source}")
+    _prepared_copy(Path(source), target, plan.spec, plan.segmenter, progress)
+    write_json_atomic(identity_file, plan.identity)
+
+
+def _synthesized(plan: SessionPlan, folder: Path, progress: bool) -> Path:
+    """FOLDER/capture (synthesized) ingested into FOLDER/ingested.zarr; both reused when complete."""
+    from mmcsplat.pipeline.ingest import ingest
+    from mmcsplat.synthetic.synthesize import SynthConfig, synthesize
+
+    capture, ingested = folder / "capture", folder / "ingested.zarr"
+    recorded = folder / "synthetic.json"
+    if recorded.exists() and json.loads(recorded.read_text()) != dict(plan.spec.synthetic or {}):
+        raise StudyError(f"{capture} was synthesized with other settings ({recorded}): use a new --out or delete {folder}")
+    folder.mkdir(parents=True, exist_ok=True)
+    if not (capture / "calibration.toml").exists():
+        synthesize(capture, SynthConfig(**plan.spec.synthetic), overwrite=True, progress=progress)
+        write_json_atomic(recorded, dict(plan.spec.synthetic or {}))
+    if not _complete(ingested):
+        ingest(capture, ingested, holdout=list(plan.spec.heldout), overwrite=True, progress=progress)
+    return ingested
+
+
+def _prepared_copy(source: Path, target: Path, spec: SessionSpec, segmenter: PluginChoice | None, progress: bool) -> None:
+    """``source`` copied, modified as ``spec`` says, segmented by ``segmenter`` (if any) and renamed into
+    place as ``target``."""
+    from mmcsplat.pipeline.segment import segment_session
+
+    if not _complete(source):
+        raise StudyError(f"{source} is not a complete session store")
+    partial = target.with_name(f".{target.name}.partial")
+    shutil.rmtree(partial, ignore_errors=True)
+    shutil.rmtree(target, ignore_errors=True)  # a copy whose identity file was never written
+    shutil.copytree(source, partial)
+    if spec.modifications:
+        _modify(partial, spec)
+    if segmenter is not None:
+        segment_session(partial, segmenter.name, segmenter.params, progress=progress)
+    os.replace(partial, target)
+
+
+def _modify(path: Path, spec: SessionSpec) -> None:
+    """Keep only ``spec.cameras`` (and only those held out) and perturb ``spec.perturb``'s camera, in
+    the session copy at ``path``; the arrays of dropped cameras are deleted."""
+    import zarr
+
+    group = zarr.open_group(str(path), mode="r+")
+    attributes = group.attrs.asdict()
+    cameras = [Camera.from_dict(data) for data in attributes["cameras"]]
+    names = [camera.name for camera in cameras]
+    keep = list(spec.cameras) if spec.cameras is not None else names
+    named = keep + ([spec.perturb.camera] if spec.perturb is not None else [])
+    unknown = [name for name in named if name not in names]
+    if unknown:
+        raise StudyError(f"session {spec.name!r}: no camera {unknown[0]!r} to keep or perturb; its cameras: {names}")
+    if spec.perturb is not None and spec.perturb.camera not in keep:
+        raise StudyError(f"session {spec.name!r}: perturbs camera {spec.perturb.camera!r}, which its 'cameras' drop")
+    kept = [perturbed(camera, spec.perturb.degrees) if spec.perturb is not None and camera.name == spec.perturb.camera else camera
+            for camera in cameras if camera.name in keep]
+    group.attrs.update({
+        "cameras": [camera.to_dict() for camera in kept],
+        "heldout": [name for name in attributes["heldout"] if name in keep],
+        "fields": {name: fields for name, fields in attributes["fields"].items() if name in keep},
+        "plates": [name for name in attributes.get("plates", ()) if name in keep],
+    })
+    for name in names:
+        if name not in keep:
+            del group[f"cameras/{name}"]
+
+
+def perturbed(camera: Camera, degrees: float) -> Camera:
+    """``camera`` turned by ``degrees`` about its own y axis (image down) through its centre: world
+    points map to ``Ry @ (R x + t)``, so R becomes ``Ry R`` and t becomes ``Ry t``."""
+    angle = np.radians(degrees)
+    turn = np.array([[np.cos(angle), 0.0, np.sin(angle)], [0.0, 1.0, 0.0], [-np.sin(angle), 0.0, np.cos(angle)]])
+    return attrs.evolve(camera, R=turn @ camera.R, t=turn @ camera.t)
+
+
+def _complete(url: Path) -> bool:
+    """Whether ``url`` holds a committed session."""
+    if not url.exists():
+        return False
+    try:
+        SessionReader(url)
+    except IncompleteSessionError:
+        return False
+    return True

@@ -1,0 +1,2 @@
+"""What the first-frame fit and every dynamics method share: the Gaussian model and its learning rates,
+losses, backdrops, supersampling. Public for plugins."""

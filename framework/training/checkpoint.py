@@ -1,0 +1,41 @@
+"""Checkpoint and resume of a training state: written atomically, read back only by a run with the same
+key (the configuration or settings and the data it trained on), so a killed training resumes to the same
+result and a changed one never silently continues another's."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.storage.atomic import atomic_path
+
+
+class CheckpointError(InputError):
+    """A checkpoint that cannot be resumed: unreadable, or written by another run."""
+
+
+def save_checkpoint(path: Path, key: Any, state: dict[str, Any]) -> None:
+    """Write ``state`` with the ``key`` a resuming run must match, atomically."""
+    with atomic_path(path) as temporary:
+        torch.save({"key": key, **state}, temporary)
+
+
+def read_checkpoint(path: Path) -> dict[str, Any]:
+    """The whole payload of the checkpoint at ``path``; an error naming the file when it is unreadable."""
+    try:
+        return torch.load(path, weights_only=False)
+    except Exception as error:  # torch raises RuntimeError, EOFError, pickle errors… for a damaged file
+        raise CheckpointError(f"{path} is damaged or not a checkpoint ({error}); delete it to start afresh") from error
+
+
+def resume_checkpoint(path: Path, key: Any, written_by: str, fresh: str) -> dict[str, Any]:
+    """The state saved at ``path``, when it was saved with ``key``; otherwise an error saying it was
+    written by ``written_by`` (e.g. "a different configuration") and how to start ``fresh``."""
+    payload = read_checkpoint(path)
+    if payload.get("key") != key:
+        raise CheckpointError(f"{path} was written by {written_by}; {fresh}")
+    return payload
+
