@@ -17,8 +17,9 @@ from fitting_scene import WIDTH, moved, ring_camera, subject, write_fitted_run, 
 from mmcsplat.configuration.registry import default_registry
 from mmcsplat.pipeline.evaluate import evaluate
 from mmcsplat.pipeline.track import track_run
+from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.render_contract import Gaussians, RenderCameras
-from mmcsplat.plugins.dynamics.deformation import CHECKPOINT, DeformationDynamics, DeformationSettings, _Run
+from mmcsplat.plugins.dynamics.deformation import CHECKPOINT, DeformationDynamics, _Run
 from mmcsplat.plugins.dynamics.deformation_field import DeformationField, sinusoidal_encoding
 from mmcsplat.storage.session import SessionWriter
 from mmcsplat.storage.tracks import TrackReader
@@ -52,18 +53,20 @@ def test_encoding_layout_and_identity_start():
 
 
 def test_time_noise_anneals_by_the_scaled_iteration_and_lr_decays():
-    study = DeformationSettings(iterations=40_000)
+    study = DeformationDynamics(iterations=40_000)
     assert study.noise_std(0, frames=11) == pytest.approx(0.1 / 10)  # 0.1 frame intervals
     assert study.noise_std(10_000, frames=11) == pytest.approx(0.05 / 10)
     assert study.noise_std(20_000, frames=11) == 0.0
-    short = DeformationSettings(iterations=4000)  # annealed over 2000: half the run, as the study
+    short = DeformationDynamics(iterations=4000)  # annealed over 2000: half the run, as the study
     assert short.noise_std(1000, frames=11) == pytest.approx(0.05 / 10)
     assert short.noise_std(2000, frames=11) == 0.0
     assert short.mlp_lr(0) == pytest.approx(short.lr) and short.mlp_lr(4000) == pytest.approx(short.lr_final)
     assert short.densifier_params()["stop"] == 2000
-    assert DeformationSettings(densifier={"name": "budget", "cap": 10}).densifier_params() == {"name": "budget", "cap": 10}
-    with pytest.raises(ValueError, match="unknown parameter"):
-        DeformationDynamics(iteratons=10)
+    assert DeformationDynamics(densifier={"name": "budget", "cap": 10}).densifier_params() == {"name": "budget", "cap": 10}
+    with pytest.raises(InputError, match="dynamics 'deformation': unknown parameter.*iteratons"):
+        default_registry().create("dynamics", "deformation", iteratons=10)
+    with pytest.raises(InputError, match="dynamics 'deformation': checkpoint_every must be ≥ 1"):
+        default_registry().create("dynamics", "deformation", checkpoint_every=0)
 
 
 def test_follows_a_moving_subject(session, tmp_path):

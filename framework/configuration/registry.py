@@ -27,6 +27,7 @@ from mmcsplat.plugin_api.errors import (
     UnknownPluginError,
 )
 from mmcsplat.plugin_api.kinds import KIND_NAMES, KINDS
+from mmcsplat.plugin_api.parameters import REGISTRY_PARAMETER, build_plugin
 from mmcsplat.plugin_api.registration import Registration
 
 ENTRY_POINT_GROUP = "mmcsplat"
@@ -146,20 +147,20 @@ class Registry:
         return matches[0]
 
     def create(self, kind: str, name: str, **params: Any) -> Any:
-        """Build the implementation ``name`` of ``kind`` with the configuration's parameters. A factory
+        """Build the implementation ``name`` of ``kind`` with the configuration's parameters (checked
+        against its fields when the factory is an attrs class, :mod:`mmcsplat.plugin_api.parameters`). A factory
         that declares a ``registry`` parameter gets this registry, to build the plugins it names (the
         ``depth-supervised`` initializer's depth source) where its own caller's plugins are."""
         entry = self.get(kind, name)
         reason = entry.unavailable_reason()
         if reason:
             raise PluginUnavailableError(f"{kind} {name!r} from {entry.origin} is not usable here: {reason}")
-        if "registry" in params:
+        if REGISTRY_PARAMETER in params:
             raise PluginError(f"{kind} {name!r}: 'registry' is not a configuration parameter (the registry passes itself)")
         factory = entry.load()
-        if "registry" in inspect.signature(factory).parameters:
-            params = {**params, "registry": self}
+        injected = {REGISTRY_PARAMETER: self} if REGISTRY_PARAMETER in inspect.signature(factory).parameters else {}
         try:
-            return factory(**params)
+            return build_plugin(factory, params, f"{kind} {name!r}", **injected)
         except TypeError as error:
             raise PluginError(f"{kind} {name!r} from {entry.origin} rejected its parameters {sorted(params)}: {error}") from error
 

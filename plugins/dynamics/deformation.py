@@ -24,8 +24,8 @@ import attrs
 import numpy as np
 import torch
 
-from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.interfaces import Densifier, Dynamics, TrackingContext
+from mmcsplat.plugin_api.parameters import above, at_least, parameter
 from mmcsplat.plugin_api.render_contract import RenderCameras, gaussians_from_params
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.storage.tracks import TrackWriter
@@ -47,32 +47,34 @@ STATIC = ("opacity_logits", "color_logits", "seg_logits")
 
 
 @attrs.frozen
-class DeformationSettings:
-    """The ``[dynamics]`` parameters of ``deformation`` (module docstring; docs/deformation.md).
+class DeformationDynamics(Dynamics):
+    """A deformation field over space and time trained with the canonical Gaussians on random (frame,
+    camera) images of the whole sequence; writes every frame's deformed means, quaternions and log-scales
+    (module docstring; docs/deformation.md)."""
 
-    ``iterations`` over the whole sequence, one (frame, camera) image each; the field's ``depth`` × ``width``,
-    ``skip`` connection and encoding ``frequencies``; the MLP's learning rate ``lr`` → ``lr_final``; the
-    time noise; ``cache_bytes`` bounds the decoded frames held (``None``: the session's default);
-    ``densifier`` is the densifier's table (``name`` and parameters) over :meth:`densifier_params`' defaults.
-    """
+    iterations: int = parameter(2000, doc="training steps over the whole sequence, one (frame, camera) image each", validator=at_least(1))
+    depth: int = parameter(4, doc="hidden layers of the MLP", validator=at_least(1))
+    width: int = parameter(128, doc="units per hidden layer", validator=at_least(1))
+    skip: bool = parameter(True, doc="feed the encoded input again half-way (Yang et al.)")
+    frequencies: int = parameter(10, doc="sinusoidal encoding bands of (x, y, z, t)", validator=at_least(0))
+    lr: float = parameter(8e-4, doc="the MLP's initial learning rate", validator=above(0))
+    lr_final: float = parameter(8e-6, doc="the MLP's learning rate at the last iteration (exponential decay)", validator=above(0))
+    time_noise: float = parameter(0.1, doc="time noise, standard deviation in frame intervals", validator=at_least(0))
+    noise_until: int = parameter(20_000, doc="iteration by which the noise has faded (of the study's 40 000; scaled)", validator=at_least(0))
+    cache_bytes: int | None = parameter(None, doc="bound on decoded frames held (none: the session's default)", validator=at_least(0))
+    seed: int = parameter(0, doc="seed of the field's weights and of the image draws")
+    checkpoint_every: int = parameter(500, doc="iterations between atomic checkpoints", validator=at_least(1))
+    densifier: Mapping[str, Any] = parameter(doc="the densifier's table (name and parameters) over densifier_params' defaults",
+                                             factory=dict, converter=dict)
 
-    iterations: int = 2000
-    depth: int = 4
-    width: int = 128
-    skip: bool = True
-    frequencies: int = 10
-    lr: float = 8e-4
-    lr_final: float = 8e-6
-    time_noise: float = 0.1
-    noise_until: int = 20_000
-    cache_bytes: int | None = None
-    seed: int = 0
-    checkpoint_every: int = 500
-    densifier: Mapping[str, Any] = attrs.field(factory=dict, converter=dict)
-
-    def __attrs_post_init__(self) -> None:
-        if self.iterations < 1 or self.depth < 1 or self.width < 1 or self.frequencies < 0:
-            raise InputError(f"deformation: iterations, depth and width must be ≥ 1 and frequencies ≥ 0, got {self}")
+    def track(self, context: TrackingContext, out: Path) -> dict[str, Any]:
+        """Train the field and the canonical Gaussians (resuming from ``out/deformation.pt`` unless
+        overwriting), then write every frame's state; returns the run's size, timings and cache use."""
+        session = context.session if self.cache_bytes is None else SessionReader(context.session.url, cache_bytes=self.cache_bytes)
+        run = _Run(self, context, session, Path(out))
+        run.train()
+        run.write_tracks()
+        return run.summary()
 
     def noise_std(self, step: int, frames: int) -> float:
         """Standard deviation of the time noise at ``step``, in normalised time (``frames`` frames span 1)."""
@@ -102,32 +104,10 @@ def normalised_times(session: SessionReader, frames: range) -> torch.Tensor:
     return torch.as_tensor((seconds - seconds[0]) / span if span > 0 else np.zeros_like(seconds), dtype=torch.float32)
 
 
-class DeformationDynamics(Dynamics):
-    """A deformation field over space and time trained with the canonical Gaussians on random (frame,
-    camera) images of the whole sequence; writes every frame's deformed means, quaternions and log-scales."""
-
-    def __init__(self, **params: Any) -> None:
-        known = {field.name for field in attrs.fields(DeformationSettings)}
-        unknown = sorted(set(params) - known)
-        if unknown:
-            raise InputError(f"deformation: unknown parameter(s) {unknown}; known: {sorted(known)}")
-        self.settings = DeformationSettings(**params)
-
-    def track(self, context: TrackingContext, out: Path) -> dict[str, Any]:
-        """Train the field and the canonical Gaussians (resuming from ``out/deformation.pt`` unless
-        overwriting), then write every frame's state; returns the run's size, timings and cache use."""
-        settings = self.settings
-        session = context.session if settings.cache_bytes is None else SessionReader(context.session.url, cache_bytes=settings.cache_bytes)
-        run = _Run(settings, context, session, Path(out))
-        run.train()
-        run.write_tracks()
-        return run.summary()
-
-
 class _Run:
     """One training run of :class:`DeformationDynamics`: model, field, optimiser, sampling and checkpoints."""
 
-    def __init__(self, settings: DeformationSettings, context: TrackingContext, session: SessionReader, out: Path) -> None:
+    def __init__(self, settings: DeformationDynamics, context: TrackingContext, session: SessionReader, out: Path) -> None:
         self.settings = settings
         self.context = context
         self.session = session

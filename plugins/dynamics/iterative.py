@@ -19,8 +19,8 @@ import attrs
 import numpy as np
 import torch
 
-from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.interfaces import Dynamics, TrackingContext, TrainingView
+from mmcsplat.plugin_api.parameters import above, at_least, between, parameter
 from mmcsplat.plugin_api.render_contract import RenderCameras
 from mmcsplat.scene.gaussian_table import GAUSSIAN_PARAMETERS
 from mmcsplat.storage.tracks import TrackWriter
@@ -50,44 +50,23 @@ class FrameResult:
     cpu_s: float
 
 
+@attrs.frozen
 class IterativeDynamics(Dynamics):
-    """Per-frame optimisation with constant-velocity prediction and local-rigidity priors.
+    """Per-frame optimisation with constant-velocity prediction and local-rigidity priors; the neighbour
+    graph over the foreground Gaussians is built once after the first frame."""
 
-    ``iterations`` per frame; ``neighbours`` (k) and ``lambda_w`` (weights exp(−λ_w·d²), d in metres)
-    define the neighbour graph over foreground Gaussians (segmentation colour > ``foreground``) built
-    once after the first frame; ``lambda_rigid``, ``lambda_rot``, ``lambda_iso`` weight the priors
-    (``lambda_seg`` the segmentation loss: the fit's when ``None``); ``means_lr``/``quats_lr`` override
-    the fit's learning rates (means are scaled by the scene scale); ``learn_colors`` keeps colours
-    trainable after the first frame.
-    """
-
-    def __init__(
-        self,
-        iterations: int = 2000,
-        neighbours: int = 20,
-        lambda_w: float = 2000.0,
-        lambda_rigid: float = 4.0,
-        lambda_rot: float = 4.0,
-        lambda_iso: float = 2.0,
-        lambda_seg: float | None = None,
-        foreground: float = 0.5,
-        means_lr: float | None = None,
-        quats_lr: float | None = None,
-        learn_colors: bool = True,
-        seed: int = 0,
-    ) -> None:
-        if iterations < 0 or neighbours < 1 or lambda_w < 0:
-            raise InputError(f"iterative: iterations ({iterations}) must be ≥ 0, neighbours ({neighbours}) ≥ 1, lambda_w ({lambda_w}) ≥ 0")
-        self.iterations = iterations
-        self.neighbours = neighbours
-        self.lambda_w = lambda_w
-        self.weights = (lambda_rigid, lambda_rot, lambda_iso)
-        self.lambda_seg = lambda_seg
-        self.foreground = foreground
-        self.means_lr = means_lr
-        self.quats_lr = quats_lr
-        self.learn_colors = learn_colors
-        self.seed = seed
+    iterations: int = parameter(2000, doc="Adam steps per frame, one training camera each", validator=at_least(0))
+    neighbours: int = parameter(20, doc="k of the neighbour graph over foreground Gaussians", validator=at_least(1))
+    lambda_w: float = parameter(2000.0, doc="neighbour weights exp(−lambda_w·d²), d in metres", validator=at_least(0))
+    lambda_rigid: float = parameter(4.0, doc="weight of the local-rigidity prior", validator=at_least(0))
+    lambda_rot: float = parameter(4.0, doc="weight of the rotation-similarity prior", validator=at_least(0))
+    lambda_iso: float = parameter(2.0, doc="weight of the isometry prior", validator=at_least(0))
+    lambda_seg: float | None = parameter(None, doc="weight of the segmentation loss (none: the fit's)", validator=at_least(0))
+    foreground: float = parameter(0.5, doc="segmentation colour above which a Gaussian is foreground", validator=between(0, 1))
+    means_lr: float | None = parameter(None, doc="learning rate of the means, scaled by the scene scale (none: the fit's)", validator=above(0))
+    quats_lr: float | None = parameter(None, doc="learning rate of the rotations (none: the fit's)", validator=above(0))
+    learn_colors: bool = parameter(True, doc="colours keep learning after the first frame (as Luiten et al.)")
+    seed: int = parameter(0, doc="seed of the camera order")
 
     # ------------------------------------------------------------------------------------------ setup
 
@@ -173,7 +152,6 @@ class IterativeDynamics(Dynamics):
         if not views:
             return FrameResult(t, None, None, 0, time.perf_counter() - began, time.process_time() - cpu)
         schedule = CameraSchedule(len(views), generator)
-        lambda_rigid, lambda_rot, lambda_iso = self.weights
         recent: dict[int, tuple[float, float]] = {}
         bar = tqdm(range(self.iterations), desc=f"frame {t}", unit="it", leave=False, disable=not context.progress)
         for step in bar:
@@ -181,7 +159,7 @@ class IterativeDynamics(Dynamics):
             render = context.renderer.render(model.gaussians(), cameras.select([view.index]))
             loss, image = view_loss(model, view, render, context.settings, self.lambda_seg)
             rigid, rot, iso = prior.losses(model.params["means"], model.params["quats"])
-            loss = loss + lambda_rigid * rigid + lambda_rot * rot + lambda_iso * iso
+            loss = loss + self.lambda_rigid * rigid + self.lambda_rot * rot + self.lambda_iso * iso
             loss.backward()
             try:
                 check_finite(loss, model, step, "gradient")
