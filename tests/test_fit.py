@@ -63,6 +63,8 @@ def test_killed_run_resumes_to_the_same_parameters(session, tmp_path, monkeypatc
     straight_info, resumed_info = (json.loads((tmp_path / run / "run.json").read_text()) for run in ("straight", "resumed"))
     assert straight_info["loss_min"] is not None and straight_info["loss_min"] <= straight_info["loss_final"]
     assert (resumed_info["loss_min"], resumed_info["loss_final"]) == (straight_info["loss_min"], straight_info["loss_final"])
+    # The resumed run says so; the straight one never resumed.
+    assert (resumed_info["resumed_from"], straight_info["resumed_from"]) == (10, None) and resumed_info["version"] == 1
 
 
 def test_nan_stops_cleanly_keeping_the_last_good_checkpoint(session, tmp_path, monkeypatch):
@@ -105,9 +107,9 @@ def test_camera_that_never_sees_the_subject_is_flagged(tmp_path):
     with pytest.warns(UserWarning, match="cam_2"):
         fit = FirstFrameFit(session, config, tmp_path / "run", progress=False)
     info = fit.run()
-    assert any("cam_2" in warning for warning in info["warnings"])
+    assert any("cam_2" in warning for warning in info.warnings)
     # Three of its four training cameras see the subject: under-constrained.
-    assert info["warnings"][0].startswith("only 3 training cameras see the subject at frame 0")
+    assert info.warnings[0].startswith("only 3 training cameras see the subject at frame 0")
 
 
 def test_unknown_holdout_and_missing_masks(session, tmp_path):
@@ -121,6 +123,6 @@ def test_a_built_in_configuration_runs_unchanged_on_every_backend(session, tmp_p
     """paper-masked as shipped — only its size shrunk to the tiny scene — fits on each renderer by name."""
     config = load_config("paper-masked", ["fit.iterations=40", "initializer.random.num_points=600", "initializer.random.half_size=0.3"])
     info = FirstFrameFit(session, config, tmp_path / backend, backend=backend, progress=False).run()
-    assert info["status"] == "complete" and info["renderer"] == backend
+    assert info.status == "complete" and info.renderer == backend
     metrics = evaluate(tmp_path / backend, backend=backend)
     assert metrics["train_masked_psnr"] > 12, metrics  # an empty render scores about 8 dB inside these masks

@@ -103,5 +103,5 @@ def test_evaluation_and_tracking_render_a_run_as_it_was_fitted(integrating, tmp_
 def test_a_supersampled_fit_learns_and_records_its_factor(integrating, tmp_path):
     config = load_config(write_config(tmp_path / "fit.toml", iterations=60), ["fit.supersample=2"])
     info = FirstFrameFit(integrating, config, tmp_path / "run", progress=False).run()
-    assert info["config_values"]["fit"]["supersample"] == 2
+    assert info.supersample == 2
     assert evaluate(tmp_path / "run")["train_masked_psnr"] > 12  # an empty render scores about 8 dB inside these masks

@@ -37,6 +37,7 @@ def run(args: argparse.Namespace) -> int:
     for out, holdout in plan:
         fit = FirstFrameFit(session, config, out, holdout=holdout, backend=args.backend, progress=not args.no_progress)
         info = fit.run()
-        print(f"{out}: {info['iterations']} iterations, {info['num_gaussians']} Gaussians, {info['wall_s']:.1f} s "
-              f"(held out: {', '.join(info['heldout_cameras']) or 'none'})")
+        resumed = f", resumed from iteration {info.resumed_from}" if info.resumed_from is not None else ""
+        print(f"{out}: {info.iterations} iterations{resumed}, {info.num_gaussians} Gaussians, {info.wall_s:.1f} s "
+              f"(held out: {', '.join(info.heldout_cameras) or 'none'})")
     return 0

@@ -147,10 +147,11 @@ def run_demo(out: Path, settings: DemoSettings = DemoSettings(), progress: bool 
     from mmcsplat.outputs.report import write_report
     from mmcsplat.outputs.run_frames import RunStates
     from mmcsplat.pipeline.evaluate import evaluate
-    from mmcsplat.pipeline.fit import RUN_INFO, FirstFrameFit
+    from mmcsplat.pipeline.fit import FirstFrameFit
     from mmcsplat.pipeline.ingest import ingest
     from mmcsplat.pipeline.segment import segment_session
     from mmcsplat.pipeline.track import track_run
+    from mmcsplat.storage.run_info import RUN_INFO
     from mmcsplat.storage.session import SessionReader
     from mmcsplat.synthetic.synthesize import SynthConfig, synthesize
 

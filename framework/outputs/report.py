@@ -21,9 +21,10 @@ from mmcsplat.configuration.registry import Registry
 from mmcsplat.outputs.report_html import esc, image, markdown_html, page, table, video
 from mmcsplat.outputs.video import encode_png
 from mmcsplat.pipeline.evaluate import METRICS_FILE
-from mmcsplat.pipeline.fit import CHECKPOINT, RUN_INFO
+from mmcsplat.pipeline.fit import CHECKPOINT
 from mmcsplat.plugin_api.errors import InputError, MissingFileError
 from mmcsplat.storage.atomic import write_text_atomic
+from mmcsplat.storage.run_info import RUN_INFO
 
 if TYPE_CHECKING:  # torch-heavy modules are imported only when a run is reported
     from mmcsplat.outputs.renders import RunRenderer
@@ -93,7 +94,7 @@ def run_report(run: Path, backend: str | None = None, registry: Registry | None 
     states = RunStates(run)
     renderer = RunRenderer(states, backend=backend, registry=registry, progress=False)
     metrics = json.loads((run / METRICS_FILE).read_text()) if (run / METRICS_FILE).is_file() else None
-    sections = [run_summary(states), views_section(renderer, backend or states.info["renderer"]), metrics_section(run, metrics), renders_section(run, states)]
+    sections = [run_summary(states), views_section(renderer, backend or states.info.renderer), metrics_section(run, metrics), renders_section(run, states)]
     return page(f"Run {Path(run).resolve()}", sections)
 
 
@@ -106,9 +107,9 @@ def run_summary(states: RunStates) -> str:
     """What was fitted: session, configuration, renderer, cameras, frames."""
     info = states.info
     tracked = f"{states.num_frames} frames from session frame {states.first_frame}" if states.tracks is not None else "no (first-frame fit only)"
-    rows = [("session", info["session"]), ("configuration", info.get("config", "")), ("renderer", info["renderer"]),
-            ("fitted frame", info["frame"]), ("training cameras", ", ".join(info["train_cameras"])),
-            ("held-out cameras", ", ".join(info["heldout_cameras"]) or "none"), ("tracked", tracked)]
+    rows = [("session", info.session), ("configuration", info.config), ("renderer", info.renderer),
+            ("fitted frame", info.frame), ("training cameras", ", ".join(info.train_cameras)),
+            ("held-out cameras", ", ".join(info.heldout_cameras) or "none"), ("tracked", tracked)]
     return "<h2>Run</h2>" + table(None, rows)
 
 
@@ -116,8 +117,8 @@ def views_section(renderer: RunRenderer, backend: str) -> str:
     """The held-out cameras (else the first training camera) at the run's first frame: colour, depth and
     segmentation, rendered beside the session's ground truth."""
     states = renderer.states
-    names = states.info["heldout_cameras"] or states.info["train_cameras"][:1]
-    role = "held-out" if states.info["heldout_cameras"] else "training (no camera is held out)"
+    names = states.info.heldout_cameras or states.info.train_cameras[:1]
+    role = "held-out" if states.info.heldout_cameras else "training (no camera is held out)"
     parts = [f"<h2>Renders beside the ground truth</h2><p>Session frame {states.first_frame}, {esc(role)} "
              f"camera{'s' if len(names) > 1 else ''}, rendered with {esc(backend)}.</p>"]
     parts += [camera_views(renderer, name) for name in names]

@@ -31,7 +31,7 @@ class RunStates:
         self.info, fitted, _, _ = load_fitted(self.run)
         self.tracks = TrackReader(self.run) if (self.run / TRACKS_DIR).exists() else None
         self._fitted = None if self.tracks is not None else {name: value.detach().float() for name, value in fitted.items()}
-        first = self.tracks.attrs.get("first_frame", self.info["frame"]) if self.tracks is not None else self.info["frame"]
+        first = self.tracks.attrs.get("first_frame", self.info.frame) if self.tracks is not None else self.info.frame
         self.first_frame = int(first)
 
     @property
@@ -42,9 +42,9 @@ class RunStates:
     def session(self) -> SessionReader:
         """The session the run was fitted on (opened on first use: export does not need it)."""
         try:
-            return SessionReader(self.info["session"])
+            return SessionReader(self.info.session)
         except FileNotFoundError as error:
-            raise MissingFileError(f"{self.run}: its session {self.info['session']} cannot be opened ({error})") from error
+            raise MissingFileError(f"{self.run}: its session {self.info.session} cannot be opened ({error})") from error
 
     def params(self, k: int) -> dict[str, torch.Tensor]:
         """Every ``GAUSSIAN_PARAMETERS`` tensor at frame ``k``."""
@@ -76,13 +76,13 @@ class RunStates:
 
     @property
     def train_cameras(self) -> list[Camera]:
-        return [self.session.camera(name) for name in self.info["train_cameras"]]
+        return [self.session.camera(name) for name in self.info.train_cameras]
 
     def camera(self, name: str | None) -> Camera:
         """The session camera ``name``; by default the run's first held-out camera (else its first
         training camera)."""
         if name is None:
-            name = (self.info["heldout_cameras"] or self.info["train_cameras"])[0]
+            name = (self.info.heldout_cameras or self.info.train_cameras)[0]
         if name not in self.session.camera_names:
-            raise InputError(f"unknown camera {name!r}: session {self.info['session']} has {list(self.session.camera_names)}")
+            raise InputError(f"unknown camera {name!r}: session {self.info.session} has {list(self.session.camera_names)}")
         return self.session.camera(name)

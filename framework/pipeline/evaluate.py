@@ -14,11 +14,12 @@ from mmcsplat.analysis.rendered_views import render_over
 from mmcsplat.analysis.trajectory_error import evaluate_tracks
 from mmcsplat.analysis.visual_hull import FLOATER_MARGIN_PX, dilated, eroded, floater_share, mask_agreement
 from mmcsplat.configuration.registry import Registry, default_registry
-from mmcsplat.pipeline.fit import RUN_INFO, fitted_background, load_fitted
+from mmcsplat.pipeline.fit import fitted_background, load_fitted
 from mmcsplat.plugin_api.errors import MissingFileError
 from mmcsplat.plugin_api.render_contract import gaussians_from_params
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.atomic import write_json_atomic
+from mmcsplat.storage.run_info import RUN_INFO
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.storage.tracks import TRACKS_DIR, TrackReader
 from mmcsplat.training.backdrop import camera_backdrop
@@ -73,23 +74,23 @@ def evaluate_run(run: Path, registry: Registry | None = None, backend: str | Non
     of the other cameras' masks (:mod:`mmcsplat.analysis.visual_hull`; low for a camera with wrong extrinsics)."""
     registry = registry or default_registry()
     info, params, camera_scale, camera_offset = load_fitted(run)
-    session = SessionReader(info["session"])
+    session = SessionReader(info.session)
     renderer = run_renderer(info, registry, backend)
     psnr = registry.create("metric", "psnr")
     ssim = registry.create("metric", "ssim")
     gaussians = gaussians_from_params(params)
-    frame = info["frame"]
+    frame = info.frame
     views = _mask_views(session, frame)
     background = fitted_background(info)
     scores: dict[str, dict[str, list[float]]] = {"val": {}, "train": {}}
     per_camera = {}
-    names = [*info["train_cameras"], *info["heldout_cameras"]]
+    names = [*info.train_cameras, *info.heldout_cameras]
     for name in names:
-        split = "train" if name in info["train_cameras"] else "val"
+        split = "train" if name in info.train_cameras else "val"
         data = session.frame(frame, name)
         rgb = render_over(renderer, gaussians, session.camera(name), camera_backdrop(background, session, name))
         if split == "train":  # training views are scored through their learnt colour correction
-            index = info["train_cameras"].index(name)
+            index = info.train_cameras.index(name)
             rgb = rgb * camera_scale[index] + camera_offset[index]
         prediction = rgb.clamp(0, 1).double().numpy()
         target = data.rgb.astype(np.float64) / 255.0
@@ -112,16 +113,16 @@ def evaluate_run(run: Path, registry: Registry | None = None, backend: str | Non
         "train_psnr": _mean(scores["train"].get("psnr", [])),
         "num_gaussians": int(params["means"].shape[0]),
         "floater_share": _floater_share(views, params),
-        "mask_agreement": _mask_agreement(views, np.asarray(info["scene_center"]), float(info["scene_scale"])),
-        "iterations": info["iterations"],
-        "wall_s": info["wall_s"],
-        "status": info["status"],
-        "heldout_cameras": info["heldout_cameras"],
+        "mask_agreement": _mask_agreement(views, np.asarray(info.scene_center), info.scene_scale),
+        "iterations": info.iterations,
+        "wall_s": info.wall_s,
+        "status": info.status,
+        "heldout_cameras": list(info.heldout_cameras),
         "per_camera": per_camera,
     }
     if (Path(run) / TRACKS_DIR).exists():
-        metrics.update(evaluate_tracks(Path(run), session, info["heldout_cameras"], ground_truth, renderer, psnr, background))
-        report = detect_drift(TrackReader(run), session, info["train_cameras"])
+        metrics.update(evaluate_tracks(Path(run), session, info.heldout_cameras, ground_truth, renderer, psnr, background))
+        report = detect_drift(TrackReader(run), session, info.train_cameras)
         metrics.update(drift=report.drift, drift_per_frame=report.counts, drift_foreground=report.foreground)
     write_json_atomic(Path(run) / METRICS_FILE, metrics)
     return metrics

@@ -8,11 +8,9 @@ and the final Gaussians.
 
 from __future__ import annotations
 
-import json
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
 import attrs
 import numpy as np
@@ -25,7 +23,7 @@ from mmcsplat.plugin_api.interfaces import Densifier, Initializer, Renderer, Sce
 from mmcsplat.plugin_api.render_contract import RenderCameras
 from mmcsplat.scene.camera import Camera
 from mmcsplat.scene.rig import rig_center, rig_scale
-from mmcsplat.storage.atomic import write_json_atomic
+from mmcsplat.storage.run_info import COMPLETE, DIVERGED, RUN_INFO, RUNNING, RunInfo
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.training.backdrop import Background, camera_backdrop, parse_background
 from mmcsplat.training.checkpoint import read_checkpoint, resume_checkpoint, save_checkpoint
@@ -38,7 +36,6 @@ from mmcsplat.training.supersampling import supersampled
 from mmcsplat.training.views import load_view, require_masks, subject_warnings
 
 CHECKPOINT = "checkpoint.pt"
-RUN_INFO = "run.json"
 
 
 @attrs.define
@@ -96,6 +93,7 @@ class FirstFrameFit:
         self.settings = FitSettings.from_config(config)
         self.registry = registry or default_registry()
         self.progress = progress
+        self.resumed_from: int | None = None
         self.renderer_name = backend or config.plugin("renderer").name
         renderer_params = dict(config.plugin("renderer").params) if not backend else {}
         self.renderer: Renderer = supersampled(self.registry.create("renderer", self.renderer_name, **renderer_params), self.settings.supersample)
@@ -135,8 +133,8 @@ class FirstFrameFit:
 
     # -------------------------------------------------------------------------------------- training
 
-    def run(self) -> dict[str, Any]:
-        """Train to ``settings.iterations`` (resuming from a checkpoint in ``out``); returns run.json."""
+    def run(self) -> RunInfo:
+        """Train to ``settings.iterations`` (resuming from a checkpoint in ``out``); returns run.json's record."""
         from tqdm import tqdm
 
         self.out.mkdir(parents=True, exist_ok=True)
@@ -150,6 +148,7 @@ class FirstFrameFit:
         checkpoint = self.out / CHECKPOINT
         if checkpoint.exists():
             start, elapsed, record = self._resume(checkpoint, model, generator, schedule, densify_state)
+            self.resumed_from = start
         cameras = self._render_cameras()
         bar = tqdm(range(start, settings.iterations), initial=start, total=settings.iterations, desc="fit", disable=not self.progress, unit="it")
         began = time.perf_counter() - elapsed
@@ -179,13 +178,12 @@ class FirstFrameFit:
                 if done % settings.checkpoint_every == 0 or done == settings.iterations:
                     self._checkpoint(checkpoint, model, generator, schedule, record, densify_state, done, time.perf_counter() - began)
         except FitError as error:
-            info = self._info(model, record, step, time.perf_counter() - began, "diverged", str(error))
-            write_json_atomic(self.out / RUN_INFO, info)
+            self._info(model, record, step, time.perf_counter() - began, DIVERGED, str(error)).write(self.out)
             raise
         finally:
             bar.close()
-        info = self._info(model, record, settings.iterations, time.perf_counter() - began, "complete")
-        write_json_atomic(self.out / RUN_INFO, info)
+        info = self._info(model, record, settings.iterations, time.perf_counter() - began, COMPLETE)
+        info.write(self.out)
         return info
 
     def _prune(self, model: GaussianModel, step: int) -> None:
@@ -212,7 +210,7 @@ class FirstFrameFit:
             "densifier": densify_state,
         }
         save_checkpoint(path, self.config.values, state)
-        write_json_atomic(self.out / RUN_INFO, self._info(model, record, step, elapsed, "running" if step < self.settings.iterations else "complete"))
+        self._info(model, record, step, elapsed, RUNNING if step < self.settings.iterations else COMPLETE).write(self.out)
 
     def _resume(self, path: Path, model, generator, schedule, densify_state) -> tuple[int, float, BlockLosses]:
         payload = resume_checkpoint(path, self.config.values, "a different configuration", "use a new --out or delete the checkpoint")
@@ -223,39 +221,40 @@ class FirstFrameFit:
         densify_state.update(payload["densifier"])
         return int(payload["step"]), float(payload["elapsed"]), BlockLosses(**payload["losses"])
 
-    def _info(self, model: GaussianModel, record: BlockLosses, step: int, elapsed: float, status: str, error: str | None = None) -> dict[str, Any]:
-        return {
-            "status": status,
-            "error": error,
-            "warnings": self.warnings,
-            "session": self.session.url if "://" in self.session.url else str(Path(self.session.url).resolve()),
-            "config": self.config.source,
-            "config_values": self.config.values,
-            "renderer": self.renderer_name,
-            "frame": self.settings.frame,
-            "train_cameras": [c.name for c in self.train_cameras],
-            "heldout_cameras": [c.name for c in self.heldout_cameras],
-            "iterations": step,
-            "num_gaussians": model.count,
-            "wall_s": round(elapsed, 3),
-            "loss_min": record.lowest,
-            "loss_final": record.last,
-            "scene_center": np.asarray(self.scene.center).tolist(),
-            "scene_scale": self.scene.scale,
-        }
+    def _info(self, model: GaussianModel, record: BlockLosses, step: int, elapsed: float, status: str, error: str | None = None) -> RunInfo:
+        return RunInfo(
+            status=status,
+            error=error,
+            warnings=self.warnings,
+            session=self.session.url if "://" in self.session.url else str(Path(self.session.url).resolve()),
+            config=self.config.source,
+            config_values=self.config.values,
+            renderer=self.renderer_name,
+            frame=self.settings.frame,
+            train_cameras=[c.name for c in self.train_cameras],
+            heldout_cameras=[c.name for c in self.heldout_cameras],
+            iterations=step,
+            num_gaussians=model.count,
+            wall_s=round(elapsed, 3),
+            loss_min=record.lowest,
+            loss_final=record.last,
+            scene_center=np.asarray(self.scene.center).tolist(),
+            scene_scale=self.scene.scale,
+            resumed_from=self.resumed_from,
+        )
 
 
-def load_fitted(out: Path) -> tuple[dict[str, Any], dict[str, torch.Tensor], torch.Tensor, torch.Tensor]:
-    """(run.json, final parameters, camera colour scale, offset) of a completed run directory."""
+def load_fitted(out: Path) -> tuple[RunInfo, dict[str, torch.Tensor], torch.Tensor, torch.Tensor]:
+    """(run.json's record, final parameters, camera colour scale, offset) of a run directory."""
     out = Path(out)
-    info_path, checkpoint = out / RUN_INFO, out / CHECKPOINT
-    if not info_path.exists() or not checkpoint.exists():
+    checkpoint = out / CHECKPOINT
+    if not (out / RUN_INFO).exists() or not checkpoint.exists():
         raise MissingFileError(f"{out} is not a fit run directory (needs {RUN_INFO} and {CHECKPOINT})")
-    info = json.loads(info_path.read_text())
+    info = RunInfo.read(out)
     model = read_checkpoint(checkpoint)["model"]
     return info, model["params"], model["camera_scale"], model["camera_offset"]
 
 
-def fitted_background(info: Mapping[str, Any]) -> Background:
-    """The ``fit.background`` a run was fitted with, from its run.json ``info``."""
-    return parse_background(info.get("config_values", {}).get("fit", {}).get("background", (0.0, 0.0, 0.0)))
+def fitted_background(info: RunInfo) -> Background:
+    """The ``fit.background`` a run was fitted with."""
+    return parse_background(info.background_value)

@@ -16,10 +16,11 @@ from typing import Any
 
 from mmcsplat.configuration.config import Config, PluginChoice, apply_override, load_config
 from mmcsplat.configuration.registry import Registry, default_registry
-from mmcsplat.pipeline.fit import RUN_INFO, load_fitted
+from mmcsplat.pipeline.fit import load_fitted
 from mmcsplat.plugin_api.errors import InputError, OutputExistsError
 from mmcsplat.plugin_api.interfaces import Dynamics, TrackingContext
 from mmcsplat.storage.atomic import write_json_atomic
+from mmcsplat.storage.run_info import RUN_INFO, RunInfo
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.storage.tracks import TRACKS_DIR
 from mmcsplat.training.backdrop import camera_backdrop
@@ -31,7 +32,7 @@ TRACK_INFO = "track.json"
 
 
 def tracking_config(
-    run: Path, info: Mapping[str, Any], config: str | Path | None, overrides: Iterable[str], dynamics: str | None
+    run: Path, info: RunInfo, config: str | Path | None, overrides: Iterable[str], dynamics: str | None
 ) -> tuple[Config, PluginChoice]:
     """The configuration to track with (``config``, else the one ``run`` was fitted with, from its run.json
     ``info``) after ``overrides``, and its dynamics choice; ``dynamics`` names the method instead of the
@@ -39,7 +40,7 @@ def tracking_config(
     if config is not None:
         loaded = load_config(config, overrides)
     else:
-        values: Mapping[str, Any] = info["config_values"]
+        values: Mapping[str, Any] = info.config_values
         source = f"the configuration of {Path(run) / RUN_INFO}"
         for override in overrides:
             values = apply_override(values, override, source)
@@ -70,27 +71,27 @@ def track_run(
     run = Path(run)
     registry = registry or default_registry()
     info, params, camera_scale, camera_offset = load_fitted(run)
-    if info.get("status") != "complete":
-        raise InputError(f"{run / RUN_INFO}: the first-frame fit is {info.get('status')!r}, not complete: finish it with `mmcsplat fit` first")
+    if not info.complete:
+        raise InputError(f"{run / RUN_INFO}: the first-frame fit is {info.status!r}, not complete: finish it with `mmcsplat fit` first")
     if (run / TRACKS_DIR).exists() and not overwrite:
         raise OutputExistsError(f"{run / TRACKS_DIR} already exists (use --overwrite to replace it)")
     loaded, choice = tracking_config(run, info, config, overrides, dynamics)
     method: Dynamics = choice.build(registry)
-    session = SessionReader(info["session"])
+    session = SessionReader(info.session)
     settings = FitSettings.from_config(loaded)
-    first = int(info["frame"])
+    first = info.frame
     stop = session.num_frames if frames is None else min(session.num_frames, first + frames)
     if stop - first < 2:
         raise InputError(f"{run}: frames {first}–{stop - 1} of session {session.url!r} leave nothing to track after the fitted frame")
-    renderer_name = backend or info["renderer"]
-    cameras = tuple(session.camera(name) for name in info["train_cameras"])
+    renderer_name = backend or info.renderer
+    cameras = tuple(session.camera(name) for name in info.train_cameras)
     initializers = tuple(c.build(registry) for c in loaded.plugins("initializer"))
-    backdrops = tuple(camera_backdrop(settings.background, session, name) for name in info["train_cameras"])
+    backdrops = tuple(camera_backdrop(settings.background, session, name) for name in info.train_cameras)
 
     context = TrackingContext(
         session=session,
         cameras=cameras,
-        heldout=tuple(session.camera(name) for name in info["heldout_cameras"]),
+        heldout=tuple(session.camera(name) for name in info.heldout_cameras),
         frames=range(first, stop),
         params=params,
         camera_scale=camera_scale,
@@ -99,8 +100,8 @@ def track_run(
         settings=settings,
         initializers=initializers,
         backdrops=backdrops,
-        scene_center=tuple(info["scene_center"]),
-        scene_scale=float(info["scene_scale"]),
+        scene_center=info.scene_center,
+        scene_scale=info.scene_scale,
         config=loaded,
         registry=registry,
         views=lambda t: load_views(session, t, cameras, initializers, backdrops, settings),

@@ -16,6 +16,7 @@ from typing import Any
 import attrs
 
 from mmcsplat.storage.atomic import write_json_atomic
+from mmcsplat.storage.run_info import RUN_INFO, RunInfo
 from mmcsplat.studies.spec import CellSpec
 
 CELL_FILE = "cell.json"
@@ -106,17 +107,17 @@ def _run(spec: CellSpec, cell_dir: Path) -> dict[str, Any]:
     info, resumed_at = _fit(spec, cell_dir)
     track = _track(cell_dir) if spec.has_dynamics else {}
     metrics = evaluate_run(cell_dir, ground_truth=Path(spec.ground_truth) if spec.ground_truth else None)
-    wall = float(info["wall_s"])
+    wall = info.wall_s
     return {
         **{key: metrics.get(key) for key in ("val_masked_psnr", "val_psnr", "val_ssim", "train_masked_psnr", "val_interior_masked_psnr", "train_psnr",
                                              "num_gaussians", "floater_share", "mask_agreement", "drift", "tracking_median_mm", "tracking_p90_mm",
                                              "per_frame_val_masked_psnr", "tracking_per_frame_median_mm")},
-        "loss_min": info.get("loss_min"),
-        "loss_final": info.get("loss_final"),
-        "warnings": list(info.get("warnings", [])),
-        "iterations": int(info["iterations"]),
+        "loss_min": info.loss_min,
+        "loss_final": info.loss_final,
+        "warnings": list(info.warnings),
+        "iterations": info.iterations,
         "wall_s": wall,
-        "iterations_per_s": info["iterations"] / wall if wall > 0 else None,
+        "iterations_per_s": info.iterations / wall if wall > 0 else None,
         "track_method": track.get("method"),
         "track_wall_s": track.get("wall_s"),
         "track_wall_s_per_frame": track.get("wall_s_per_frame"),
@@ -124,19 +125,17 @@ def _run(spec: CellSpec, cell_dir: Path) -> dict[str, Any]:
     }
 
 
-def _fit(spec: CellSpec, cell_dir: Path) -> tuple[dict[str, Any], int | None]:
-    """(run.json, the iteration resumed from) of the cell's first-frame fit, trained unless complete."""
-    from mmcsplat.pipeline.fit import CHECKPOINT, RUN_INFO, FirstFrameFit
+def _fit(spec: CellSpec, cell_dir: Path) -> tuple[RunInfo, int | None]:
+    """(run.json's record, the iteration resumed from) of the cell's first-frame fit, trained unless complete."""
+    from mmcsplat.pipeline.fit import FirstFrameFit
     from mmcsplat.storage.session import SessionReader
 
-    info_path = cell_dir / RUN_INFO
-    previous = json.loads(info_path.read_text()) if info_path.exists() else None
-    if previous is not None and previous["status"] == COMPLETE:
+    previous = RunInfo.read(cell_dir) if (cell_dir / RUN_INFO).exists() else None
+    if previous is not None and previous.complete:
         return previous, None
-    # run.json is rewritten with every checkpoint: its iteration count is the checkpoint's.
-    resumed_at = int(previous["iterations"]) if previous is not None and (cell_dir / CHECKPOINT).exists() else None
     fit = FirstFrameFit(SessionReader(spec.session_url), spec.config, cell_dir, holdout=spec.holdout, progress=False)
-    return fit.run(), resumed_at
+    info = fit.run()
+    return info, info.resumed_from
 
 
 def _track(cell_dir: Path) -> dict[str, Any]:

@@ -10,9 +10,6 @@ is evaluated, tracked and rendered with it too (:func:`run_renderer`).
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import Any
-
 import attrs
 import torch
 
@@ -21,6 +18,7 @@ from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.interfaces import Renderer
 from mmcsplat.plugin_api.render_contract import Gaussians, RenderCameras, RenderOutput
 from mmcsplat.scene.camera import resize_matrix
+from mmcsplat.storage.run_info import RunInfo
 
 
 def subpixel_cameras(cameras: RenderCameras, factor: int) -> RenderCameras:
@@ -69,12 +67,7 @@ def supersampled(renderer: Renderer, factor: int) -> Renderer:
     return renderer if factor == 1 else SupersampledRenderer(renderer, factor)
 
 
-def fitted_supersample(info: Mapping[str, Any]) -> int:
-    """The ``fit.supersample`` a run was fitted with, from its run.json ``info`` (1 for older runs)."""
-    return int(info.get("config_values", {}).get("fit", {}).get("supersample", 1))
-
-
-def run_renderer(info: Mapping[str, Any], registry: Registry, backend: str | None = None) -> Renderer:
+def run_renderer(info: RunInfo, registry: Registry, backend: str | None = None) -> Renderer:
     """The renderer that shows a fitted run as it was fitted: ``backend`` (default: the run's own), at
     the run's ``fit.supersample``."""
-    return supersampled(registry.create("renderer", backend or info["renderer"]), fitted_supersample(info))
+    return supersampled(registry.create("renderer", backend or info.renderer), info.supersample)
