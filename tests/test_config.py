@@ -30,11 +30,11 @@ def test_selected_plugin_builds_through_registry(tmp_path):
 
 
 def test_overrides_parse_values(tmp_path):
-    config = load_config(write(tmp_path, "[train]\niterations = 10\n"), ["train.iterations=20", "train.name=fast", "train.lr=[1, 2]"])
-    assert config.get("train.iterations") == 20
-    assert config.get("train.name") == "fast"
-    assert config.get("train.lr") == [1, 2]
-    assert config.get("train.missing", "d") == "d"
+    config = load_config(write(tmp_path, "[fit]\niterations = 10\n"), ["fit.iterations=20", "renderer.name=fast", "fit.lrs=[1, 2]"])
+    assert config.get("fit.iterations") == 20
+    assert config.get("renderer.name") == "fast"
+    assert config.get("fit.lrs") == [1, 2]
+    assert config.get("fit.missing", "d") == "d"
     with pytest.raises(ConfigError, match="key.path=value"):
         apply_override({}, "no-equals-sign")
     with pytest.raises(ConfigError, match="not a table"):
@@ -50,6 +50,12 @@ def test_overrides_reach_into_arrays_of_tables_by_index_or_name():
         set_value(values, "initializer.visual-hull.num_points", 5)
     with pytest.raises(ConfigError, match="index 2 is past the 2 table"):
         set_value(values, "initializer.2.num_points", 5)
+
+
+def test_an_unknown_table_is_refused_not_ignored(tmp_path):
+    for source, overrides in [("[fitt]\niterations = 3\n", []), ("[fit]\n", ["nosection.x=3"])]:
+        with pytest.raises(ConfigError, match="unknown table.*a configuration has fit, renderer"):
+            load_config(write(tmp_path, source), overrides)
 
 
 def test_errors_name_the_source(tmp_path):

@@ -88,9 +88,10 @@ def test_nan_stops_cleanly_keeping_the_last_good_checkpoint(session, tmp_path, m
 
 def test_nan_through_the_cli_is_a_clear_error(session, tmp_path, capsys):
     config = write_config(tmp_path / "fit.toml", iterations=5)
-    code = main(["fit", session.url, "--config", str(config), "--out", str(tmp_path / "run"), "--no-progress",
-                 "--set", "fit.lrs.opacity_logits=inf"])
-    assert code == 2
+    fit = ["fit", session.url, "--config", str(config), "--out", str(tmp_path / "run"), "--no-progress"]
+    assert main([*fit, "--set", "fit.lrs.opacity_logits=inf"]) == 2  # refused before training
+    assert "lrs: opacity_logits must be a finite number > 0, got inf" in capsys.readouterr().err
+    assert main([*fit, "--set", "fit.lrs.log_scales=1e30"]) == 2  # finite, but training blows up
     assert "non-finite" in capsys.readouterr().err
 
 

@@ -76,9 +76,10 @@ def test_every_backend_supersamples(backend):
 def test_factor_one_is_the_renderer_itself_and_bad_factors_are_refused():
     renderer = TorchReferenceRenderer()
     assert supersampled(renderer, 1) is renderer
-    for bad in (0, 1.5, True):
-        with pytest.raises(ValueError, match=r"fit.supersample must be a whole number ≥ 1.*got"):
-            FitSettings(supersample=bad)
+    for bad, message in ((0, "supersample must be ≥ 1, got 0"), (1.5, "'supersample' must be an integer, got 1.5"),
+                         (True, "'supersample' must be an integer, got True")):
+        with pytest.raises(ValueError, match=message):
+            FitSettings.from_table({"supersample": bad}, "test")
 
 
 @pytest.fixture(scope="module")

@@ -46,12 +46,23 @@ class PluginChoice:
         return (registry or default_registry()).create(self.kind, self.name, **dict(self.params))
 
 
+#: The tables of a configuration besides one per plugin kind.
+SETTINGS_TABLES = ("fit",)
+
+
 @attrs.frozen
 class Config:
-    """A loaded configuration: its source (file path or built-in name) and its values."""
+    """A loaded configuration: its source (file path or built-in name) and its values, whose top-level
+    tables are ``[fit]`` and plugin kinds (anything else is a typo, refused rather than ignored)."""
 
     source: str
     values: Mapping[str, Any]
+
+    def __attrs_post_init__(self) -> None:
+        known = (*SETTINGS_TABLES, *KIND_NAMES)
+        unknown = sorted(key for key in self.values if key not in known)
+        if unknown:
+            raise ConfigError(f"{self.source}: unknown table(s) {', '.join(map(repr, unknown))}; a configuration has {', '.join(known)}")
 
     def plugins(self, kind: str) -> list[PluginChoice]:
         """The implementations chosen for ``kind`` (empty when the configuration names none)."""

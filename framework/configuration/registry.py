@@ -27,7 +27,7 @@ from mmcsplat.plugin_api.errors import (
     UnknownPluginError,
 )
 from mmcsplat.plugin_api.kinds import KIND_NAMES, KINDS
-from mmcsplat.plugin_api.parameters import REGISTRY_PARAMETER, build_plugin
+from mmcsplat.plugin_api.parameters import REGISTRY_PARAMETER, build_from_table
 from mmcsplat.plugin_api.registration import Registration
 
 ENTRY_POINT_GROUP = "mmcsplat"
@@ -160,7 +160,7 @@ class Registry:
         factory = entry.load()
         injected = {REGISTRY_PARAMETER: self} if REGISTRY_PARAMETER in inspect.signature(factory).parameters else {}
         try:
-            return build_plugin(factory, params, f"{kind} {name!r}", **injected)
+            return build_from_table(factory, params, f"{kind} {name!r}", **injected)
         except TypeError as error:
             raise PluginError(f"{kind} {name!r} from {entry.origin} rejected its parameters {sorted(params)}: {error}") from error
 

@@ -2,7 +2,8 @@
 
 Every field that ``__init__`` takes is a parameter (``registry``, which the registry passes itself, is
 not), with its type annotation, its default, a one-line description (``parameter(..., doc=...)``) and
-optionally a range check. :func:`build_plugin` is the one place a configuration table becomes a plugin:
+optionally a range check. :func:`build_from_table` is the one place a configuration table becomes a plugin
+(or another typed table, such as ``[fit]``):
 it rejects unknown keys and values of the wrong type naming the plugin, converts what is unambiguous (an
 integer where a float is expected, a TOML array where a tuple is), and lets the class's validators check
 ranges. :func:`describe_parameters` is what ``mmcsplat plugins --show NAME`` prints.
@@ -13,6 +14,7 @@ and the errors must name the plugin and the key in the words of a configuration 
 
 from __future__ import annotations
 
+import math
 import types
 import typing
 from collections.abc import Callable, Mapping
@@ -38,6 +40,12 @@ def parameter(default: Any = attrs.NOTHING, *, doc: str, factory: Callable[[], A
 def at_least(bound: float) -> Callable[[Any, Any, Any], None]:
     """Validator: the value (when not ``None``) is ≥ ``bound``."""
     return _bound(lambda value: value >= bound, f"≥ {bound}")
+
+
+def finite_positive(_instance: Any, field: attrs.Attribute, value: Any) -> None:
+    """Validator: the value (when not ``None``) is a finite number > 0 (a learning rate, a size)."""
+    if value is not None and not 0 < value < math.inf:
+        raise ValueError(f"{field.name} must be a finite number > 0, got {value!r}")
 
 
 def above(bound: float) -> Callable[[Any, Any, Any], None]:
@@ -84,7 +92,7 @@ def configurable_fields(cls: type) -> list[attrs.Attribute]:
     return [field for field in attrs.fields(cls) if field.init and field.name != REGISTRY_PARAMETER]
 
 
-def build_plugin(cls: Callable[..., Any], table: Mapping[str, Any], owner: str, **injected: Any) -> Any:
+def build_from_table(cls: Callable[..., Any], table: Mapping[str, Any], owner: str, **injected: Any) -> Any:
     """``cls(**table, **injected)`` after checking the table's keys and value types against ``cls``'s
     fields when it is an attrs class (any other factory is called as it is). Errors name ``owner`` (e.g.
     "dynamics 'iterative'") and the key at fault."""
@@ -94,7 +102,7 @@ def build_plugin(cls: Callable[..., Any], table: Mapping[str, Any], owner: str, 
     unknown = sorted(set(table) - set(fields))
     if unknown:
         raise InputError(f"{owner}: unknown parameter(s) {', '.join(unknown)}; known: {', '.join(fields) or 'none'}")
-    checked = {key: _checked(value, fields[key].type, f"{owner}: parameter {key!r}") for key, value in table.items()}
+    checked = {key: _checked(value, fields[key].type, owner, key) for key, value in table.items()}
     try:
         return cls(**checked, **injected)
     except (ValueError, TypeError) as error:
@@ -115,11 +123,14 @@ def describe_parameters(cls: Callable[..., Any]) -> list[ParameterInfo] | None:
     return rows
 
 
-def _checked(value: Any, expected: Any, where: str) -> Any:
-    """``value`` as ``expected`` (converted where unambiguous), or an error naming ``where``."""
+def _checked(value: Any, expected: Any, owner: str, key: str) -> Any:
+    """``value`` as ``expected`` (converted where unambiguous; a table into a nested attrs class, checked
+    the same way), or an error naming ``owner`` and ``key``."""
+    if isinstance(expected, type) and attrs.has(expected) and isinstance(value, Mapping):
+        return build_from_table(expected, value, f"{owner} {key}")
     converted = _convert(value, expected)
     if converted is _MISMATCH:
-        raise InputError(f"{where} must be {_type_text(expected)}, got {value!r}")
+        raise InputError(f"{owner}: parameter {key!r} must be {_type_text(expected)}, got {value!r}")
     return converted
 
 

@@ -8,6 +8,7 @@ from collections.abc import Mapping
 import attrs
 import torch
 
+from mmcsplat.plugin_api.parameters import finite_positive, parameter
 from mmcsplat.plugin_api.render_contract import Gaussians, gaussians_from_params
 from mmcsplat.scene.gaussian_table import GAUSSIAN_PARAMETERS
 
@@ -16,13 +17,13 @@ from mmcsplat.scene.gaussian_table import GAUSSIAN_PARAMETERS
 class LearningRates:
     """Adam learning rates of the reference study (means are scaled by the scene scale)."""
 
-    means: float = 1.6e-4
-    quats: float = 1e-3
-    log_scales: float = 1e-3
-    opacity_logits: float = 5e-2
-    color_logits: float = 2.5e-3
-    seg_logits: float = 1e-3
-    camera_color: float = 1e-4
+    means: float = parameter(1.6e-4, doc="of the means, times the scene scale", validator=finite_positive)
+    quats: float = parameter(1e-3, doc="of the rotations", validator=finite_positive)
+    log_scales: float = parameter(1e-3, doc="of the log-scales", validator=finite_positive)
+    opacity_logits: float = parameter(5e-2, doc="of the opacity logits", validator=finite_positive)
+    color_logits: float = parameter(2.5e-3, doc="of the colour logits", validator=finite_positive)
+    seg_logits: float = parameter(1e-3, doc="of the segmentation logits", validator=finite_positive)
+    camera_color: float = parameter(1e-4, doc="of each camera's colour scale and offset", validator=finite_positive)
 
 
 class GaussianModel:

@@ -3,11 +3,13 @@ fits later frames against the same targets."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
 import attrs
 
 from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.plugin_api.parameters import at_least, between, build_from_table, parameter
 
 from .backdrop import Background, parse_background
 from .model import LearningRates
@@ -16,28 +18,21 @@ if TYPE_CHECKING:
     from mmcsplat.configuration.config import Config
 
 
-def _whole_factor(instance: Any, attribute: attrs.Attribute, value: Any) -> None:
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise InputError(f"fit.{attribute.name} must be a whole number ≥ 1 (sub-pixels per pixel side), got {value!r}")
-
-
 @attrs.frozen
 class FitSettings:
     """The ``[fit]`` table of a configuration."""
 
-    iterations: int = 2000
-    frame: int = 0
-    seed: int = 0
-    lambda_image: float = 1.0
-    lambda_seg: float = 3.0
-    ssim_weight: float = 0.2
-    checkpoint_every: int = 500
-    #: Render at N× and average N × N sub-pixels into each pixel, as a camera's pixel integrates over its
-    #: area (:mod:`mmcsplat.training.supersampling`); evaluation, tracking and renders of the run do the same.
-    supersample: int = attrs.field(default=1, validator=_whole_factor)
-    #: An RGB colour, or "plate": each camera's clean plate (:mod:`mmcsplat.training.backdrop`).
-    background: Background = attrs.field(default=(0.0, 0.0, 0.0), converter=parse_background)
-    lrs: LearningRates = attrs.field(factory=LearningRates, converter=lambda v: v if isinstance(v, LearningRates) else LearningRates(**v))
+    iterations: int = parameter(2000, doc="training iterations, one training camera each", validator=at_least(1))
+    frame: int = parameter(0, doc="the session frame fitted", validator=at_least(0))
+    seed: int = parameter(0, doc="seed of the initializers and the camera order")
+    lambda_image: float = parameter(1.0, doc="weight of the image loss", validator=at_least(0))
+    lambda_seg: float = parameter(3.0, doc="weight of the segmentation loss against the masks", validator=at_least(0))
+    ssim_weight: float = parameter(0.2, doc="share of D-SSIM in each loss (the rest is L1)", validator=between(0, 1))
+    checkpoint_every: int = parameter(500, doc="iterations between atomic checkpoints", validator=at_least(1))
+    supersample: int = parameter(1, doc="render at N× and average N × N sub-pixels per pixel (training.supersampling)", validator=at_least(1))
+    background: Background = parameter((0.0, 0.0, 0.0), doc='an RGB colour in [0, 1], or "plate": each camera\'s clean plate',
+                                       converter=parse_background)
+    lrs: LearningRates = parameter(doc="Adam learning rates by parameter", factory=LearningRates)
 
     @classmethod
     def from_config(cls, config: Config) -> FitSettings:
@@ -47,9 +42,6 @@ class FitSettings:
     @classmethod
     def from_table(cls, table: Any, source: str) -> FitSettings:
         """Settings from a ``[fit]`` table read from ``source`` (a configuration, or a run's run.json)."""
-        table = dict(table)
-        known = {field.name for field in attrs.fields(cls)}
-        unknown = sorted(set(table) - known)
-        if unknown:
-            raise InputError(f"{source}: unknown [fit] keys {unknown}; known: {sorted(known)}")
-        return cls(**table)
+        if not isinstance(table, Mapping):
+            raise InputError(f"{source}: [fit] must be a table, got {table!r}")
+        return build_from_table(cls, table, f"{source}: [fit]")
