@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import warnings
 
+import attrs
 import jax
 import jax.numpy as jnp
 import torch
@@ -20,6 +21,7 @@ import torch.utils.dlpack
 from mmcsplat.backends.jax_buckets import JaxRasterizer, Prepared
 from mmcsplat.backends.jax_raster import GAUSSIAN_FIELDS, CameraArrays, GaussianArrays
 from mmcsplat.plugin_api.interfaces import Renderer
+from mmcsplat.plugin_api.parameters import above, at_least, parameter
 from mmcsplat.plugin_api.render_contract import Gaussians, RenderCameras, RenderOutput, validate_render_inputs
 
 _warned: set[str] = set()
@@ -108,13 +110,18 @@ class _JaxRender(torch.autograd.Function):
         return None, None, None, *(g.to(dtype) for g, dtype in zip(grads, ctx.dtypes, strict=True))
 
 
+@attrs.define
 class JaxRenderer(Renderer):
-    """The ``jax`` backend. ``block_size``, ``cell_size`` and ``ratio`` configure the lists and the
-    bucketing (see :class:`~mmcsplat.backends.jax_buckets.JaxRasterizer`); one instance keeps its compiled
-    programs, so reuse it across a run."""
+    """The ``jax`` backend (lists and bucketing: :class:`~mmcsplat.backends.jax_buckets.JaxRasterizer`);
+    one instance keeps its compiled programs, so reuse it across a run."""
 
-    def __init__(self, block_size: int = 32, cell_size: int = 8, ratio: float = 1.25) -> None:
-        self.rasterizer = JaxRasterizer(block_size=block_size, cell_size=cell_size, ratio=ratio)
+    block_size: int = parameter(32, doc="Gaussians per list block", validator=at_least(1))
+    cell_size: int = parameter(8, doc="pixels per side of a bucketing cell; divides the 16-pixel tile", validator=at_least(1))
+    ratio: float = parameter(1.25, doc="growth factor between bucket sizes", validator=above(1))
+    rasterizer: JaxRasterizer = attrs.field(init=False, repr=False)
+
+    def __attrs_post_init__(self) -> None:
+        self.rasterizer = JaxRasterizer(block_size=self.block_size, cell_size=self.cell_size, ratio=self.ratio)
 
     def render(self, gaussians: Gaussians, cameras: RenderCameras, background: torch.Tensor | None = None) -> RenderOutput:
         """Render every camera; differentiable with respect to every Gaussian parameter, the background

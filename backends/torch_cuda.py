@@ -14,6 +14,7 @@ import torch
 
 from mmcsplat.backends.torch_projection import project
 from mmcsplat.plugin_api.interfaces import Renderer
+from mmcsplat.plugin_api.parameters import parameter
 from mmcsplat.plugin_api.render_contract import (
     LOW_PASS,
     NEAR_PLANE,
@@ -25,14 +26,14 @@ from mmcsplat.plugin_api.render_contract import (
 )
 
 
+@attrs.frozen
 class GsplatRenderer(Renderer):
     """Renders on ``device`` (a CUDA device) in float32; inputs elsewhere are moved there and the images
     moved back, in the input's dtype. ``RenderOutput.means2d`` is gsplat's projected-means tensor (on
     ``device``): its values are the 2D means, its ``.grad`` after backward the contract's screen-space
     gradient."""
 
-    def __init__(self, device: str = "cuda") -> None:
-        self.device = torch.device(device)
+    device: str = parameter("cuda", doc="the CUDA device to render on")
 
     def render(self, gaussians: Gaussians, cameras: RenderCameras, background: torch.Tensor | None = None) -> RenderOutput:
         """Render every camera with ``gsplat.rasterization`` (RGB + expected depth, features as extra channels)."""

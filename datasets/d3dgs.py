@@ -23,6 +23,7 @@ import numpy as np
 
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.interfaces import Reader, RecordedFrame, Recording
+from mmcsplat.plugin_api.parameters import finite_positive, parameter
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.calibration import metres_per_unit, read_calibration
 from mmcsplat.storage.capture_files import read_image, read_json, read_mask, require_files
@@ -41,13 +42,11 @@ class _CameraFrames:
     meta: Path
 
 
+@attrs.frozen
 class D3DGSReader(Reader):
     """Reads the Dynamic3DGaussians layout; ``fps`` is the capture's frame rate, which the files lack."""
 
-    def __init__(self, fps: float = 30.0) -> None:
-        if not fps > 0:
-            raise InputError(f"d3dgs reader: fps must be positive, got {fps}")
-        self.fps = float(fps)
+    fps: float = parameter(30.0, doc="the capture's frame rate", validator=finite_positive)
 
     def detect(self, source: Path) -> bool:
         """A folder with a ``train_meta.json``."""

@@ -11,9 +11,12 @@ from __future__ import annotations
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
-from mmcsplat.datasets.rig import RigRecording, check_size_mismatch, common_length, find_calibration, fit_camera, match_cameras, natural_key
-from mmcsplat.plugin_api.errors import InputError, NotAFolderError
+import attrs
+
+from mmcsplat.datasets.rig import SIZE_MISMATCH_PARAMETER, RigRecording, common_length, find_calibration, fit_camera, match_cameras, natural_key
+from mmcsplat.plugin_api.errors import NotAFolderError
 from mmcsplat.plugin_api.interfaces import Reader, RecordedFrame, Recording
+from mmcsplat.plugin_api.parameters import finite_positive, parameter
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.calibration import read_calibration
 from mmcsplat.storage.capture_files import PLATES_FOLDER, read_image
@@ -37,15 +40,12 @@ def camera_folders(source: Path) -> list[Path]:
     return []
 
 
+@attrs.frozen
 class ImageSequenceReader(Reader):
-    """Reads per-camera image folders; ``fps`` is the capture's frame rate, ``size_mismatch`` as for
-    :class:`~mmcsplat.datasets.videos.VideoReader`."""
+    """Reads per-camera image folders."""
 
-    def __init__(self, fps: float = 30.0, size_mismatch: str = "scale") -> None:
-        if not fps > 0:
-            raise InputError(f"images reader: fps must be positive, got {fps}")
-        self.fps = float(fps)
-        self.size_mismatch = check_size_mismatch(size_mismatch)
+    fps: float = parameter(30.0, doc="the capture's frame rate", validator=finite_positive)
+    size_mismatch: str = SIZE_MISMATCH_PARAMETER
 
     def detect(self, source: Path) -> bool:
         source = Path(source)

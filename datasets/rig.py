@@ -21,6 +21,7 @@ import numpy as np
 
 from mmcsplat.plugin_api.errors import InputError, MissingFileError
 from mmcsplat.plugin_api.interfaces import RecordedFrame, Recording
+from mmcsplat.plugin_api.parameters import one_of, parameter
 from mmcsplat.scene.camera import Camera
 
 #: How a decoded size that differs from the calibration's is reconciled (see :func:`fit_camera`).
@@ -89,11 +90,9 @@ def match_cameras(cameras: Sequence[Camera], paths: Iterable[Path], what: str, w
     return matched
 
 
-def check_size_mismatch(policy: str) -> str:
-    """``policy`` if it is one of :data:`SIZE_MISMATCH_POLICIES`, else a clear error."""
-    if policy not in SIZE_MISMATCH_POLICIES:
-        raise InputError(f"unknown size_mismatch policy {policy!r}; choose one of {', '.join(SIZE_MISMATCH_POLICIES)}")
-    return policy
+#: The ``size_mismatch`` parameter of the readers that decode images against a calibration.
+SIZE_MISMATCH_PARAMETER = parameter("scale", doc="a decoded size unlike the calibration's: scale K, crop, or error (fit_camera)",
+                                    validator=one_of(*SIZE_MISMATCH_POLICIES))
 
 
 def fit_camera(camera: Camera, width: int, height: int, policy: str, what: str) -> Camera:
@@ -103,7 +102,8 @@ def fit_camera(camera: Camera, width: int, height: int, policy: str, what: str) 
     by more than ``MAX_ANISOTROPY``, e.g. a rotated video); ``"crop"`` keeps K and takes the images as the
     top-left part of the calibrated frame; ``"error"`` refuses.
     """
-    check_size_mismatch(policy)
+    if policy not in SIZE_MISMATCH_POLICIES:
+        raise InputError(f"unknown size_mismatch policy {policy!r}; choose one of {', '.join(SIZE_MISMATCH_POLICIES)}")
     if (width, height) == (camera.width, camera.height):
         return camera
     mismatch = f"{what} decodes at {width}×{height} but camera {camera.name!r} is calibrated at {camera.width}×{camera.height}"

@@ -17,7 +17,7 @@ from pathlib import Path
 import attrs
 import numpy as np
 
-from mmcsplat.datasets.rig import RigRecording, check_size_mismatch, common_length, find_calibration, fit_camera, match_cameras
+from mmcsplat.datasets.rig import SIZE_MISMATCH_PARAMETER, RigRecording, common_length, find_calibration, fit_camera, match_cameras
 from mmcsplat.plugin_api.errors import InputError, NotAFolderError
 from mmcsplat.plugin_api.interfaces import Reader, RecordedFrame, Recording
 from mmcsplat.scene.camera import Camera
@@ -70,13 +70,11 @@ def probe(path: Path) -> VideoInfo:
         capture.release()
 
 
+@attrs.frozen
 class VideoReader(Reader):
-    """Reads a folder of per-camera videos; ``size_mismatch`` is how a decoded size that differs from the
-    calibration's is handled: ``"scale"`` K (default), ``"crop"`` or ``"error"`` (see
-    :func:`mmcsplat.datasets.rig.fit_camera`)."""
+    """Reads a folder of per-camera videos."""
 
-    def __init__(self, size_mismatch: str = "scale") -> None:
-        self.size_mismatch = check_size_mismatch(size_mismatch)
+    size_mismatch: str = SIZE_MISMATCH_PARAMETER
 
     def detect(self, source: Path) -> bool:
         return Path(source).is_dir() and bool(video_files(Path(source)))

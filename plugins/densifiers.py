@@ -4,10 +4,11 @@ from __future__ import annotations
 
 from typing import Any
 
+import attrs
 import torch
 
-from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.interfaces import Densifier
+from mmcsplat.plugin_api.parameters import at_least, between, finite_positive, parameter
 from mmcsplat.plugin_api.render_contract import RenderOutput
 from mmcsplat.scene.quaternions import quat_to_rotmat
 from mmcsplat.training.model import GaussianModel
@@ -26,36 +27,21 @@ def _set_opacity(model: GaussianModel, opacity_logits: torch.Tensor) -> None:
         state["exp_avg_sq"].zero_()
 
 
+@attrs.frozen
 class DefaultDensifier(Densifier):
-    """3DGS densification: Gaussians whose accumulated screen-space gradient reaches ``grad_threshold`` are
-    cloned (small) or split in two (larger than ``size_fraction`` × scene scale, children's scales divided by
-    ``split_factor``); Gaussians with opacity below ``prune_opacity`` or larger than ``prune_size_fraction`` ×
-    scene scale are pruned; every ``every`` iterations from ``start`` to ``stop``. Opacities are reset to
-    ``reset_opacity`` every ``reset_every`` iterations."""
+    """3DGS densification: Gaussians with a large accumulated screen-space gradient are cloned (small) or
+    split in two (large); faint or huge Gaussians are pruned; opacities are reset now and then."""
 
-    def __init__(
-        self,
-        grad_threshold: float = 2e-4,
-        size_fraction: float = 0.01,
-        split_factor: float = 1.6,
-        prune_opacity: float = 0.005,
-        prune_size_fraction: float = 0.1,
-        start: int = 500,
-        stop: int = 15_000,
-        every: int = 100,
-        reset_every: int = 3000,
-        reset_opacity: float = 0.01,
-    ) -> None:
-        self.grad_threshold = grad_threshold
-        self.size_fraction = size_fraction
-        self.split_factor = split_factor
-        self.prune_opacity = prune_opacity
-        self.prune_size_fraction = prune_size_fraction
-        self.start = start
-        self.stop = stop
-        self.every = every
-        self.reset_every = reset_every
-        self.reset_opacity = reset_opacity
+    grad_threshold: float = parameter(2e-4, doc="mean screen-space gradient that densifies a Gaussian", validator=finite_positive)
+    size_fraction: float = parameter(0.01, doc="larger than this × scene scale: split, else clone", validator=finite_positive)
+    split_factor: float = parameter(1.6, doc="a split child's scales are its parent's divided by this", validator=finite_positive)
+    prune_opacity: float = parameter(0.005, doc="opacity below which a Gaussian is pruned", validator=between(0, 1))
+    prune_size_fraction: float = parameter(0.1, doc="larger than this × scene scale: pruned", validator=finite_positive)
+    start: int = parameter(500, doc="first iteration that densifies", validator=at_least(0))
+    stop: int = parameter(15_000, doc="last iteration that densifies", validator=at_least(0))
+    every: int = parameter(100, doc="iterations between densifications", validator=at_least(1))
+    reset_every: int = parameter(3000, doc="iterations between opacity resets", validator=at_least(1))
+    reset_opacity: float = parameter(0.01, doc="the opacity a reset caps every Gaussian to", validator=between(0, 1))
 
     def initialize_state(self, scene_scale: float) -> dict[str, Any]:
         return {"scene_scale": scene_scale, "grad_sum": None, "count": None}
@@ -120,24 +106,19 @@ class DefaultDensifier(Densifier):
         return (torch.sigmoid(opacity_logits) < self.prune_opacity) | (size > self.prune_size_fraction * scene_scale)
 
 
+@attrs.frozen
 class BudgetDensifier(Densifier):
-    """Never more than ``cap`` Gaussians — "model no more than a scene needs". Every ``every`` iterations
-    from ``start`` to ``stop``, dead Gaussians (opacity below ``dead_opacity``) are relocated onto live ones
-    drawn in proportion to opacity (MCMC-style: the source and its copies share its opacity so the
-    rendered image is unchanged to first order), and the set grows by ``growth`` × N the same way while
-    under the cap. An initialisation above the cap is cut to the most opaque ``cap``."""
+    """Never more than ``cap`` Gaussians — "model no more than a scene needs". Dead Gaussians are relocated
+    onto live ones drawn in proportion to opacity (MCMC-style: the source and its copies share its opacity
+    so the rendered image is unchanged to first order), and the set grows the same way while under the
+    cap. An initialisation above the cap is cut to the most opaque ``cap``."""
 
-    def __init__(
-        self, cap: int = 20_000, growth: float = 0.05, dead_opacity: float = 0.005, start: int = 500, stop: int = 15_000, every: int = 100
-    ) -> None:
-        if cap < 1:
-            raise InputError(f"budget densifier: cap must be positive, got {cap}")
-        self.cap = cap
-        self.growth = growth
-        self.dead_opacity = dead_opacity
-        self.start = start
-        self.stop = stop
-        self.every = every
+    cap: int = parameter(20_000, doc="most Gaussians ever held", validator=at_least(1))
+    growth: float = parameter(0.05, doc="share of N added at each step while under the cap", validator=at_least(0))
+    dead_opacity: float = parameter(0.005, doc="opacity below which a Gaussian is dead and relocated", validator=between(0, 1))
+    start: int = parameter(500, doc="first iteration that relocates and grows", validator=at_least(0))
+    stop: int = parameter(15_000, doc="last iteration that relocates and grows", validator=at_least(0))
+    every: int = parameter(100, doc="iterations between steps", validator=at_least(1))
 
     def initialize_state(self, scene_scale: float) -> dict[str, Any]:
         return {}

@@ -2,24 +2,23 @@
 
 from __future__ import annotations
 
+import attrs
 import numpy as np
 
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.interfaces import DepthSource
+from mmcsplat.plugin_api.parameters import at_least, parameter
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.session import SessionReader
 
 
+@attrs.frozen
 class SessionDepth(DepthSource):
     """The session's own depth field: ground truth on the synthetic capture, a depth camera's maps where a
-    reader stores them. ``noise`` > 0 multiplies each pixel by 1 + ``noise`` · N(0, 1) (seeded by ``seed``
-    and the camera's name) to stand in for an estimated map."""
+    reader stores them; optionally with multiplicative noise to stand in for an estimated map."""
 
-    def __init__(self, noise: float = 0.0, seed: int = 0) -> None:
-        if noise < 0:
-            raise InputError(f"session depth source: noise must be ≥ 0, got {noise}")
-        self.noise = noise
-        self.seed = seed
+    noise: float = parameter(0.0, doc="each pixel times 1 + noise · N(0, 1)", validator=at_least(0))
+    seed: int = parameter(0, doc="seed of the noise (with the camera's name)")
 
     def depth(self, session: SessionReader, frame: int, camera: Camera) -> np.ndarray:
         data = session.frame(frame, camera.name)

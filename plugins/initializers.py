@@ -10,12 +10,14 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
+import attrs
 import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.interfaces import DepthSource, Initializer, SceneContext
+from mmcsplat.plugin_api.parameters import at_least, finite_positive, parameter
 from mmcsplat.plugin_api.registration import PluginBuilder
 from mmcsplat.plugin_api.render_contract import Gaussians, RenderOutput
 from mmcsplat.scene.visual_hull import in_hull, mask_hits, mask_votes
@@ -69,28 +71,26 @@ def _uniform_cube(count: int, center: np.ndarray, half_size: float, generator: t
     return np.asarray(center) + offsets.numpy()
 
 
+@attrs.frozen
 class RandomInitializer(Initializer):
-    """``num_points`` Gaussians uniform in a cube of ``half_size`` metres around the calibration centre
-    (the study: 100 000 over a 10 m range unmasked; 10 000–20 000 over 1.5 m masked — range = 2 × half_size)."""
+    """Gaussians uniform in a cube around the calibration centre (the study: 100 000 over a 10 m range
+    unmasked; 10 000–20 000 over 1.5 m masked — range = 2 × half_size)."""
 
-    def __init__(self, num_points: int = 10_000, half_size: float = 0.75) -> None:
-        if num_points < 1 or half_size <= 0:
-            raise InputError(f"random initializer: num_points ({num_points}) and half_size ({half_size}) must be positive")
-        self.num_points = num_points
-        self.half_size = half_size
+    num_points: int = parameter(10_000, doc="Gaussians placed", validator=at_least(1))
+    half_size: float = parameter(0.75, doc="half the cube's side, metres", validator=finite_positive)
 
     def initial_gaussians(self, scene: SceneContext, generator: torch.Generator) -> Gaussians:
         points = _uniform_cube(self.num_points, scene.center, self.half_size, generator)
         return gaussians_at(points, None, generator, segmentation_start(points, scene))
 
 
+@attrs.frozen
 class MaskedInitializer(Initializer):
-    """The study's masking: the image loss sees images zeroed outside the subject mask, and Gaussians
-    farther than ``radius`` metres from the calibration centre are pruned every ``every`` iterations."""
+    """The study's masking: the image loss sees images zeroed outside the subject mask, and Gaussians far
+    from the calibration centre are pruned."""
 
-    def __init__(self, radius: float = 2.0, every: int = 100) -> None:
-        self.radius = radius
-        self.every = every
+    radius: float = parameter(2.0, doc="Gaussians farther than this from the calibration centre are pruned, metres", validator=finite_positive)
+    every: int = parameter(100, doc="iterations between prunings", validator=at_least(1))
 
     def prepare_target(self, image: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
         if mask is None:
@@ -104,15 +104,15 @@ class MaskedInitializer(Initializer):
         return (gaussians.means.detach() - center).norm(dim=-1) > self.radius
 
 
+@attrs.frozen
 class SparsityPrunedInitializer(Initializer):
-    """Prunes every Gaussian whose nearest neighbour is farther than ``max_distance`` metres, every
-    ``every`` iterations from ``start`` to ``stop`` (the study's "sparse" rows: 0.1 m, 100, 500–15 000)."""
+    """Prunes every Gaussian whose nearest neighbour is too far (the study's "sparse" rows: 0.1 m, every
+    100 iterations from 500 to 15 000)."""
 
-    def __init__(self, max_distance: float = 0.1, every: int = 100, start: int = 500, stop: int = 15_000) -> None:
-        self.max_distance = max_distance
-        self.every = every
-        self.start = start
-        self.stop = stop
+    max_distance: float = parameter(0.1, doc="nearest-neighbour distance beyond which a Gaussian is pruned, metres", validator=finite_positive)
+    every: int = parameter(100, doc="iterations between prunings", validator=at_least(1))
+    start: int = parameter(500, doc="first iteration that prunes", validator=at_least(0))
+    stop: int = parameter(15_000, doc="last iteration that prunes", validator=at_least(0))
 
     def prune_mask(self, step: int, gaussians: Gaussians, scene: SceneContext) -> torch.Tensor | None:
         if step < self.start or step > self.stop or step % self.every or gaussians.count < 2:
@@ -122,6 +122,7 @@ class SparsityPrunedInitializer(Initializer):
         return torch.as_tensor(distances[:, 1] > self.max_distance)
 
 
+@attrs.frozen
 class InViewInitializer(Initializer):
     """Prunes every Gaussian that no training camera sees — its centre, grown by three times its largest
     scale, projects into no training image — every ``every`` iterations from the first. Such a Gaussian
@@ -129,10 +130,7 @@ class InViewInitializer(Initializer):
     camera's field of view, it veils that camera's whole view. A random start in a cube puts some there:
     the cube's corners point at a ring's diagonal cameras."""
 
-    def __init__(self, every: int = 500) -> None:
-        if every < 1:
-            raise InputError(f"in-view initializer: every must be ≥ 1, got {every}")
-        self.every = every
+    every: int = parameter(500, doc="iterations between prunings", validator=at_least(1))
 
     def prune_mask(self, step: int, gaussians: Gaussians, scene: SceneContext) -> torch.Tensor | None:
         if step % self.every or gaussians.count == 0:
@@ -150,17 +148,16 @@ class InViewInitializer(Initializer):
         return torch.as_tensor(~seen)
 
 
+@attrs.frozen
 class VisualHullInitializer(Initializer):
-    """``num_points`` Gaussians sampled inside the intersection of every training camera's mask cone
-    (space carving), coloured from the views: a start on the subject's surface volume rather than in a
-    cube. Candidates are drawn in a cube of ``half_size`` around the calibration centre; a candidate is
-    kept when it projects inside the mask of all but ``tolerance`` of the views that see it."""
+    """Gaussians sampled inside the intersection of every training camera's mask cone (space carving),
+    coloured from the views: a start on the subject's surface volume rather than in a cube. Candidates are
+    drawn in a cube around the calibration centre and kept where nearly every view that sees them agrees."""
 
-    def __init__(self, num_points: int = 10_000, half_size: float = 0.75, tolerance: int = 0, max_rounds: int = 50) -> None:
-        self.num_points = num_points
-        self.half_size = half_size
-        self.tolerance = tolerance
-        self.max_rounds = max_rounds
+    num_points: int = parameter(10_000, doc="Gaussians placed", validator=at_least(1))
+    half_size: float = parameter(0.75, doc="half the side of the cube candidates are drawn in, metres", validator=finite_positive)
+    tolerance: int = parameter(0, doc="views that see a candidate outside their mask and still keep it", validator=at_least(0))
+    max_rounds: int = parameter(50, doc="rounds of candidate draws before giving up", validator=at_least(1))
 
     def initial_gaussians(self, scene: SceneContext, generator: torch.Generator) -> Gaussians:
         views = []
@@ -200,32 +197,34 @@ class VisualHullInitializer(Initializer):
         return inside, colors
 
 
+@attrs.define
 class DepthSupervisedInitializer(Initializer):
     """An L1 loss between rendered depth and a per-camera depth map, with a learnable per-camera scale and
-    offset (monocular depth is only defined up to them). The maps come from a ``depth-source`` plugin:
-    ``source`` is its name, or a table of its name and parameters (``{ name = "session", noise = 0.05 }``),
-    built by the registry that builds this initializer; the default, ``session``, is the session's depth field (ground truth on synthetic data). Weight
-    ``weight``; pixels without depth are ignored."""
+    offset (monocular depth is only defined up to them). The maps come from a ``depth-source`` plugin,
+    built by the registry that builds this initializer; pixels without depth are ignored."""
 
-    def __init__(
-        self, weight: float = 0.1, lr: float = 1e-3, source: str | Mapping[str, Any] = "session", *, registry: PluginBuilder
-    ) -> None:
-        options = {"name": source} if isinstance(source, str) else dict(source)
+    weight: float = parameter(0.1, doc="weight of the depth loss", validator=at_least(0))
+    lr: float = parameter(1e-3, doc="learning rate of each camera's depth scale and offset", validator=finite_positive)
+    source: str | Mapping[str, Any] = parameter(
+        "session", doc='the depth-source plugin: its name, or a table of name and parameters ({ name = "session", noise = 0.05 })')
+    registry: PluginBuilder = attrs.field(kw_only=True, repr=False)
+    depth_source: DepthSource = attrs.field(init=False, repr=False)
+    _maps: dict[str, torch.Tensor] = attrs.field(init=False, factory=dict, repr=False)
+    _affine: dict[str, torch.Tensor] = attrs.field(init=False, factory=dict, repr=False)
+    _optimizer: torch.optim.Adam | None = attrs.field(init=False, default=None, repr=False)
+
+    def __attrs_post_init__(self) -> None:
+        options = {"name": self.source} if isinstance(self.source, str) else dict(self.source)
         name = options.pop("name", None)
         if not isinstance(name, str):
-            raise InputError(f"depth-supervised initializer: source must be a depth-source name or a table with a 'name', got {source!r}")
-        self.source: DepthSource = registry.create("depth-source", name, **options)
-        self.weight = weight
-        self.lr = lr
-        self._maps: dict[str, torch.Tensor] = {}
-        self._affine: dict[str, torch.Tensor] = {}
-        self._optimizer: torch.optim.Adam | None = None
+            raise InputError(f"depth-supervised initializer: source must be a depth-source name or a table with a 'name', got {self.source!r}")
+        self.depth_source = self.registry.create("depth-source", name, **options)
 
     def _load(self, scene: SceneContext) -> None:
         """Read every training camera's depth map once; one Adam over all scale/offsets."""
         for camera in scene.cameras:
             try:
-                depth = self.source.depth(scene.session, scene.frame, camera)
+                depth = self.depth_source.depth(scene.session, scene.frame, camera)
             except ValueError as error:
                 raise InputError(f"depth-supervised initializer: {error}") from error
             self._maps[camera.name] = torch.tensor(np.asarray(depth, dtype=np.float32))  # a copy: the source's may be shared

@@ -212,5 +212,5 @@ def test_budget_does_nothing_outside_its_window(scene):
 
 
 def test_budget_rejects_a_cap_below_one():
-    with pytest.raises(ValueError, match="cap must be positive"):
+    with pytest.raises(ValueError, match="densifier 'budget': cap must be ≥ 1"):
         densifier("budget", cap=0)

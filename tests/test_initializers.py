@@ -14,6 +14,7 @@ from scipy.spatial import cKDTree
 
 from mmcsplat import Registration, hookimpl
 from mmcsplat.configuration.registry import PluginError, Registry, UnknownPluginError, default_registry
+from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.interfaces import DepthSource
 from mmcsplat.plugin_api.render_contract import Gaussians, RenderCameras
 from mmcsplat.plugins.initializers import segmentation_start
@@ -87,9 +88,14 @@ def test_random_places_the_requested_count_inside_the_cube_reproducibly(scene):
     assert not torch.allclose(other.means, placed.means)
 
 
-@pytest.mark.parametrize("params", [{"num_points": 0}, {"num_points": -5}, {"half_size": 0.0}, {"half_size": -1.0}])
-def test_random_rejects_non_positive_parameters(params):
-    with pytest.raises(ValueError, match="random initializer: num_points .* must be positive"):
+@pytest.mark.parametrize("params, message", [
+    ({"num_points": 0}, "num_points must be ≥ 1, got 0"), ({"num_points": -5}, "num_points must be ≥ 1, got -5"),
+    ({"half_size": 0.0}, "half_size must be a finite number > 0, got 0.0"), ({"half_size": float("nan")}, "half_size must be a finite number > 0"),
+    ({"num_points": 10.5}, "parameter 'num_points' must be an integer, got 10.5"), ({"half_size": "big"}, "parameter 'half_size' must be a number"),
+    ({"halfsize": 1.0}, "unknown parameter.*halfsize; known: num_points, half_size"),
+])
+def test_random_rejects_bad_parameters_naming_itself(params, message):
+    with pytest.raises(ValueError, match=f"initializer 'random': {message}"):
         initializer("random", **params)
 
 
@@ -289,7 +295,7 @@ def test_the_depth_source_is_a_plugin_chosen_by_name(scene):
         initializer("depth-supervised", extended, source="monocular")
     with pytest.raises(ValueError, match="source must be a depth-source name or a table with a 'name'"):
         initializer("depth-supervised", source={"noise": 0.1})
-    with pytest.raises(PluginError, match=r"depth-source 'session'.*rejected its parameters \['blur'\]"):
+    with pytest.raises(InputError, match=r"depth-source 'session': unknown parameter\(s\) blur; known: noise, seed"):
         initializer("depth-supervised", source={"name": "session", "blur": 2})
     with pytest.raises(PluginError, match=r"initializer 'depth-supervised': 'registry' is not a configuration parameter"):
         default_registry().create("initializer", "depth-supervised", registry="elsewhere")

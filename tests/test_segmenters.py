@@ -157,7 +157,7 @@ def test_onnx_semantic_honours_channel_order_a_fixed_batch_and_class_id_outputs(
     rgb, regions = _scene()
     session = SessionReader(_session(tmp_path / "s.zarr", {"a": [rgb] * 3}))
     segmenter = _segmenter("onnx-semantic", model=str(model), remap={})
-    assert segmenter.batch_size == 2
+    assert segmenter.frames_per_call == 2
     results = list(segmenter.segment(session, "a"))  # 3 frames: the last batch is padded
     assert len(results) == 3
     for _, mask, labels in results:  # read as BGR, the red blocks look blue (toy) and the blue one red
@@ -244,6 +244,19 @@ def test_background_subtraction_needs_a_sequence(tmp_path: Path) -> None:
         list(_segmenter("background").segment(session, "a"))
     with pytest.raises(ValueError, match="method"):
         _segmenter("background", method="optical-flow")
+
+
+@pytest.mark.parametrize("params, message", [
+    ({"threshold": -5}, "threshold must be a finite number > 0, got -5"),
+    ({"threshold": float("nan")}, "threshold must be a finite number > 0, got nan"),
+    ({"background_ratio": 0}, "background_ratio must be > 0"),
+    ({"learn_frames": [5, 2]}, r"learn_frames must be \[start, stop\) frame indices"),
+    ({"learn_frames": [1, 2, 3]}, "parameter 'learn_frames' must be a list of 2 values or none"),
+    ({"treshold": 3}, "unknown parameter.*treshold"),
+])
+def test_background_refuses_settings_that_would_empty_the_masks(params, message) -> None:
+    with pytest.raises(ValueError, match=f"segmenter 'background': {message}"):
+        _segmenter("background", **params)
 
 
 # --------------------------------------------------------------------------------------------- precomputed

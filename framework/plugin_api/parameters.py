@@ -31,10 +31,12 @@ REGISTRY_PARAMETER = "registry"
 
 
 def parameter(default: Any = attrs.NOTHING, *, doc: str, factory: Callable[[], Any] | None = None,
-              validator: Callable[[Any, Any, Any], None] | None = None, converter: Callable[[Any], Any] | None = None) -> Any:
-    """A documented parameter field: ``default`` (or ``factory`` for a mutable default), ``doc`` the line
-    ``plugins --show`` prints, ``validator`` an attrs validator (e.g. :func:`at_least`)."""
-    return attrs.field(default=default, factory=factory, validator=validator, converter=converter, metadata={DOC: doc})
+              validator: Callable[[Any, Any, Any], None] | None = None, converter: Callable[[Any], Any] | None = None,
+              kw_only: bool = False) -> Any:
+    """A documented parameter field: ``default`` (or ``factory`` for a mutable default; neither: required),
+    ``doc`` the line ``plugins --show`` prints, ``validator`` an attrs validator (e.g. :func:`at_least`);
+    ``kw_only`` for a required parameter of a class whose base has parameters with defaults."""
+    return attrs.field(default=default, factory=factory, validator=validator, converter=converter, metadata={DOC: doc}, kw_only=kw_only)
 
 
 def at_least(bound: float) -> Callable[[Any, Any, Any], None]:

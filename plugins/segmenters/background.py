@@ -6,11 +6,13 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 
+import attrs
 import cv2
 import numpy as np
 
 from mmcsplat.plugin_api.errors import InputError
-from mmcsplat.plugins.segmenters.postprocess import BRIDGE_PX, PostProcessedSegmenter, open_close, present_frames
+from mmcsplat.plugin_api.parameters import above, at_least, between, finite_positive, one_of, parameter
+from mmcsplat.plugins.segmenters.postprocess import PostProcessedSegmenter, open_close, present_frames
 from mmcsplat.storage.session import SessionReader
 
 #: Each method's default threshold: MOG2's squared Mahalanobis distance, KNN's squared distance, and
@@ -21,69 +23,44 @@ DEFAULT_THRESHOLDS = {"mog2": 16.0, "knn": 400.0, "median": 30.0}
 KNN_SAMPLES = 7
 
 
+def _learn_frames(_instance: object, field: attrs.Attribute, value: tuple[int, int] | None) -> None:
+    if value is not None and not 0 <= value[0] < value[1]:
+        raise ValueError(f"{field.name} must be [start, stop) frame indices with 0 ≤ start < stop, got {list(value)}")
+
+
+@attrs.define
 class BackgroundSegmenter(PostProcessedSegmenter):
-    """Foreground = what differs from the camera's background model, learnt from the learning frames
-    (``learn_frames`` = [start, stop) frame indices, e.g. a few seconds of the empty mat; default: the
-    whole sequence, which finds the subject only where it moves).
+    """Foreground = what differs from the camera's background model, learnt from the learning frames (a
+    few seconds of the empty mat are best; by default the whole sequence, which finds the subject only
+    where it moves). ``mog2`` and ``knn`` (OpenCV's adaptive mixture / nearest-neighbour models) learn in
+    several passes over the learning frames, so the first frame no longer dominates, then judge every
+    frame with the frozen model, so early frames are not judged by a half-learnt one; ``median`` compares
+    each frame with the per-pixel median of frames spread over the learning frames. Masks are cleaned by
+    a morphological opening then closing."""
 
-    ``method``: ``mog2`` or ``knn`` (OpenCV's adaptive mixture / nearest-neighbour models, learnt in
-    ``passes`` passes over the learning frames, so the first frame no longer dominates the model, then
-    applied frozen to every frame, so early frames are not judged by a half-learnt model) or ``median`` (the per-pixel median of ``samples`` learning frames spread evenly).
-    ``background_ratio`` (mog2/knn): a colour seen at a pixel in at least this share of the learning
-    frames is background (the median's is 0.5 by definition). ``threshold``: see
-    :data:`DEFAULT_THRESHOLDS`. ``history``: frames the mog2/knn model remembers (default: all learning
-    frames). ``shadows``: detect shadows (mog2/knn) and count them as background. ``open_radius`` /
-    ``close_radius``: morphological opening then closing, pixels (0 skips).
-    """
+    method: str = parameter("mog2", doc="mog2, knn or median", validator=one_of(*DEFAULT_THRESHOLDS))
+    threshold: float | None = parameter(None, doc="foreground cut-off (none: the method's default, DEFAULT_THRESHOLDS)", validator=finite_positive)
+    background_ratio: float = parameter(0.5, doc="mog2/knn: a colour seen in this share of the learning frames is background", validator=[above(0), between(0, 1)])
+    learn_frames: tuple[int, int] | None = parameter(None, doc="[start, stop) frames the background is learnt from (none: all)", validator=_learn_frames)
+    history: int | None = parameter(None, doc="frames the mog2/knn model remembers (none: all learning frames)", validator=at_least(1))
+    samples: int = parameter(25, doc="median: learning frames sampled", validator=at_least(2))
+    passes: int = parameter(3, doc="mog2/knn: passes over the learning frames", validator=at_least(1))
+    shadows: bool = parameter(True, doc="mog2/knn: detect shadows and count them as background")
+    open_radius: int = parameter(1, doc="morphological opening, pixels (0 skips)", validator=at_least(0))
+    close_radius: int = parameter(2, doc="morphological closing, pixels (0 skips)", validator=at_least(0))
 
-    def __init__(
-        self,
-        method: str = "mog2",
-        threshold: float | None = None,
-        background_ratio: float = 0.5,
-        learn_frames: tuple[int, int] | None = None,
-        history: int | None = None,
-        samples: int = 25,
-        passes: int = 3,
-        shadows: bool = True,
-        open_radius: int = 1,
-        close_radius: int = 2,
-        largest_component: bool = True,
-        dilation: int = 0,
-        bridge: int = BRIDGE_PX,
-    ) -> None:
-        super().__init__(largest_component, dilation, bridge)
-        if method not in DEFAULT_THRESHOLDS:
-            raise InputError(f"background method must be one of {', '.join(DEFAULT_THRESHOLDS)}, got {method!r}")
-        if not 0 < background_ratio <= 1:
-            raise InputError(f"background_ratio must be in (0, 1], got {background_ratio}")
-        if learn_frames is not None and (len(learn_frames) != 2 or not 0 <= learn_frames[0] < learn_frames[1]):
-            raise InputError(f"learn_frames must be [start, stop) frame indices with 0 ≤ start < stop, got {learn_frames}")
-        if passes < 1:
-            raise InputError(f"passes must be ≥ 1, got {passes}")
-        if samples < 2:
-            raise InputError(f"samples must be ≥ 2 frames, got {samples}")
-        if history is not None and history < 1:
-            raise InputError(f"history must be ≥ 1 frame, got {history}")
-        if open_radius < 0 or close_radius < 0:
-            raise InputError(f"open_radius and close_radius must be ≥ 0 pixels, got {open_radius} and {close_radius}")
-        self.method = method
-        self.threshold = float(DEFAULT_THRESHOLDS[method] if threshold is None else threshold)
-        self.background_ratio = float(background_ratio)
-        self.learn_frames = None if learn_frames is None else (int(learn_frames[0]), int(learn_frames[1]))
-        self.history = history
-        self.samples = int(samples)
-        self.passes = int(passes)
-        self.shadows = bool(shadows)
-        self.open_radius, self.close_radius = int(open_radius), int(close_radius)
+    @property
+    def cutoff(self) -> float:
+        """The threshold in force: the configured one, else the method's default."""
+        return float(DEFAULT_THRESHOLDS[self.method] if self.threshold is None else self.threshold)
 
     def _subtractor(self, num_frames: int) -> cv2.BackgroundSubtractor:
         history = self.history or num_frames
         if self.method == "mog2":
-            subtractor = cv2.createBackgroundSubtractorMOG2(history, self.threshold, self.shadows)
+            subtractor = cv2.createBackgroundSubtractorMOG2(history, self.cutoff, self.shadows)
             subtractor.setBackgroundRatio(self.background_ratio)
         else:
-            subtractor = cv2.createBackgroundSubtractorKNN(history, self.threshold, self.shadows)
+            subtractor = cv2.createBackgroundSubtractorKNN(history, self.cutoff, self.shadows)
             subtractor.setNSamples(KNN_SAMPLES)
             subtractor.setkNNSamples(max(1, round(self.background_ratio * 3 * KNN_SAMPLES)))
         return subtractor
@@ -104,7 +81,7 @@ class BackgroundSegmenter(PostProcessedSegmenter):
         background = np.median(np.stack([session.frame(int(learn[i]), camera).rgb for i in picks]), axis=0)
         for t in frames:
             difference = np.abs(session.frame(int(t), camera).rgb.astype(np.float32) - background)
-            yield difference.max(axis=-1) > self.threshold
+            yield difference.max(axis=-1) > self.cutoff
 
     def raw(self, session: SessionReader, camera: str) -> Iterator[tuple[int, np.ndarray, np.ndarray | None]]:
         frames = present_frames(session, camera)

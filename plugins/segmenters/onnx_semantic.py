@@ -20,7 +20,8 @@ import cv2
 import numpy as np
 
 from mmcsplat.plugin_api.errors import InputError, MissingFileError
-from mmcsplat.plugins.segmenters.postprocess import BRIDGE_PX, PostProcessedSegmenter, present_frames
+from mmcsplat.plugin_api.parameters import at_least, parameter
+from mmcsplat.plugins.segmenters.postprocess import PostProcessedSegmenter, present_frames
 from mmcsplat.storage.session import SessionReader
 
 #: The reference study's table: toys and playthings count as the person (the infant holding them).
@@ -121,60 +122,47 @@ def _batches(items: Sequence[int], size: int) -> Iterator[list[int]]:
         yield batch
 
 
+@attrs.define(slots=False)
 class OnnxSemanticSegmenter(PostProcessedSegmenter):
-    """Semantic segmentation with an ONNX model on onnxruntime's CPUExecutionProvider.
+    """Semantic segmentation with an ONNX model on onnxruntime's CPUExecutionProvider (nothing is
+    downloaded). Labels are stored as the remapped class ids of the sidecar (docs/plugins.md)."""
 
-    ``model``: the .onnx file (nothing is downloaded). ``sidecar``: its JSON description, by default the
-    model's path with the suffix ``.json``. ``subject``: the label name whose pixels form the mask.
-    ``remap``: label name → the label name it counts as (default :data:`DEFAULT_REMAP`; default entries
-    the model lacks are skipped, explicit ones must exist). ``batch_size``: frames per inference call
-    (a model with a fixed batch dimension uses its own). ``threads``: onnxruntime intra-op threads
-    (default: onnxruntime's choice). Labels are stored as the remapped class ids of the sidecar.
-    """
+    model: str = parameter(doc="the .onnx file (required; a local file)", kw_only=True)
+    sidecar: str | None = parameter(None, doc="its JSON description (none: the model's path with suffix .json)")
+    subject: str = parameter("person", doc="the label whose pixels form the mask")
+    remap: Mapping[str, str] | None = parameter(None, doc="label → the label it counts as (none: DEFAULT_REMAP, entries the model lacks skipped)")
+    batch_size: int = parameter(4, doc="frames per inference call (a model with a fixed batch uses its own)", validator=at_least(1))
+    threads: int | None = parameter(None, doc="onnxruntime intra-op threads (none: onnxruntime's choice)", validator=at_least(1))
 
-    def __init__(
-        self,
-        model: str,
-        sidecar: str | None = None,
-        subject: str = "person",
-        remap: Mapping[str, str] | None = None,
-        batch_size: int = 4,
-        threads: int | None = None,
-        largest_component: bool = True,
-        dilation: int = 0,
-        bridge: int = BRIDGE_PX,
-    ) -> None:
+    def __attrs_post_init__(self) -> None:
         import onnxruntime
 
-        super().__init__(largest_component, dilation, bridge)
-        path = Path(model).expanduser()
+        path = Path(self.model).expanduser()
         if not path.is_file():
             raise MissingFileError(f"ONNX model {path} does not exist (mmcsplat downloads nothing: point 'model' at a local .onnx file)")
-        self.sidecar = Sidecar.load(Path(sidecar).expanduser() if sidecar else path.with_suffix(".json"))
-        if batch_size < 1:
-            raise InputError(f"batch_size must be ≥ 1, got {batch_size}")
-        subjects = self.sidecar.ids_of(subject)
+        self.description = Sidecar.load(Path(self.sidecar).expanduser() if self.sidecar else path.with_suffix(".json"))
+        subjects = self.description.ids_of(self.subject)
         if len(subjects) != 1:
-            raise InputError(f"subject label {subject!r} names {len(subjects)} classes of the sidecar of {path}, not one")
+            raise InputError(f"subject label {self.subject!r} names {len(subjects)} classes of the sidecar of {path}, not one")
         self.subject_id = subjects[0]
-        self.table = label_table(self.sidecar, DEFAULT_REMAP if remap is None else remap, strict=remap is not None)
+        self.table = label_table(self.description, DEFAULT_REMAP if self.remap is None else self.remap, strict=self.remap is not None)
         options = onnxruntime.SessionOptions()
-        if threads:
-            options.intra_op_num_threads = int(threads)
+        if self.threads:
+            options.intra_op_num_threads = int(self.threads)
         try:
             self.session = onnxruntime.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
         except Exception as error:  # onnxruntime raises its own exception types for unreadable models
             raise InputError(f"ONNX model {path} cannot be loaded: {error}") from error
         self.path = path
-        self._input = self._port(self.session.get_inputs(), self.sidecar.input, "input")
-        self._output = self._port(self.session.get_outputs(), self.sidecar.output, "output").name
+        self._input = self._port(self.session.get_inputs(), self.description.input, "input")
+        self._output = self._port(self.session.get_outputs(), self.description.output, "output").name
         if self._input.type not in _INPUT_DTYPES:
             raise InputError(f"ONNX model {path}: input {self._input.name!r} is {self._input.type}; floating-point inputs are supported")
         if len(self._input.shape) != 4:
             raise InputError(f"ONNX model {path}: input {self._input.name!r} has shape {self._input.shape}, expected 4 dimensions")
         batch = self._input.shape[0]
         self.fixed_batch = batch if isinstance(batch, int) else None
-        self.batch_size = self.fixed_batch or int(batch_size)
+        self.frames_per_call = self.fixed_batch or self.batch_size
 
     def _port(self, ports: Sequence[Any], name: str | None, what: str) -> Any:
         """The model's input or output called ``name`` (its first one when ``name`` is None)."""
@@ -187,19 +175,19 @@ class OnnxSemanticSegmenter(PostProcessedSegmenter):
 
     def _input_size(self, width: int, height: int) -> tuple[int, int]:
         """(width, height) fed to the model: the sidecar's, else the model's static size, else the image's."""
-        if self.sidecar.input_size is not None:
-            return self.sidecar.input_size
-        h, w = self._input.shape[1:3] if self.sidecar.layout == "NHWC" else self._input.shape[2:4]
+        if self.description.input_size is not None:
+            return self.description.input_size
+        h, w = self._input.shape[1:3] if self.description.layout == "NHWC" else self._input.shape[2:4]
         return (w, h) if isinstance(w, int) and isinstance(h, int) else (width, height)
 
     def _preprocess(self, rgb: np.ndarray, size: tuple[int, int]) -> np.ndarray:
         """One image as the model's input, [C, h, w] or [h, w, C]."""
         shrinking = size[0] < rgb.shape[1] or size[1] < rgb.shape[0]
         image = cv2.resize(rgb, size, interpolation=cv2.INTER_AREA if shrinking else cv2.INTER_LINEAR)
-        if self.sidecar.channel_order == "BGR":
+        if self.description.channel_order == "BGR":
             image = image[..., ::-1]
-        image = (image.astype(np.float32) / 255.0 - np.float32(self.sidecar.mean)) / np.float32(self.sidecar.std)
-        return image.transpose(2, 0, 1) if self.sidecar.layout == "NCHW" else image
+        image = (image.astype(np.float32) / 255.0 - np.float32(self.description.mean)) / np.float32(self.description.std)
+        return image.transpose(2, 0, 1) if self.description.layout == "NCHW" else image
 
     def class_ids(self, images: Sequence[np.ndarray]) -> list[np.ndarray]:
         """Per-pixel class ids [H, W] (at each image's size) for a batch of same-sized RGB images."""
@@ -210,8 +198,8 @@ class OnnxSemanticSegmenter(PostProcessedSegmenter):
             batch = np.concatenate([batch, np.repeat(batch[-1:], self.fixed_batch - len(batch), axis=0)])
         (output,) = self.session.run([self._output], {self._input.name: batch})
         ids = self._ids(np.asarray(output))
-        if ids.min() < 0 or ids.max() >= len(self.sidecar.labels):
-            raise InputError(f"ONNX model {self.path} produced class ids outside the {len(self.sidecar.labels)} its sidecar names")
+        if ids.min() < 0 or ids.max() >= len(self.description.labels):
+            raise InputError(f"ONNX model {self.path} produced class ids outside the {len(self.description.labels)} its sidecar names")
         ids = ids.astype(np.uint16)
         return [cv2.resize(ids[i], (width, height), interpolation=cv2.INTER_NEAREST) for i in range(len(images))]
 
@@ -222,9 +210,9 @@ class OnnxSemanticSegmenter(PostProcessedSegmenter):
         if output.dtype.kind in "iu" and output.ndim == 4 and output.shape[1] == 1:
             return output[:, 0]
         if output.dtype.kind == "f" and output.ndim == 4:
-            if output.shape[1] != len(self.sidecar.labels):
+            if output.shape[1] != len(self.description.labels):
                 raise InputError(
-                    f"ONNX model {self.path} outputs {output.shape[1]} classes but its sidecar names {len(self.sidecar.labels)}"
+                    f"ONNX model {self.path} outputs {output.shape[1]} classes but its sidecar names {len(self.description.labels)}"
                 )
             return output.argmax(axis=1)
         raise InputError(
@@ -233,7 +221,7 @@ class OnnxSemanticSegmenter(PostProcessedSegmenter):
         )
 
     def raw(self, session: SessionReader, camera: str) -> Iterator[tuple[int, np.ndarray, np.ndarray | None]]:
-        for batch in _batches(present_frames(session, camera).tolist(), self.batch_size):
+        for batch in _batches(present_frames(session, camera).tolist(), self.frames_per_call):
             for t, ids in zip(batch, self.class_ids([session.frame(t, camera).rgb for t in batch]), strict=True):
                 labels = self.table[ids]
                 yield t, labels == self.subject_id, labels

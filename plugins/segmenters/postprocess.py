@@ -11,6 +11,7 @@ import numpy as np
 
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.interfaces import Segmenter
+from mmcsplat.plugin_api.parameters import at_least, parameter
 from mmcsplat.storage.session import SessionReader
 
 #: Mask pieces at most twice this many background pixels apart are one component: on the synthetic
@@ -77,11 +78,18 @@ class PostProcess:
         return dilate(mask, self.dilation)
 
 
+@attrs.define
 class PostProcessedSegmenter(Segmenter):
     """A segmenter whose raw masks go through :class:`PostProcess`; subclasses implement :meth:`raw`."""
 
-    def __init__(self, largest_component: bool = True, dilation: int = 0, bridge: int = BRIDGE_PX) -> None:
-        self.postprocess = PostProcess(largest_component, dilation, bridge)
+    largest_component: bool = parameter(True, doc="keep only the largest connected component of each mask")
+    dilation: int = parameter(0, doc="grow the mask by this many pixels", validator=at_least(0))
+    bridge: int = parameter(BRIDGE_PX, doc="pieces at most 2 × bridge pixels apart count as one component", validator=at_least(0))
+
+    @property
+    def postprocess(self) -> PostProcess:
+        """The clean-up of this segmenter's raw masks."""
+        return PostProcess(self.largest_component, self.dilation, self.bridge)
 
     @abstractmethod
     def raw(self, session: SessionReader, camera: str) -> Iterator[tuple[int, np.ndarray, np.ndarray | None]]:

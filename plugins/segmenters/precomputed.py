@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 
+import attrs
 import numpy as np
 
 from mmcsplat.plugin_api.errors import InputError
@@ -16,6 +17,7 @@ from mmcsplat.plugins.segmenters.postprocess import PostProcessedSegmenter, pres
 from mmcsplat.storage.session import SessionReader
 
 
+@attrs.define
 class PrecomputedSegmenter(PostProcessedSegmenter):
     """Yields the masks a camera was ingested with; its labels are left as they are (yielded as ``None``)."""
 
