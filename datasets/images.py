@@ -8,15 +8,17 @@ is found as for the ``videos`` format. Images carry no frame rate: ``fps`` gives
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import attrs
+import numpy as np
 
 from mmcsplat.datasets.rig import SIZE_MISMATCH_PARAMETER, RigRecording, common_length, find_calibration, fit_camera, match_cameras, natural_key
-from mmcsplat.plugin_api.errors import NotAFolderError
+from mmcsplat.plugin_api.errors import InputError, NotAFolderError
 from mmcsplat.plugin_api.interfaces import Reader, RecordedFrame, Recording
-from mmcsplat.plugin_api.parameters import finite_positive, parameter
+from mmcsplat.plugin_api.parameters import finite_positive, one_of, parameter
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.calibration import read_calibration
 from mmcsplat.storage.capture_files import PLATES_FOLDER, read_image
@@ -27,6 +29,37 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 def image_files(folder: Path) -> list[Path]:
     """The images in ``folder``, in natural order."""
     return sorted((p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES), key=lambda p: natural_key(p.name))
+
+
+def frame_number(path: Path) -> int | None:
+    """The frame number in an image's name: its last run of digits (``frame0012.png`` → 12)."""
+    digits = re.findall(r"\d+", path.stem)
+    return int(digits[-1]) if digits else None
+
+
+def frames_by_number(files: dict[str, list[Path]], missing_frames: str, source: Path) -> tuple[dict[str, list[Path | None]], int]:
+    """Each camera's images placed at frame index = number − the first number of the capture, so that
+    a missing file shifts nothing; a gap is an error, or with ``missing_frames="absent"`` a frame the
+    camera lacks. Names without numbers (or repeated numbers) keep the sorted order, as before."""
+    numbers = {name: [frame_number(path) for path in paths] for name, paths in files.items()}
+    if any(None in found or len(set(found)) != len(found) for found in numbers.values()):
+        length = common_length({name: len(paths) for name, paths in files.items()}, "image folder", source)
+        return {name: list(paths[:length]) for name, paths in files.items()}, length
+    first = min(min(found) for found in numbers.values())
+    length = common_length({name: max(found) - first + 1 for name, found in numbers.items()}, "image folder", source)
+    placed: dict[str, list[Path | None]] = {}
+    for name, paths in files.items():
+        slots: list[Path | None] = [None] * length
+        for number, path in zip(numbers[name], paths, strict=True):
+            if number - first < length:
+                slots[number - first] = path
+        gaps = [first + t for t, path in enumerate(slots) if path is None]
+        if gaps and missing_frames == "error":
+            shown = ", ".join(map(str, gaps[:5])) + (" …" if len(gaps) > 5 else "")
+            raise InputError(f"{source}: camera {name!r} has no image numbered {shown} (frames are matched by the number in their "
+                             f"file names; pass the reader option missing_frames='absent' to ingest the rest with those frames absent)")
+        placed[name] = slots
+    return placed, length
 
 
 def camera_folders(source: Path) -> list[Path]:
@@ -46,6 +79,8 @@ class ImageSequenceReader(Reader):
 
     fps: float = parameter(30.0, doc="the capture's frame rate", validator=finite_positive)
     size_mismatch: str = SIZE_MISMATCH_PARAMETER
+    missing_frames: str = parameter("error", doc="an image number missing in a camera's sequence: error, or absent (marked absent)",
+                                    validator=one_of("error", "absent"))
 
     def detect(self, source: Path) -> bool:
         source = Path(source)
@@ -58,12 +93,12 @@ class ImageSequenceReader(Reader):
         calibration = find_calibration(source, calibration)
         calibrated = read_calibration(calibration, units)
         folders = match_cameras(calibrated, camera_folders(source), "image folder", source)
-        files = {name: image_files(folder) for name, folder in folders.items()}
-        num_frames = common_length({name: len(paths) for name, paths in files.items()}, "image folder", source)
+        files, num_frames = frames_by_number({name: image_files(folder) for name, folder in folders.items()}, self.missing_frames, source)
         cameras = []
         for camera in calibrated:
-            first, _ = read_image(files[camera.name][0])
-            cameras.append(fit_camera(camera, first.shape[1], first.shape[0], self.size_mismatch, f"image {files[camera.name][0]}"))
+            path = next(path for path in files[camera.name] if path is not None)
+            first, _ = read_image(path)
+            cameras.append(fit_camera(camera, first.shape[1], first.shape[0], self.size_mismatch, f"image {path}"))
         provenance = {
             "calibration": str(calibration),
             "units": units,
@@ -76,11 +111,18 @@ class ImageSequenceReader(Reader):
 class ImageRecording(RigRecording):
     """Per-camera image sequences, decoded on demand."""
 
-    def __init__(self, source: Path, cameras: Sequence[Camera], fps: float, num_frames: int, provenance: dict, files: dict[str, list[Path]]) -> None:
+    def __init__(self, source: Path, cameras: Sequence[Camera], fps: float, num_frames: int, provenance: dict,
+                 files: dict[str, list[Path | None]]) -> None:
         super().__init__(source, cameras, fps, num_frames, provenance)
         self._files = files
 
+    def present(self, camera: str) -> np.ndarray:
+        """The frames whose image exists (all, unless ingested with ``missing_frames="absent"``)."""
+        return np.array([path is not None for path in self._files[camera]], dtype=bool)
+
     def _decode(self, camera: str, indices: range) -> Iterator[RecordedFrame]:
         for t in indices:
-            rgb, _ = read_image(self._files[camera][t])
-            yield RecordedFrame(t=t, rgb=rgb)
+            path = self._files[camera][t]
+            if path is not None:
+                rgb, _ = read_image(path)
+                yield RecordedFrame(t=t, rgb=rgb)

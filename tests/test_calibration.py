@@ -28,8 +28,18 @@ REAL_SAMPLES = [
 ]
 
 
+#: The units each real file's translations are in, as measured: aniposelib's files follow the board (mm),
+#: except mouse_outdoor_adjusted.toml, whose cameras lie 0.33–0.91 units from their centroid — metres (in
+#: millimetres that would be a rig 2 mm across).
+UNITS = {"mouse_outdoor_adjusted.toml": "m"}
+
+
 def _sample(name: str) -> Path:
     return (POSE2SIM if name.startswith("Calib_") else ANIPOSE) / name
+
+
+def _units(name: str) -> str:
+    return UNITS.get(name, "m" if name.startswith("Calib_") else "mm")
 
 
 @needs_shared
@@ -37,7 +47,7 @@ def _sample(name: str) -> Path:
 def test_reads_real_samples(name: str, count: int, ndist: int) -> None:
     path = _sample(name)
     raw = tomllib.loads(path.read_text())
-    cameras = read_calibration(path, units="mm" if path.parent == ANIPOSE else "m")
+    cameras = read_calibration(path, units=_units(name))
     assert len(cameras) == count
     for camera in cameras:
         table = next(t for k, t in raw.items() if k != "metadata" and t["name"] == camera.name)
@@ -46,8 +56,17 @@ def test_reads_real_samples(name: str, count: int, ndist: int) -> None:
         np.testing.assert_allclose(camera.K, table["matrix"])
         # Compare matrices: a Rodrigues vector longer than π has an equivalent shorter twin.
         np.testing.assert_allclose(camera.R, cv2.Rodrigues(np.array(table["rotation"]))[0], atol=1e-12)
-        scale = 1e-3 if path.parent == ANIPOSE else 1.0
+        scale = 1e-3 if _units(name) == "mm" else 1.0
         np.testing.assert_allclose(camera.t, np.array(table["translation"]) * scale)
+
+
+@needs_shared
+@pytest.mark.parametrize("name", [name for name, _, _ in REAL_SAMPLES])
+def test_real_files_in_the_wrong_units_are_refused_with_the_right_ones_suggested(name: str) -> None:
+    right = _units(name)
+    wrong = {"m": "mm", "mm": "m"}[right]
+    with pytest.raises(ValueError, match=rf"cameras lie up to .* m from their centre read in {wrong}, outside the 0.05–50 m.*pass --units {right}"):
+        read_calibration(_sample(name), units=wrong)
 
 
 @needs_shared
@@ -66,13 +85,13 @@ def test_anipose_sections_ordered_by_number(tmp_path: Path) -> None:
     source = ANIPOSE / "allen_mouse_12cam.toml"
     raw = tomllib.loads(source.read_text())
     expected = [raw[f"cam_{i}"]["name"] for i in range(12)]
-    assert [c.name for c in read_calibration(source)] == expected
+    assert [c.name for c in read_calibration(source, units="mm")] == expected
     # The same tables written in text order (cam_0, cam_1, cam_10, cam_11, cam_2, …) read back by number.
     shuffled = {key: raw[key] for key in sorted(raw)}
     assert list(shuffled)[:4] == ["cam_0", "cam_1", "cam_10", "cam_11"]
     path = tmp_path / "calibration.toml"
     path.write_text(tomli_w.dumps(shuffled))
-    assert [c.name for c in read_calibration(path)] == expected
+    assert [c.name for c in read_calibration(path, units="mm")] == expected
 
 
 def _cameras() -> list[Camera]:
@@ -107,11 +126,12 @@ def test_write_read_round_trip(tmp_path: Path, units: str) -> None:
     assert not list(tmp_path.glob(".*.tmp")), "temporary file left behind"
 
 
-def test_units_mismatch_scales_translations(tmp_path: Path) -> None:
+def test_units_scale_translations_and_a_mismatch_is_refused(tmp_path: Path) -> None:
     path = tmp_path / "calibration.toml"
     write_calibration(path, _cameras(), units="mm")
-    in_metres = read_calibration(path, units="m")
-    np.testing.assert_allclose(in_metres[0].t, _cameras()[0].t * 1000.0)
+    np.testing.assert_allclose(read_calibration(path, units="mm")[0].t, _cameras()[0].t)
+    with pytest.raises(ValueError, match="pass --units mm"):  # a rig kilometres across: the file is in millimetres
+        read_calibration(path, units="m")
     with pytest.raises(ValueError, match="units 'cm'"):
         read_calibration(path, units="cm")
 
@@ -173,3 +193,28 @@ def test_duplicate_camera_names(tmp_path: Path) -> None:
 def test_missing_file() -> None:
     with pytest.raises(FileNotFoundError):
         read_calibration(Path("/nonexistent/calibration.toml"))
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda t: t["matrix"][0].__setitem__(0, 0.0), "focal lengths 0, 500 pixels; both must be > 0"),
+    (lambda t: t["matrix"][0].__setitem__(2, 5000.0), r"principal point \(5000, 240\) far outside its 640×480 image"),
+    (lambda t: t.__setitem__("translation", [0, 0, 1e308]), "outside the 0.05–50 m of any real rig"),
+])
+def test_impossible_cameras_are_refused_naming_them(tmp_path: Path, edit, message) -> None:
+    cameras = {f"cam_{i}": {**GOOD, "name": f"c{i}", "matrix": [list(row) for row in GOOD["matrix"]],
+                            "rotation": [0.0, 0.1 * i, 0.0], "translation": [0.1 * i, 0.0, 2.0]} for i in range(3)}
+    edit(cameras["cam_1"])
+    path = tmp_path / "calibration.toml"
+    path.write_text(tomli_w.dumps(cameras))
+    with pytest.raises(ValueError, match=message) as caught:
+        read_calibration(path)
+    assert str(path) in str(caught.value)
+
+
+def test_two_cameras_with_one_pose_are_named(tmp_path: Path) -> None:
+    cameras = {f"cam_{i}": {**GOOD, "name": f"c{i}", "rotation": [0.0, 0.1 * i, 0.0], "translation": [0.1 * i, 0.0, 2.0]} for i in range(3)}
+    cameras["cam_2"] = {**cameras["cam_1"], "name": "c2"}  # a copied table with its name changed
+    path = tmp_path / "calibration.toml"
+    path.write_text(tomli_w.dumps(cameras))
+    with pytest.raises(ValueError, match="cameras 'c1' and 'c2' have the same pose"):
+        read_calibration(path)

@@ -42,12 +42,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--holdout", type=_names, default=[], metavar="A,B,…", help="cameras kept for evaluation, not training")
     parser.add_argument("--plates", type=Path, metavar="DIR",
                         help="clean plates of the empty scene, one image per camera named after it (default: SOURCE/plates when it exists)")
-    parser.add_argument("--overwrite", action="store_true", help="replace an existing session at OUT")
+    parser.add_argument("--set", dest="options", action="append", default=[], metavar="KEY=VALUE",
+                        help="a reader parameter (see `mmcsplat plugins --show FORMAT`), read as TOML when it can be: fps=25, missing_frames=absent")
+    parser.add_argument("--overwrite", action="store_true", help="replace an existing session at OUT (never anything but a session)")
 
 
 def run(args: argparse.Namespace) -> int:
+    from mmcsplat.configuration.config import apply_override
     from mmcsplat.pipeline.ingest import ingest
 
+    options: dict = {}
+    for option in args.options:
+        options = apply_override(options, option, "--set")
     with warnings.catch_warnings():
         # Reader warnings (size mismatches, truncation) are user-facing: one line each, no source location.
         warnings.showwarning = lambda message, *_, **__: print(f"mmcsplat ingest: warning: {message}", file=sys.stderr)
@@ -63,6 +69,7 @@ def run(args: argparse.Namespace) -> int:
             holdout=args.holdout,
             overwrite=args.overwrite,
             plates=args.plates,
+            reader_options=options,
         )
     sizes = sorted({f"{camera.width}×{camera.height}" for camera in session.cameras})
     held = f" (held out: {', '.join(session.heldout)})" if session.heldout else ""

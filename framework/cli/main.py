@@ -5,7 +5,9 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import signal
 import sys
+import threading
 
 from mmcsplat import __version__
 from mmcsplat.plugin_api.errors import MmcsplatError
@@ -72,14 +74,35 @@ def reference_markdown() -> str:
             os.environ["COLUMNS"] = previous
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (what ``timeout`` and cluster schedulers send), raised where the program is, so that it
+    unwinds exactly as Ctrl-C does: partial writes aborted, checkpoints kept, resumable."""
+
+
+def _terminate(signum: int, frame: object) -> None:
+    raise Terminated
+
+
+def _interruption(error: BaseException) -> KeyboardInterrupt | None:
+    """The Ctrl-C or SIGTERM behind ``error``: a compiled kernel (numba) interrupted mid-call surfaces as a
+    ``SystemError`` whose context is the interrupt."""
+    seen: set[int] = set()
+    while error is not None and id(error) not in seen:
+        if isinstance(error, KeyboardInterrupt):
+            return error
+        seen.add(id(error))
+        error = error.__cause__ or error.__context__
+    return None
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Entry point; returns the process exit status."""
+    """Entry point; returns the process exit status (2 for a user's error, 130 for Ctrl-C, 143 for SIGTERM)."""
     args = build_parser().parse_args(argv)
+    previous = signal.signal(signal.SIGTERM, _terminate) if threading.current_thread() is threading.main_thread() else None
     try:
         return int(args._run(args) or 0)
-    except KeyboardInterrupt:
-        print("mmcsplat: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as interrupt:
+        return _interrupted(interrupt)
     except MmcsplatError as error:  # every user-facing error: its message names the file, camera, frame or plugin
         print(f"mmcsplat {args.command}: error: {error}", file=sys.stderr)
         return 2
@@ -87,11 +110,25 @@ def main(argv: list[str] | None = None) -> int:
         print(f"mmcsplat {args.command}: error: {error}", file=sys.stderr)
         return 2
     except Exception as error:
+        interrupt = _interruption(error)
+        if interrupt is not None:
+            return _interrupted(interrupt)
         if os.environ.get(TRACEBACK_VARIABLE):
             raise
         print(f"mmcsplat {args.command}: unexpected {type(error).__name__}: {error} "
               f"(a defect of mmcsplat or of a plugin; set {TRACEBACK_VARIABLE}=1 for the traceback)", file=sys.stderr)
         return 1
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _interrupted(interrupt: KeyboardInterrupt) -> int:
+    terminated = isinstance(interrupt, Terminated)
+    print(f"mmcsplat: {'terminated (SIGTERM)' if terminated else 'interrupted'}; what was complete is kept, run the command again to resume",
+          file=sys.stderr)
+    return 143 if terminated else 130
+
 
 if __name__ == "__main__":
     sys.exit(main())

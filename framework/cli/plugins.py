@@ -10,7 +10,7 @@ import json
 import attrs
 
 from mmcsplat.cli.main import CommandError
-from mmcsplat.configuration.registry import PluginEntry, default_registry
+from mmcsplat.configuration.registry import BUILTIN_DISTRIBUTION, PluginEntry, default_registry
 from mmcsplat.plugin_api.kinds import KIND_NAMES
 from mmcsplat.plugin_api.parameters import describe_parameters
 
@@ -27,7 +27,9 @@ def listing() -> dict:
     plugins = []
     for entry in registry.entries:
         reason = entry.unavailable_reason()
-        if (entry.kind, entry.name) in duplicates:
+        if registry.shadowed(entry):
+            reason = "shadowed: a built-in has this name and is used instead" + (f"; {reason}" if reason else "")
+        elif (entry.kind, entry.name) in duplicates and entry.distribution != BUILTIN_DISTRIBUTION:
             reason = "name registered more than once" + (f"; {reason}" if reason else "")
         plugins.append(
             {

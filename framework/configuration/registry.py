@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import importlib
 import inspect
+import warnings
 from collections.abc import Callable, Iterable
 from functools import cache
 from importlib.metadata import EntryPoint, entry_points
@@ -31,6 +32,8 @@ from mmcsplat.plugin_api.parameters import REGISTRY_PARAMETER, build_from_table
 from mmcsplat.plugin_api.registration import Registration
 
 ENTRY_POINT_GROUP = "mmcsplat"
+#: The distribution of the built-in plugins, which win a name clash with a third-party one.
+BUILTIN_DISTRIBUTION = "mmcsplat"
 
 
 @attrs.frozen
@@ -113,6 +116,10 @@ class Registry:
                 except Exception as error:
                     self.broken.append(BrokenPlugin(ep_name, distribution, f"hook {hook_name} raised {error!r}"))
                     continue
+                wrong = [item for item in registrations if not isinstance(item, Registration)]
+                if wrong:
+                    self.broken.append(BrokenPlugin(ep_name, distribution, f"hook {hook_name} returned {wrong[0]!r}, not Registration records"))
+                    continue
                 for registration in registrations:
                     self.entries.append(PluginEntry(kind.name, registration.name, distribution, ep_name, registration))
         self.entries.sort(key=lambda entry: (KIND_NAMES.index(entry.kind), entry.name, entry.distribution))
@@ -141,10 +148,20 @@ class Registry:
             known = ", ".join(self.names(kind)) or "none"
             hint = "".join(f"\n  broken plugin {b.entry_point!r} ({b.distribution}): {b.error}" for b in self.broken)
             raise UnknownPluginError(f"unknown {kind} {name!r}; registered {kind}s: {known}{hint}")
+        builtin = [entry for entry in matches if entry.distribution == BUILTIN_DISTRIBUTION]
+        if len(matches) > 1 and len(builtin) == 1:
+            others = "; ".join(entry.origin for entry in matches if entry is not builtin[0])
+            warnings.warn(f"{kind} {name!r} is also registered by {others}: the built-in is used (rename the other to use it)", stacklevel=2)
+            return builtin[0]
         if len(matches) > 1:
             origins = "; ".join(entry.origin for entry in matches)
             raise DuplicatePluginError(f"{kind} {name!r} is registered more than once: {origins}")
         return matches[0]
+
+    def shadowed(self, entry: PluginEntry) -> bool:
+        """Whether ``entry`` is a third-party plugin under a built-in's name (the built-in is used)."""
+        return entry.distribution != BUILTIN_DISTRIBUTION and any(
+            other.distribution == BUILTIN_DISTRIBUTION and other.kind == entry.kind and other.name == entry.name for other in self.entries)
 
     def create(self, kind: str, name: str, **params: Any) -> Any:
         """Build the implementation ``name`` of ``kind`` with the configuration's parameters (checked

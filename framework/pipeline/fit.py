@@ -23,6 +23,7 @@ from mmcsplat.plugin_api.interfaces import Densifier, Initializer, Renderer, Sce
 from mmcsplat.plugin_api.render_contract import RenderCameras
 from mmcsplat.scene.camera import Camera
 from mmcsplat.scene.rig import rig_center, rig_scale
+from mmcsplat.storage.locking import run_lock
 from mmcsplat.storage.run_info import COMPLETE, DIVERGED, RUN_INFO, RUNNING, RunInfo
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.training.backdrop import Background, camera_backdrop, parse_background
@@ -134,10 +135,15 @@ class FirstFrameFit:
     # -------------------------------------------------------------------------------------- training
 
     def run(self) -> RunInfo:
-        """Train to ``settings.iterations`` (resuming from a checkpoint in ``out``); returns run.json's record."""
+        """Train to ``settings.iterations`` (resuming from a checkpoint in ``out``); returns run.json's
+        record. A second fit into the same ``out`` while this one runs is refused."""
+        self.out.mkdir(parents=True, exist_ok=True)
+        with run_lock(self.out):
+            return self._train()
+
+    def _train(self) -> RunInfo:
         from tqdm import tqdm
 
-        self.out.mkdir(parents=True, exist_ok=True)
         settings = self.settings
         generator = torch.Generator().manual_seed(settings.seed)
         model = self._initial_model(generator)

@@ -28,6 +28,7 @@ from mmcsplat.configuration.registry import Registry, default_registry
 from mmcsplat.plugin_api.errors import InputError, MissingFileError
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.capture_files import PLATES_FOLDER
+from mmcsplat.storage.session.format import local_path
 
 if TYPE_CHECKING:
     from mmcsplat.storage.session import SessionReader
@@ -158,6 +159,21 @@ def _select(cameras: Sequence[Camera], names: Sequence[str] | None, what: str) -
     return list(dict.fromkeys(names))
 
 
+#: URL schemes whose data does not outlive the process that wrote it.
+VOLATILE_SCHEMES = ("memory",)
+
+
+def check_output(source: Path, out: str | os.PathLike) -> None:
+    """Refuse a session output that would keep nothing, or that is the capture or contains it (replacing
+    it would delete the recording)."""
+    scheme = os.fspath(out).partition("://")[0] if "://" in os.fspath(out) else ""
+    if scheme in VOLATILE_SCHEMES:
+        raise InputError(f"{os.fspath(out)}: a {scheme}:// store keeps nothing after this process ends; write the session to a folder or a persistent URL")
+    target = local_path(out)
+    if target is not None and (target.resolve() == source or source.is_relative_to(target.resolve())):
+        raise InputError(f"output {os.fspath(out)} is the capture {source} or contains it: write the session elsewhere")
+
+
 def ingest(
     source: Path,
     out: str | os.PathLike,
@@ -192,6 +208,7 @@ def ingest(
         raise MissingFileError(f"source {source} does not exist")
     # Recorded absolute, so the session finds its capture (and ground truth) from any working directory.
     source = source.resolve()
+    check_output(source, out)
     calibration = None if calibration is None else Path(calibration).resolve()
     if not scale > 0:
         raise InputError(f"scale must be positive, got {scale}")

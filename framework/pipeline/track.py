@@ -20,6 +20,7 @@ from mmcsplat.pipeline.fit import load_fitted
 from mmcsplat.plugin_api.errors import InputError, OutputExistsError
 from mmcsplat.plugin_api.interfaces import Dynamics, TrackingContext
 from mmcsplat.storage.atomic import write_json_atomic
+from mmcsplat.storage.locking import run_lock
 from mmcsplat.storage.run_info import RUN_INFO, RunInfo
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.storage.tracks import TRACKS_DIR
@@ -108,18 +109,19 @@ def track_run(
         progress=progress,
         overwrite=overwrite,
     )
-    began = time.perf_counter()
-    summary = method.track(context, run)
-    wall = time.perf_counter() - began
-    record = {
-        "method": choice.name,
-        "params": dict(choice.params),
-        "config": loaded.source,
-        "renderer": renderer_name,
-        "frames": [context.frames.start, context.frames.stop],
-        "wall_s": round(wall, 3),
-        "wall_s_per_frame": round(wall / (len(context.frames) - 1), 3),
-        "summary": summary,
-    }
-    write_json_atomic(run / TRACK_INFO, record)
+    with run_lock(run):
+        began = time.perf_counter()
+        summary = method.track(context, run)
+        wall = time.perf_counter() - began
+        record = {
+            "method": choice.name,
+            "params": dict(choice.params),
+            "config": loaded.source,
+            "renderer": renderer_name,
+            "frames": [context.frames.start, context.frames.stop],
+            "wall_s": round(wall, 3),
+            "wall_s_per_frame": round(wall / (len(context.frames) - 1), 3),
+            "summary": summary,
+        }
+        write_json_atomic(run / TRACK_INFO, record)
     return record

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import glob
 import json
 import os
 import shutil
@@ -42,6 +43,14 @@ def write_text_atomic(path: str | os.PathLike, text: str) -> None:
 def write_json_atomic(path: str | os.PathLike, payload: Any) -> None:
     """Replace ``path`` with ``payload`` as indented JSON atomically."""
     write_text_atomic(path, json.dumps(payload, indent=2))
+
+
+def remove_leftovers(folder: Path, prefix: str) -> None:
+    """Delete what killed writers left in ``folder``: entries named ``prefix`` + anything (their partial
+    or replaced copies). Only a writer holding the lock of what it writes may call it."""
+    if folder.is_dir():
+        for leftover in folder.glob(f"{glob.escape(prefix)}*"):
+            remove_local_tree(leftover)
 
 
 def remove_local_tree(path: Path) -> None:

@@ -29,6 +29,9 @@ UNITS = {"m": 1.0, "mm": 1e-3}
 
 _ANIPOSE_SECTION = re.compile(r"cam_(\d+)")
 _REQUIRED = ("size", "matrix", "distortions", "rotation", "translation")
+#: The plausible extent of a rig, metres: its farthest camera from the cameras' centroid (a mouse arena's
+#: cameras ~0.3 m, a motion-capture hall's ~10 m).
+RIG_RADIUS_M = (0.05, 50.0)
 
 
 def metres_per_unit(units: str) -> float:
@@ -68,7 +71,35 @@ def read_calibration(path: Path, units: str = "m") -> list[Camera]:
     duplicates = sorted({name for name in names if names.count(name) > 1})
     if duplicates:
         raise InputError(f"calibration {path}: camera names {duplicates} appear more than once")
+    check_rig(cameras, f"calibration {path}", units)
     return cameras
+
+
+def check_rig(cameras: Sequence[Camera], where: str, units: str) -> None:
+    """Refuse a rig no real capture has: a focal length ≤ 0, a principal point far outside its image, two
+    cameras with the same pose (a copy-paste error), or a rig whose extent (the farthest camera from the
+    cameras' centroid) is outside :data:`RIG_RADIUS_M` — then the units are most likely wrong."""
+    for camera in cameras:
+        fx, fy, cx, cy = camera.K[0, 0], camera.K[1, 1], camera.K[0, 2], camera.K[1, 2]
+        if not (fx > 0 and fy > 0):
+            raise InputError(f"{where}: camera {camera.name!r} has focal lengths {fx:g}, {fy:g} pixels; both must be > 0")
+        if not (-0.5 * camera.width <= cx <= 1.5 * camera.width and -0.5 * camera.height <= cy <= 1.5 * camera.height):
+            raise InputError(f"{where}: camera {camera.name!r} has its principal point ({cx:g}, {cy:g}) far outside its "
+                             f"{camera.width}×{camera.height} image (is the size or the matrix wrong?)")
+    for index, first in enumerate(cameras):
+        for second in cameras[index + 1:]:
+            if np.allclose(first.R, second.R, atol=1e-9) and np.allclose(first.t, second.t, atol=1e-9):
+                raise InputError(f"{where}: cameras {first.name!r} and {second.name!r} have the same pose (a copied table?)")
+    if len(cameras) < 2:
+        return
+    centres = np.array([camera.center for camera in cameras])
+    radius = float(np.linalg.norm(centres - centres.mean(axis=0), axis=1).max())
+    low, high = RIG_RADIUS_M
+    if not low <= radius <= high:
+        other = {"m": "mm", "mm": "m"}.get(units)
+        hint = f"; if the file is in {other}, pass --units {other}" if other else ""
+        raise InputError(f"{where}: the cameras lie up to {radius:.4g} m from their centre read in {units}, outside the {low:g}–{high:g} m "
+                         f"of any real rig{hint}")
 
 
 def _camera(path: Path, section: str, table: dict[str, Any]) -> Camera:

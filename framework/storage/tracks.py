@@ -29,7 +29,8 @@ import torch
 from mmcsplat.plugin_api.errors import InputError, MissingFileError, OutputExistsError
 from mmcsplat.plugin_api.render_contract import Gaussians, gaussians_from_params
 from mmcsplat.scene.gaussian_table import GAUSSIAN_PARAMETERS, PARAMETER_SHAPES
-from mmcsplat.storage.atomic import remove_local_tree
+from mmcsplat.storage.atomic import remove_leftovers, remove_local_tree
+from mmcsplat.storage.chunks import read_stored
 from mmcsplat.storage.transaction import Transaction
 
 TRACKS_DIR = "tracks.zarr"
@@ -100,6 +101,7 @@ class TrackWriter(Transaction):
         if len(set(counts.values())) != 1:
             raise InputError(f"{self.target}: static parameters disagree on the Gaussian count: {counts}")
         self.num_gaussians = next(iter(counts.values()))
+        remove_leftovers(run, f".{TRACKS_DIR}.partial-")  # of a killed writer: the caller holds the run's lock
         self._partial = run / f".{TRACKS_DIR}.partial-{uuid.uuid4().hex[:8]}"
         self._written = np.zeros(self.num_frames, dtype=bool)
         try:
@@ -114,7 +116,7 @@ class TrackWriter(Transaction):
                 "attrs": dict(attrs or {}),
             })
             for name, array in arrays.items():
-                self._group.create_array(name, data=array, compressors=[ZstdCodec(level=1)])
+                self._group.create_array(name, data=array, compressors=[ZstdCodec(level=1)], config={"write_empty_chunks": True})
             self._arrays = {}
             for name in self.dynamic:
                 shape = (self.num_frames, self.num_gaussians, *PARAMETER_SHAPES[name])
@@ -192,7 +194,7 @@ class TrackReader:
         self.attrs: dict[str, Any] = dict(attributes["attrs"])
         self.static: tuple[str, ...] = tuple(attributes["static"])
         self.dynamic: tuple[str, ...] = tuple(attributes["dynamic"])
-        self._static = {name: torch.from_numpy(np.asarray(group[name][...])) for name in self.static}
+        self._static = {name: torch.from_numpy(read_stored(group[name], None, f"{self.path}: static {name}")) for name in self.static}
         self._arrays = {name: group[name] for name in self.dynamic}
 
     def _check(self, t: int) -> int:
@@ -203,7 +205,7 @@ class TrackReader:
     def params(self, t: int) -> dict[str, torch.Tensor]:
         """Every parameter of ``GAUSSIAN_PARAMETERS`` at frame ``t`` (float32 tensors, static ones shared)."""
         t = self._check(t)
-        dynamic = {name: torch.from_numpy(np.asarray(array[t])) for name, array in self._arrays.items()}
+        dynamic = {name: torch.from_numpy(read_stored(array, t, f"{self.path}: {name}, frame {t}")) for name, array in self._arrays.items()}
         return {name: self._static[name] if name in self._static else dynamic[name] for name in GAUSSIAN_PARAMETERS}
 
     def gaussians(self, t: int) -> Gaussians:
@@ -212,4 +214,5 @@ class TrackReader:
 
     def means(self, t: int) -> np.ndarray:
         """[N, 3] Gaussian centres at frame ``t``."""
-        return np.asarray(self._arrays["means"][self._check(t)])
+        t = self._check(t)
+        return read_stored(self._arrays["means"], t, f"{self.path}: means, frame {t}")

@@ -14,6 +14,7 @@ import inspect
 import itertools
 import json
 import os
+import re
 import tomllib
 from collections.abc import Iterable, Mapping, Sequence
 from importlib import resources
@@ -234,8 +235,15 @@ def load_study(name_or_path: str | Path, registry: Registry | None = None) -> St
     return study
 
 
+#: What a name from a study file may be, since it becomes a folder under the study's output.
+SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.+-]*")
+
+
 def _session(name: str, table: Mapping[str, Any], source: str, folder: Path | None) -> SessionSpec:
     where = f"{source}: [sessions.{name}]"
+    if not SAFE_NAME.fullmatch(name) or ".." in name:
+        raise StudyError(f"{where}: a session name becomes a folder under --out: use letters, digits, '_', '-', '.' and '+' "
+                         f"(no path separators, '..' or leading dot), not {name!r}")
     _check_keys(table, SESSION_KEYS, source, f"[sessions.{name}]")
     if ("path" in table) == ("synthetic" in table):
         raise StudyError(f"{where} needs exactly one of 'path' (a stored session) or 'synthetic' (a table of synthesis settings)")

@@ -107,6 +107,16 @@ def local_path(url: str | os.PathLike) -> Path | None:
     return None if URL_SCHEME.match(url) else Path(url)
 
 
+def is_session_store(path: Path) -> bool:
+    """Whether the local folder ``path`` is an mmcsplat session (its zarr.json names the format), the
+    only kind of folder ``overwrite`` may replace."""
+    try:
+        metadata = json.loads((Path(path) / "zarr.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(metadata, dict) and "mmcsplat_session" in (metadata.get("attributes") or {})
+
+
 def open_group(url: str | os.PathLike, mode: str, storage_options: dict | None):
     """Open the zarr group at ``url``; a missing one is a FileNotFoundError naming the URL."""
     import zarr
@@ -117,6 +127,12 @@ def open_group(url: str | os.PathLike, mode: str, storage_options: dict | None):
         return zarr.open_group(str(local) if local is not None else url, mode=mode, zarr_format=3, **kwargs)
     except (FileNotFoundError, zarr.errors.GroupNotFoundError) as error:
         raise MissingFileError(f"no session at {os.fspath(url)}") from error
+    except NotADirectoryError as error:
+        raise InputError(f"{os.fspath(url)}: a file lies where the session's folder would be ({error})") from error
+    except (ValueError, ImportError, NotImplementedError) as error:  # fsspec: unknown protocol, or its package missing
+        if local is not None:
+            raise
+        raise InputError(f"{os.fspath(url)}: cannot be opened as a session store ({error})") from error
 
 
 def remove_remote(url: str, storage_options: dict | None) -> None:

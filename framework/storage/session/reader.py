@@ -9,6 +9,7 @@ import numpy as np
 
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.scene.camera import Camera
+from mmcsplat.storage.chunks import read_stored
 
 from .cache import DEFAULT_CACHE_BYTES, FrameCache
 from .format import (
@@ -118,6 +119,10 @@ class SessionReader(SessionBase):
             self._arrays[key] = self._group[f"cameras/{camera}/{name}"]
         return self._arrays[key]
 
+    def _stored(self, camera: str, name: str, field: str, t: int) -> np.ndarray:
+        """Frame ``t`` of the array ``name`` of ``camera``; a missing or corrupt chunk is an error naming it."""
+        return read_stored(self._array(camera, name), t, f"session {self.url}: camera {camera!r} {field}, frame {t}")
+
     def frame(self, t: int, camera: str) -> SessionFrame:
         """Frame ``t`` of ``camera``. Errors: unknown camera (ValueError), ``t`` out of range (IndexError),
         a frame the session lacks (:class:`AbsentFrameError`)."""
@@ -125,10 +130,10 @@ class SessionReader(SessionBase):
         cached = self.cache.get((camera, t))
         if cached is not None:
             return cached
-        arrays = {"rgb": self._array(camera, "rgb")[t]}
+        arrays = {"rgb": self._stored(camera, "rgb", "rgb", t)}
         for field, name in self._field_names[camera].items():
             if field in FIELDS:  # not source_mask
-                arrays[field] = self._array(camera, name)[t]
+                arrays[field] = self._stored(camera, name, field, t)
         if "depth" in arrays:
             arrays["depth"] = arrays["depth"].astype(np.float32)
         for array in arrays.values():
@@ -142,7 +147,7 @@ class SessionReader(SessionBase):
         self.camera(camera)
         if camera not in self._plates:
             return None
-        plate = self._group[f"cameras/{camera}/{PLATE}"][...]
+        plate = read_stored(self._group[f"cameras/{camera}/{PLATE}"], None, f"session {self.url}: camera {camera!r} plate")
         plate.setflags(write=False)
         return plate
 
@@ -159,7 +164,7 @@ class SessionReader(SessionBase):
         name = self._source_mask_array(camera)
         if name is None:
             raise InputError(f"{self.url}: camera {camera!r} has no masks from its capture")
-        mask = self._array(camera, name)[t]
+        mask = self._stored(camera, name, "source mask", t)
         mask.setflags(write=False)
         return mask
 

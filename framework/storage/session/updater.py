@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.storage.locking import session_lock
 from mmcsplat.storage.transaction import Transaction
 
 from .format import (
@@ -17,6 +18,7 @@ from .format import (
     checked_array,
     coverage_error,
     create_image_array,
+    local_path,
 )
 from .reader import SessionBase
 
@@ -29,14 +31,35 @@ class SessionUpdater(SessionBase, Transaction):
     deleted — except the masks the session was written with, which the first replacement keeps as the
     field :data:`SOURCE_MASK` (the ``precomputed`` segmenter starts from them). A field written for a
     camera must cover every present frame of it. A context manager like :class:`SessionWriter`. An updater
-    killed before commit leaves only unreferenced arrays behind. One updater at a time: two committing
-    concurrently would each keep only its own fields.
+    killed before commit leaves only unreferenced arrays behind, which the next updater deletes. One updater
+    at a time: a second one of a local session while the first is open is refused (a writer lock).
     """
 
     def __init__(self, url: str | os.PathLike, *, storage_options: dict | None = None) -> None:
-        super().__init__(url, "r+", storage_options)
+        target = local_path(url)
+        self._lock = session_lock(target) if target is not None else None
+        try:
+            super().__init__(url, "r+", storage_options)
+            self._remove_orphans()
+        except BaseException:
+            self._release()
+            raise
         self._token = uuid.uuid4().hex[:8]
         self._new: dict[tuple[str, str], tuple[Any, np.ndarray]] = {}  # (camera, field) -> (array, written)
+
+    def _remove_orphans(self) -> None:
+        """Delete the ``<field>.<token>`` arrays of updaters killed before their commit (no field names them)."""
+        for camera in self.camera_names:
+            referenced = set(self._field_names.get(camera, {}).values())
+            group = self._group[f"cameras/{camera}"]
+            for name in list(group.array_keys()):
+                field, dot, token = name.partition(".")
+                if dot and field in FIELDS and name not in referenced:
+                    del group[name]
+
+    def _release(self) -> None:
+        if self._lock is not None:
+            self._lock.release()
 
     def write(self, camera: str, field: str, t: int, array: np.ndarray) -> None:
         """Set ``field`` (mask, labels or depth) of frame ``t`` of ``camera``."""
@@ -76,13 +99,19 @@ class SessionUpdater(SessionBase, Transaction):
         self._group.attrs.update({"fields": fields})
         self._field_names = fields
         self._done = True
-        for path in replaced:
-            del self._group[path]
+        try:
+            for path in replaced:
+                del self._group[path]
+        finally:
+            self._release()
 
     def abort(self) -> None:
         """Delete the arrays written so far; the session is left as it was."""
         if self._done:
             return
         self._done = True
-        for camera, field in self._new:
-            del self._group[f"cameras/{camera}/{field}.{self._token}"]
+        try:
+            for camera, field in self._new:
+                del self._group[f"cameras/{camera}/{field}.{self._token}"]
+        finally:
+            self._release()

@@ -11,7 +11,8 @@ import numpy as np
 
 from mmcsplat.plugin_api.errors import InputError, OutputExistsError
 from mmcsplat.scene.camera import Camera
-from mmcsplat.storage.atomic import remove_local_tree
+from mmcsplat.storage.atomic import remove_leftovers, remove_local_tree
+from mmcsplat.storage.locking import WriterLock, session_lock
 from mmcsplat.storage.transaction import Transaction
 
 from .format import (
@@ -24,6 +25,7 @@ from .format import (
     checked_array,
     coverage_error,
     create_image_array,
+    is_session_store,
     local_path,
     open_group,
     provenance_record,
@@ -80,13 +82,22 @@ class SessionWriter(Transaction):
 
         self._cameras = {camera.name: camera for camera in cameras}
         self._overwrite = overwrite
+        self._lock: WriterLock | None = None
         self._target = local_path(url)
         if self._target is not None:
             if self._target.exists() and not overwrite:
                 raise OutputExistsError(f"{self.url} already exists (overwrite it explicitly)")
-            self._target.parent.mkdir(parents=True, exist_ok=True)
-            self._partial = self._target.parent / f".{self._target.name}.partial-{uuid.uuid4().hex[:8]}"
-            self._group = open_group(self._partial, "w-", None)
+            if self._target.exists() and not is_session_store(self._target):
+                raise OutputExistsError(f"{self.url} exists and is not an mmcsplat session: overwrite replaces only a session, never other files")
+            self._lock = session_lock(self._target)
+            try:  # what a killed writer of this session left
+                remove_leftovers(self._target.parent, f".{self._target.name}.partial-")
+                remove_leftovers(self._target.parent, f".{self._target.name}.replaced-")
+                self._partial = self._target.parent / f".{self._target.name}.partial-{uuid.uuid4().hex[:8]}"
+                self._group = open_group(self._partial, "w-", None)
+            except BaseException:
+                self._release()
+                raise
         else:
             self._partial = None
             import zarr
@@ -186,12 +197,17 @@ class SessionWriter(Transaction):
             self.abort()
             raise
         self._done = True
+        self._release()
+
+    def _release(self) -> None:
+        if self._lock is not None:
+            self._lock.release()
 
     def _move_into_place(self) -> None:
         target = self._target
         if target.exists() or target.is_symlink():
-            if not self._overwrite:
-                raise OutputExistsError(f"{self.url} appeared while the session was written (overwrite it explicitly)")
+            if not self._overwrite or not is_session_store(target):
+                raise OutputExistsError(f"{self.url} appeared while the session was written (overwrite replaces only a session)")
             replaced = target.parent / f".{target.name}.replaced-{uuid.uuid4().hex[:8]}"
             os.replace(target, replaced)
             os.replace(self._partial, target)
@@ -204,10 +220,13 @@ class SessionWriter(Transaction):
         if self._done:
             return
         self._done = True
-        if self._partial is not None:
-            remove_local_tree(self._partial)
-        else:
-            remove_remote(self.url, self._storage_options)
+        try:
+            if self._partial is not None:
+                remove_local_tree(self._partial)
+            else:
+                remove_remote(self.url, self._storage_options)
+        finally:
+            self._release()
 
 
 # ------------------------------------------------------------------------------------------------ reader

@@ -1,0 +1,38 @@
+"""Reading zarr arrays without mistaking lost data for zeros.
+
+zarr returns an array's fill value for a chunk that is not stored, so a deleted or never-synced chunk
+file would read as a black image, an empty mask or a Gaussian at the origin. Every store here writes
+each chunk it means to keep (``write_empty_chunks``), so a missing chunk under a selection that should
+hold data is damage: :func:`read_stored` checks the chunks it reads exist and turns a decoding failure
+(a corrupt, truncated chunk) into an error naming the array and index.
+"""
+
+from __future__ import annotations
+
+import itertools
+from typing import Any
+
+import numpy as np
+
+from mmcsplat.plugin_api.errors import InputError
+
+
+class DamagedStoreError(InputError):
+    """A chunk that should be stored is missing or does not decode."""
+
+
+def read_stored(array: Any, index: int | None, where: str) -> np.ndarray:
+    """``array[index]`` along the first axis (the whole array for ``None``), refusing missing or corrupt
+    chunks; ``where`` names what is read in errors (e.g. "session S: camera 'cam_1' rgb, frame 4")."""
+    from zarr.core.sync import sync
+
+    chunks, grid = array.chunks, array.cdata_shape
+    first = range(grid[0]) if index is None else [index // chunks[0]]
+    for coords in itertools.product(first, *(range(n) for n in grid[1:])):
+        key = array.metadata.encode_chunk_key(coords)
+        if not sync(array.store.exists(f"{array.path}/{key}")):
+            raise DamagedStoreError(f"{where}: its data is missing from the store (chunk {array.path}/{key} is gone); the store is damaged")
+    try:
+        return array[...] if index is None else array[index]
+    except (RuntimeError, ValueError, OSError) as error:  # numcodecs/zstd raise RuntimeError on corrupt input
+        raise DamagedStoreError(f"{where}: its stored data does not decode ({error}); the store is damaged") from error
