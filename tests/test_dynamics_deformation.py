@@ -110,7 +110,7 @@ def test_killed_run_resumes_to_the_same_tracks(session, tmp_path, monkeypatch):
         np.testing.assert_array_equal(a.means(k), b.means(k))
 
     shutil.rmtree(resumed / "tracks.zarr")  # a kept checkpoint of other settings is refused, not resumed
-    with pytest.raises(ValueError, match="other deformation settings"):
+    with pytest.raises(ValueError, match="deformation.pt: its settings differ from this run.s"):
         track_run(resumed, dynamics="deformation", overrides=["dynamics.iterations=50"], progress=False)
 
 

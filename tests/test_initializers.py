@@ -291,7 +291,7 @@ def test_the_depth_source_is_a_plugin_chosen_by_name(scene):
     truth = single_precision(subject())
     assert depth_loss(scene, truth, extended).item() < 1e-4
     assert depth_loss(scene, truth, extended, source="doubled").item() > 0.05  # |z − 2z| ≈ 1.4 m, weight 0.1
-    with pytest.raises(UnknownPluginError, match=r"unknown depth-source 'monocular'; registered depth-sources: doubled, session"):
+    with pytest.raises(UnknownPluginError, match=r"unknown depth-source 'monocular'; registered: doubled, session"):
         initializer("depth-supervised", extended, source="monocular")
     with pytest.raises(ValueError, match="source must be a depth-source name or a table with a 'name'"):
         initializer("depth-supervised", source={"noise": 0.1})

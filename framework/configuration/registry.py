@@ -147,7 +147,7 @@ class Registry:
         if not matches:
             known = ", ".join(self.names(kind)) or "none"
             hint = "".join(f"\n  broken plugin {b.entry_point!r} ({b.distribution}): {b.error}" for b in self.broken)
-            raise UnknownPluginError(f"unknown {kind} {name!r}; registered {kind}s: {known}{hint}")
+            raise UnknownPluginError(f"unknown {kind} {name!r}; registered: {known}{hint}")
         builtin = [entry for entry in matches if entry.distribution == BUILTIN_DISTRIBUTION]
         if len(matches) > 1 and len(builtin) == 1:
             others = "; ".join(entry.origin for entry in matches if entry is not builtin[0])

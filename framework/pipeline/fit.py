@@ -8,9 +8,11 @@ and the final Gaussians.
 
 from __future__ import annotations
 
+import re
 import time
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import attrs
 import numpy as np
@@ -68,7 +70,7 @@ def select_cameras(session: SessionReader, holdout: Sequence[str] | None) -> tup
     held = list(session.heldout if holdout is None else holdout)
     unknown = [name for name in held if name not in session.camera_names]
     if unknown:
-        raise InputError(f"held-out camera(s) {unknown} not in session {session.source!r}; cameras: {list(session.camera_names)}")
+        raise InputError(f"held-out camera(s) {unknown} not in session {session.url}; its cameras: {list(session.camera_names)}")
     train = [session.camera(name) for name in session.camera_names if name not in held]
     if len(train) < 2:
         raise InputError(f"a fit needs at least two training cameras; session has {list(session.camera_names)}, held out {held}")
@@ -88,10 +90,15 @@ class FirstFrameFit:
         registry: Registry | None = None,
         progress: bool = True,
     ) -> None:
+        if re.match(r"[A-Za-z][A-Za-z0-9+.-]+:/", str(out)):  # a URL, even once Path() has folded its '//'
+            raise InputError(f"--out {out}: a run directory is a local folder, not a URL (sessions may be URLs, runs may not)")
         self.session = session
         self.config = config
         self.out = Path(out)
         self.settings = FitSettings.from_config(config)
+        if self.settings.frame >= session.num_frames:
+            raise InputError(f"{config.source}: fit.frame {self.settings.frame} is past the last frame of session {session.url} "
+                             f"(it has {session.num_frames}: 0–{session.num_frames - 1})")
         self.registry = registry or default_registry()
         self.progress = progress
         self.resumed_from: int | None = None
@@ -215,11 +222,15 @@ class FirstFrameFit:
             "losses": attrs.asdict(record),
             "densifier": densify_state,
         }
-        save_checkpoint(path, self.config.values, state)
+        save_checkpoint(path, self._key(), state)
         self._info(model, record, step, elapsed, RUNNING if step < self.settings.iterations else COMPLETE).write(self.out)
 
+    def _key(self) -> dict[str, Any]:
+        """What a checkpoint must have been written with to be resumed."""
+        return {"configuration": self.config.values, "session": self.session.url, "training cameras": [c.name for c in self.train_cameras]}
+
     def _resume(self, path: Path, model, generator, schedule, densify_state) -> tuple[int, float, BlockLosses]:
-        payload = resume_checkpoint(path, self.config.values, "a different configuration", "use a new --out or delete the checkpoint")
+        payload = resume_checkpoint(path, self._key(), "use a new --out or delete the checkpoint")
         model.load_state_dict(payload["model"])
         generator.set_state(payload["generator"])
         schedule.queue = list(payload["schedule"])

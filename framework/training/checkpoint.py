@@ -4,6 +4,7 @@ result and a changed one never silently continues another's."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -31,11 +32,15 @@ def read_checkpoint(path: Path) -> dict[str, Any]:
         raise CheckpointError(f"{path} is damaged or not a checkpoint ({error}); delete it to start afresh") from error
 
 
-def resume_checkpoint(path: Path, key: Any, written_by: str, fresh: str) -> dict[str, Any]:
-    """The state saved at ``path``, when it was saved with ``key``; otherwise an error saying it was
-    written by ``written_by`` (e.g. "a different configuration") and how to start ``fresh``."""
+def resume_checkpoint(path: Path, key: Mapping[str, Any], fresh: str) -> dict[str, Any]:
+    """The state saved at ``path``, when it was saved with ``key`` (a table of what the training depends on:
+    settings, session, cameras, frames); otherwise an error naming the entries that differ and saying how
+    to start ``fresh``."""
     payload = read_checkpoint(path)
-    if payload.get("key") != key:
-        raise CheckpointError(f"{path} was written by {written_by}; {fresh}")
+    saved = payload.get("key")
+    if saved != key:
+        differing = sorted(name for name in key if not isinstance(saved, Mapping) or saved.get(name) != key[name])
+        what = f"its {', '.join(differing)}" if differing and isinstance(saved, Mapping) else "it was written by an older mmcsplat, or its settings"
+        raise CheckpointError(f"{path}: {what} differ from this run's; {fresh}")
     return payload
 

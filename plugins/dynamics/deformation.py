@@ -195,7 +195,7 @@ class _Run:
         })
 
     def _resume(self, path: Path) -> None:
-        payload = resume_checkpoint(path, self._key(), "other deformation settings or frames", "use --overwrite to start afresh")
+        payload = resume_checkpoint(path, self._key(), "use --overwrite to start afresh")
         self.model.load_state_dict(payload["model"])
         self.field.load_state_dict(payload["field"])
         self.optimizer.load_state_dict(payload["optimizer"])

@@ -129,7 +129,7 @@ def open_group(url: str | os.PathLike, mode: str, storage_options: dict | None):
         raise MissingFileError(f"no session at {os.fspath(url)}") from error
     except NotADirectoryError as error:
         raise InputError(f"{os.fspath(url)}: a file lies where the session's folder would be ({error})") from error
-    except (ValueError, ImportError, NotImplementedError) as error:  # fsspec: unknown protocol, or its package missing
+    except (ValueError, ImportError, NotImplementedError, OSError) as error:  # fsspec: unknown protocol, its package missing, a bad URL
         if local is not None:
             raise
         raise InputError(f"{os.fspath(url)}: cannot be opened as a session store ({error})") from error

@@ -1,0 +1,98 @@
+"""Reliability, classes 3 and 4: names from files never escape the output folder, and every user error
+is one line naming its cause with exit status 2, never a traceback."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from fitting_scene import write_config, write_fitted_run, write_session
+
+from mmcsplat.cli.main import main
+
+THIRDPARTY = Path(__file__).parent / "thirdparty"
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory) -> tuple[Path, Path, Path]:
+    folder = tmp_path_factory.mktemp("errors")
+    session = write_session(folder / "s.zarr", frames=2)
+    return session, write_fitted_run(folder / "run", session), write_config(folder / "fit.toml", iterations=5)
+
+
+@pytest.mark.parametrize("name", ["../../../escaped", "/tmp/absolute", "a/b", ".hidden"])
+def test_a_study_name_cannot_leave_the_output_folder(tmp_path, capsys, name):
+    study = tmp_path / "study.toml"
+    study.write_text(f'[sessions."{name}"]\nsynthetic = {{}}\n[[variant]]\nname = "a"\nconfig = "paper-masked"\n')
+    out = tmp_path / "deep" / "er" / "out"
+    assert main(["compare", str(study), "--out", str(out), "--dry-run"]) == 2
+    assert "a session name becomes a folder under --out" in capsys.readouterr().err
+    assert not (tmp_path / "escaped").exists() and not (tmp_path / "deep").exists()
+
+
+@pytest.mark.parametrize("setting, message", [
+    ("fit.iterations=abc", "parameter 'iterations' must be an integer, got 'abc'"),
+    ("fit.iterations=10.7", "parameter 'iterations' must be an integer, got 10.7"),
+    ("fit.lrs.bogus=1", "lrs: unknown parameter(s) bogus"),
+    ("fit.checkpoint_every=0", "checkpoint_every must be ≥ 1"),
+    ("fit.lrs.means=inf", "means must be a finite number > 0, got inf"),
+    ("fit.frame=99", "fit.frame 99 is past the last frame of session"),
+])
+def test_bad_fit_settings(scene, tmp_path, capsys, setting, message):
+    session, _, config = scene
+    assert main(["fit", str(session), "--config", str(config), "--out", str(tmp_path / "r"), "--set", setting, "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--holdout", "cam_99"], "held-out camera(s) ['cam_99'] not in session"),
+    (["--out", "ftp://example.org/run"], "a run directory is a local folder, not a URL"),
+])
+def test_bad_fit_arguments(scene, tmp_path, capsys, args, message):
+    session, _, config = scene
+    command = ["fit", str(session), "--config", str(config), "--out", str(tmp_path / "r"), "--no-progress", *args]
+    assert main(command) == 2 and message in capsys.readouterr().err
+    assert not Path("ftp:").exists()
+
+
+def test_outputs_below_a_file_and_unknown_url_schemes(scene, tmp_path, capsys):
+    session, run, config = scene
+    blocker = tmp_path / "a-file"
+    blocker.write_text("x")
+    assert main(["fit", str(session), "--config", str(config), "--out", str(blocker / "run"), "--no-progress"]) == 2
+    assert "Not a directory" in capsys.readouterr().err
+    assert main(["export", str(run), "--ply", str(blocker)]) == 2
+    assert str(blocker) in capsys.readouterr().err
+    assert main(["fit", "zip://nowhere.zip", "--config", str(config), "--out", str(tmp_path / "r"), "--no-progress"]) == 2
+    assert "zip://nowhere.zip" in capsys.readouterr().err
+
+
+def test_a_damaged_checkpoint_and_a_run_without_dynamics(scene, tmp_path, capsys):
+    session, _, _ = scene
+    run = write_fitted_run(tmp_path / "run", session)
+    assert main(["track", str(run), "--no-progress"]) == 2
+    assert "has no [dynamics] table: choose a method with --dynamics" in capsys.readouterr().err
+    checkpoint = run / "checkpoint.pt"
+    checkpoint.write_bytes(checkpoint.read_bytes()[:100])
+    assert main(["evaluate", str(run)]) == 2
+    assert f"{checkpoint} is damaged or not a checkpoint" in capsys.readouterr().err
+
+
+def test_an_unknown_plugin_is_named_in_plain_words(scene, tmp_path, capsys):
+    _, run, _ = scene
+    assert main(["track", str(run), "--dynamics", "nope", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "unknown dynamics 'nope'; registered: deformation, iterative" in err and "dynamicss" not in err
+
+
+def test_a_plugin_whose_hook_returns_nonsense_breaks_nothing_else():
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(THIRDPARTY / "odd"), os.environ.get("PYTHONPATH", "")]))
+    for args in (["--help"], ["--version"], ["plugins"]):
+        result = subprocess.run([sys.executable, "-m", "mmcsplat.cli.main", *args], capture_output=True, text=True, env=env, timeout=120)
+        assert result.returncode == 0, result.stderr
+    assert "broken plugin 'odd' from mmcsplat-odd-plugin: hook mmcsplat_metrics returned" in result.stdout
+    assert "psnr" in result.stdout

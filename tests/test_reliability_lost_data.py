@@ -1,0 +1,83 @@
+"""Reliability, class 2: nothing lost. --overwrite replaces only a session; a second writer of a run or a
+session is refused while the first works; a store that keeps nothing is refused; what a killed writer
+left is cleaned by the next one."""
+
+from __future__ import annotations
+
+import uuid
+from pathlib import Path
+
+import pytest
+import rig_fixtures as rig
+from fitting_scene import write_config, write_session
+
+from mmcsplat.cli.main import main
+from mmcsplat.storage.locking import run_lock, session_lock
+from mmcsplat.storage.session import SessionReader, SessionUpdater
+
+
+@pytest.fixture
+def capture(tmp_path) -> Path:
+    folder = tmp_path / "capture"
+    rig.make_capture(folder, frames=2)
+    return folder
+
+
+def _files(folder: Path) -> dict[str, bytes]:
+    return {str(path.relative_to(folder)): path.read_bytes() for path in sorted(folder.rglob("*")) if path.is_file()}
+
+
+@pytest.mark.parametrize("out", ["capture", ".", "capture_parent"])
+def test_ingest_never_replaces_its_own_capture(capture, tmp_path, capsys, out):
+    target = {"capture": capture, ".": capture.parent, "capture_parent": tmp_path}[out]
+    before = _files(capture)
+    assert main(["ingest", str(capture), str(target), "--overwrite"]) == 2
+    assert "is the capture" in capsys.readouterr().err and _files(capture) == before
+
+
+def test_overwrite_replaces_only_a_session(capture, tmp_path, capsys):
+    precious = tmp_path / "results"
+    precious.mkdir()
+    (precious / "thesis.tex").write_text("years of work")
+    assert main(["ingest", str(capture), str(precious), "--overwrite"]) == 2
+    assert "is not an mmcsplat session" in capsys.readouterr().err and (precious / "thesis.tex").read_text() == "years of work"
+    session = tmp_path / "s.zarr"
+    assert main(["ingest", str(capture), str(session)]) == 0
+    assert main(["ingest", str(capture), str(session), "--overwrite"]) == 0  # a session may be replaced
+
+
+def test_a_store_that_keeps_nothing_is_refused(capture, capsys):
+    assert main(["ingest", str(capture), f"memory://{uuid.uuid4().hex}/s.zarr"]) == 2
+    assert "keeps nothing after this process ends" in capsys.readouterr().err
+
+
+def test_a_second_fit_into_a_busy_run_is_refused(tmp_path, capsys):
+    session = write_session(tmp_path / "s.zarr")
+    out = tmp_path / "run"
+    with run_lock(out):  # a first fit at work
+        assert main(["fit", str(session), "--config", str(write_config(tmp_path / "c.toml", iterations=5)), "--out", str(out), "--no-progress"]) == 2
+    assert f"run {out} is being written by another mmcsplat process" in capsys.readouterr().err
+    assert not (out / "run.json").exists()
+
+
+def test_a_second_segmentation_of_a_busy_session_is_refused(tmp_path, capsys):
+    session = write_session(tmp_path / "s.zarr")
+    with session_lock(session):
+        assert main(["segment", str(session), "--segmenter", "precomputed"]) == 2
+    assert "is being written by another mmcsplat process" in capsys.readouterr().err
+    assert main(["segment", str(session), "--segmenter", "precomputed"]) == 0  # once the first is done
+
+
+def test_the_next_writer_cleans_what_a_killed_one_left(capture, tmp_path):
+    session = tmp_path / "s.zarr"
+    leftover = tmp_path / ".s.zarr.partial-deadbeef"
+    (leftover / "cameras").mkdir(parents=True)  # an ingest killed with -9
+    assert main(["ingest", str(capture), str(session)]) == 0
+    assert not leftover.exists()
+    updater = SessionUpdater(session)  # a segmentation killed before its commit: an orphan array
+    updater.write("cam_a", "mask", 0, SessionReader(session).frame(0, "cam_a").rgb[..., 0] > 0)
+    orphan = f"mask.{updater._token}"
+    updater._release()  # the process died: the OS released its lock
+    assert orphan in list(SessionReader(session)._group["cameras/cam_a"].array_keys())
+    SessionUpdater(session).abort()
+    assert orphan not in list(SessionReader(session)._group["cameras/cam_a"].array_keys())

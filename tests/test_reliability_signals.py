@@ -1,0 +1,37 @@
+"""Reliability, class 5: SIGTERM (what `timeout` and schedulers send) ends a command as Ctrl-C does —
+a message, exit 143, the last checkpoint kept — and the same command then resumes and says so."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+from fitting_scene import write_config, write_session
+
+
+def test_sigterm_during_a_fit_exits_143_and_the_fit_resumes(tmp_path):
+    session = write_session(tmp_path / "s.zarr")
+    config = write_config(tmp_path / "fit.toml", iterations=200, checkpoint_every=10)
+    out = tmp_path / "run"
+    command = [sys.executable, "-m", "mmcsplat.cli.main", "fit", str(session), "--config", str(config), "--out", str(out), "--no-progress"]
+    fit = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=dict(os.environ))
+    deadline = time.monotonic() + 120
+    while not (out / "checkpoint.pt").exists() and time.monotonic() < deadline and fit.poll() is None:
+        time.sleep(0.05)
+    fit.send_signal(signal.SIGTERM)
+    _, err = fit.communicate(timeout=120)
+    assert fit.returncode == 143, err
+    assert "terminated (SIGTERM)" in err and "Traceback" not in err
+    stopped = json.loads((out / "run.json").read_text())
+    assert stopped["status"] == "running" and stopped["iterations"] % 10 == 0 and stopped["iterations"] < 200
+    assert not list(out.glob(".*.tmp")) and not (out / ".mmcsplat.lock").exists()
+
+    finish = command  # the same command resumes
+    done = subprocess.run(finish, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    assert f"resumed from iteration {stopped['iterations']}" in done.stdout
+    assert json.loads((out / "run.json").read_text())["resumed_from"] == stopped["iterations"]
