@@ -20,6 +20,7 @@ import numpy as np
 from mmcsplat.datasets.rig import SIZE_MISMATCH_PARAMETER, RigRecording, common_length, find_calibration, fit_camera, match_cameras
 from mmcsplat.plugin_api.errors import InputError, NotAFolderError
 from mmcsplat.plugin_api.interfaces import Reader, RecordedFrame, Recording
+from mmcsplat.plugin_api.parameters import parameter
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.calibration import read_calibration
 
@@ -70,11 +71,30 @@ def probe(path: Path) -> VideoInfo:
         capture.release()
 
 
+def check_decodes(path: Path) -> None:
+    """Decode the whole video once with ffmpeg, stopping at the first decoder error, and refuse a damaged
+    one naming its file and the frame it breaks at. OpenCV conceals decoder errors (a video corrupted in
+    its middle decodes to smeared frames without a word), so this is the only place they show."""
+    import subprocess
+
+    import imageio_ffmpeg
+
+    command = [imageio_ffmpeg.get_ffmpeg_exe(), "-nostdin", "-v", "error", "-xerror", "-threads", "1", "-i", str(path),
+               "-map", "0:v:0", "-f", "framecrc", "-"]
+    result = subprocess.run(command, capture_output=True, text=True)
+    if result.returncode != 0:
+        decoded = sum(1 for line in result.stdout.splitlines() if line and not line.startswith("#"))
+        cause = next((line.strip() for line in result.stderr.splitlines() if line.strip()), f"ffmpeg exit status {result.returncode}")
+        raise InputError(f"video {path}: damaged at frame {decoded} (the decoder reports: {cause}); re-export or re-copy it, "
+                         f"or ingest the frames before it with --frames 0:{decoded}")
+
+
 @attrs.frozen
 class VideoReader(Reader):
     """Reads a folder of per-camera videos."""
 
     size_mismatch: str = SIZE_MISMATCH_PARAMETER
+    verify: bool = parameter(True, doc="decode each video once with ffmpeg first: a damaged one is an error naming the frame")
 
     def detect(self, source: Path) -> bool:
         return Path(source).is_dir() and bool(video_files(Path(source)))
@@ -87,6 +107,9 @@ class VideoReader(Reader):
         calibrated = read_calibration(calibration, units)
         paths = match_cameras(calibrated, video_files(source), "video", source)
         infos = {camera.name: probe(paths[camera.name]) for camera in calibrated}
+        if self.verify:
+            for camera in calibrated:
+                check_decodes(paths[camera.name])
         cameras = [fit_camera(c, infos[c.name].width, infos[c.name].height, self.size_mismatch, f"video {paths[c.name]}") for c in calibrated]
         num_frames = common_length({name: info.frames for name, info in infos.items()}, "video", source)
         provenance = {

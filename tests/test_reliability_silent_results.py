@@ -98,3 +98,15 @@ def test_a_threshold_that_empties_the_masks_is_refused_and_masks_are_kept(fitted
     assert "segmenter 'background': threshold must be a finite number > 0" in capsys.readouterr().err
     assert (SessionReader(session).frame(0, "cam_1").mask == before).all()
     assert json.loads((session / "zarr.json").read_text())["attributes"]["complete"] is True
+
+
+def test_a_video_damaged_in_its_middle_is_refused_naming_it(tmp_path, capsys):
+    capture = tmp_path / "capture"
+    rig.make_capture(capture, frames=30)
+    video = capture / "cam_a.mp4"
+    data = bytearray(video.read_bytes())
+    middle = len(data) // 2
+    data[middle : middle + 2000] = bytes((7 * b + 13) % 256 for b in data[middle : middle + 2000])  # a few kB overwritten
+    video.write_bytes(bytes(data))
+    assert main(["ingest", str(capture), str(tmp_path / "s.zarr")]) == 2
+    assert f"video {video}: damaged at frame" in capsys.readouterr().err and not (tmp_path / "s.zarr").exists()

@@ -23,6 +23,7 @@ from mmcsplat.plugin_api import hookspecs
 from mmcsplat.plugin_api.errors import (
     BrokenPluginError,
     DuplicatePluginError,
+    MmcsplatError,
     PluginError,
     PluginUnavailableError,
     UnknownPluginError,
@@ -178,8 +179,12 @@ class Registry:
         injected = {REGISTRY_PARAMETER: self} if REGISTRY_PARAMETER in inspect.signature(factory).parameters else {}
         try:
             return build_from_table(factory, params, f"{kind} {name!r}", **injected)
+        except MmcsplatError:  # already names the plugin (its parameters) or the input at fault
+            raise
         except TypeError as error:
             raise PluginError(f"{kind} {name!r} from {entry.origin} rejected its parameters {sorted(params)}: {error}") from error
+        except Exception as error:  # a plugin's constructor failing must name the plugin, not look like mmcsplat's defect
+            raise PluginError(f"{kind} {name!r} from {entry.origin} failed to build: {error!r}") from error
 
 
 def _check_kind(kind: str) -> None:

@@ -29,6 +29,7 @@ from mmcsplat.storage.locking import run_lock
 from mmcsplat.storage.run_info import COMPLETE, DIVERGED, RUN_INFO, RUNNING, RunInfo
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.training.backdrop import Background, camera_backdrop, parse_background
+from mmcsplat.training.checked_renderer import CheckedRenderer
 from mmcsplat.training.checkpoint import read_checkpoint, resume_checkpoint, save_checkpoint
 from mmcsplat.training.finite import FitError, check_finite
 from mmcsplat.training.model import GaussianModel
@@ -104,7 +105,8 @@ class FirstFrameFit:
         self.resumed_from: int | None = None
         self.renderer_name = backend or config.plugin("renderer").name
         renderer_params = dict(config.plugin("renderer").params) if not backend else {}
-        self.renderer: Renderer = supersampled(self.registry.create("renderer", self.renderer_name, **renderer_params), self.settings.supersample)
+        plugin = CheckedRenderer(self.registry.create("renderer", self.renderer_name, **renderer_params), self.renderer_name)
+        self.renderer: Renderer = supersampled(plugin, self.settings.supersample)
         self.initializers: list[Initializer] = [choice.build(self.registry) for choice in config.plugins("initializer")]
         densifiers = config.plugins("densifier")
         self.densifier: Densifier | None = densifiers[0].build(self.registry) if densifiers else None

@@ -19,6 +19,7 @@ from mmcsplat.plugin_api.interfaces import Renderer
 from mmcsplat.plugin_api.render_contract import Gaussians, RenderCameras, RenderOutput
 from mmcsplat.scene.camera import resize_matrix
 from mmcsplat.storage.run_info import RunInfo
+from mmcsplat.training.checked_renderer import CheckedRenderer
 
 
 def subpixel_cameras(cameras: RenderCameras, factor: int) -> RenderCameras:
@@ -70,4 +71,5 @@ def supersampled(renderer: Renderer, factor: int) -> Renderer:
 def run_renderer(info: RunInfo, registry: Registry, backend: str | None = None) -> Renderer:
     """The renderer that shows a fitted run as it was fitted: ``backend`` (default: the run's own), at
     the run's ``fit.supersample``."""
-    return supersampled(registry.create("renderer", backend or info.renderer), info.supersample)
+    name = backend or info.renderer
+    return supersampled(CheckedRenderer(registry.create("renderer", name), name), info.supersample)
