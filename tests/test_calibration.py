@@ -218,3 +218,11 @@ def test_two_cameras_with_one_pose_are_named(tmp_path: Path) -> None:
     path.write_text(tomli_w.dumps(cameras))
     with pytest.raises(ValueError, match="cameras 'c1' and 'c2' have the same pose"):
         read_calibration(path)
+
+
+def test_a_bad_value_names_the_file_and_table_once(tmp_path: Path) -> None:
+    path = tmp_path / "calibration.toml"
+    path.write_text(tomli_w.dumps({"cam_0": {**GOOD, "matrix": [[1, 2], [3, 4]]}}))
+    with pytest.raises(ValueError) as caught:
+        read_calibration(path)
+    assert str(caught.value).count(str(path)) == 1 and "matrix must have shape [3, 3]" in str(caught.value)

@@ -103,7 +103,8 @@ def test_killed_run_resumes_to_the_same_tracks(session, tmp_path, monkeypatch):
         track_run(resumed, dynamics="deformation", overrides=settings, progress=False)
     assert not (resumed / "tracks.zarr").exists()
     monkeypatch.setattr(_Run, "_checkpoint", original)
-    track_run(resumed, dynamics="deformation", overrides=settings, progress=False)
+    record = track_run(resumed, dynamics="deformation", overrides=settings, progress=False)
+    assert record["summary"]["resumed_from"] == 20  # and says so
     a, b = TrackReader(straight), TrackReader(resumed)
     assert a.num_gaussians == b.num_gaussians
     for k in (0, FRAMES - 1):

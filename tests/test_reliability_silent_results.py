@@ -110,3 +110,16 @@ def test_a_video_damaged_in_its_middle_is_refused_naming_it(tmp_path, capsys):
     video.write_bytes(bytes(data))
     assert main(["ingest", str(capture), str(tmp_path / "s.zarr")]) == 2
     assert f"video {video}: damaged at frame" in capsys.readouterr().err and not (tmp_path / "s.zarr").exists()
+
+
+def test_missing_or_garbled_metadata_names_the_array(fitted):
+    session, _ = fitted
+    (session / "cameras" / "cam_1" / "rgb" / "zarr.json").unlink()
+    with pytest.raises(ValueError, match="array cameras/cam_1/rgb is missing from the store"):
+        SessionReader(session).frame(0, "cam_1")
+    (session / "cameras" / "cam_2" / "mask" / "zarr.json").write_text("{garbled")
+    with pytest.raises(ValueError, match="the metadata of array cameras/cam_2/mask is garbled"):
+        SessionReader(session).frame(0, "cam_2")
+    (session / "zarr.json").write_text("{garbled")
+    with pytest.raises(ValueError, match=r"the store's metadata \(zarr.json\) is garbled"):
+        SessionReader(session)

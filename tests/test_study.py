@@ -91,6 +91,7 @@ BAD_STUDIES = [
     ('[sessions.s]\npath = "s.zarr"\n[[variant]]\nname = "a"\nconfig = "paper-masked"\ninitializer = [{ name = "rando" }]\n',
      "variant 'a': unknown initializer 'rando'"),
     ('[sessions.s]\npath = "s.zarr"\n[[variant]]\nname = "a"\nconfig = "paper-masked"\nset = { "fit.iteration" = 5 }\n', r"\[fit\]: unknown parameter\(s\) iteration; known: iterations"),
+    ('[sessions.s]\npath = "s.zarr"\n[[variant]]\nname = "a"\nconfig = "paper-masked"\nset = { "fitt.iterations" = 5 }\n', r"unknown table\(s\) 'fitt'"),
     ('[sessions.s]\npath = "s.zarr"\n[[variant]]\nname = "a"\nconfig = "paper-masked"\nset = { "initializer.rando.x" = 5 }\n', "no table named 'rando'"),
     ('[sessions.s]\npath = "s.zarr"\n[[variant]]\nname = "a"\nconfig = "paper-masked"\n[[variant]]\nname = "a"\nconfig = "paper-masked"\n', "must be unique"),
     ('[study]\nseeds = [0.5]\n[sessions.s]\npath = "s.zarr"\n[[variant]]\nname = "a"\nconfig = "paper-masked"\n', "list of integers"),

@@ -119,16 +119,11 @@ def _camera(path: Path, section: str, table: dict[str, Any]) -> Camera:
     distortion = _array(where, "distortions", table["distortions"], None).reshape(-1)
     if distortion.size not in (4, 5):
         raise InputError(f"{where}: distortions must hold 4 (k1 k2 p1 p2) or 5 (… k3) values, got {distortion.size}")
-    try:
-        return Camera(
-            name=name,
-            width=int(size[0]),
-            height=int(size[1]),
-            K=_array(where, "matrix", table["matrix"], (3, 3)),
-            R=_array(where, "rotation", table["rotation"], (3,)),
-            t=_array(where, "translation", table["translation"], (3,)),
-            distortion=distortion,
-        )
+    K = _array(where, "matrix", table["matrix"], (3, 3))
+    R = _array(where, "rotation", table["rotation"], (3,))
+    t = _array(where, "translation", table["translation"], (3,))
+    try:  # the Camera's own checks name the camera, not the file: add it (once)
+        return Camera(name=name, width=int(size[0]), height=int(size[1]), K=K, R=R, t=t, distortion=distortion)
     except ValueError as error:
         raise InputError(f"{where}: {error}") from error
 

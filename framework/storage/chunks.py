@@ -21,6 +21,16 @@ class DamagedStoreError(InputError):
     """A chunk that should be stored is missing or does not decode."""
 
 
+def open_stored(group: Any, path: str, where: str) -> Any:
+    """The array at ``path`` in ``group``; missing or garbled metadata is an error naming it."""
+    try:
+        return group[path]
+    except KeyError as error:
+        raise DamagedStoreError(f"{where}: array {path} is missing from the store (its zarr.json is gone); the store is damaged") from error
+    except ValueError as error:  # json.JSONDecodeError and zarr's metadata errors are ValueErrors
+        raise DamagedStoreError(f"{where}: the metadata of array {path} is garbled ({error}); the store is damaged") from error
+
+
 def read_stored(array: Any, index: int | None, where: str) -> np.ndarray:
     """``array[index]`` along the first axis (the whole array for ``None``), refusing missing or corrupt
     chunks; ``where`` names what is read in errors (e.g. "session S: camera 'cam_1' rgb, frame 4")."""

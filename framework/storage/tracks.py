@@ -30,7 +30,7 @@ from mmcsplat.plugin_api.errors import InputError, MissingFileError, OutputExist
 from mmcsplat.plugin_api.render_contract import Gaussians, gaussians_from_params
 from mmcsplat.scene.gaussian_table import GAUSSIAN_PARAMETERS, PARAMETER_SHAPES
 from mmcsplat.storage.atomic import remove_leftovers, remove_local_tree
-from mmcsplat.storage.chunks import read_stored
+from mmcsplat.storage.chunks import open_stored, read_stored
 from mmcsplat.storage.transaction import Transaction
 
 TRACKS_DIR = "tracks.zarr"
@@ -194,8 +194,9 @@ class TrackReader:
         self.attrs: dict[str, Any] = dict(attributes["attrs"])
         self.static: tuple[str, ...] = tuple(attributes["static"])
         self.dynamic: tuple[str, ...] = tuple(attributes["dynamic"])
-        self._static = {name: torch.from_numpy(read_stored(group[name], None, f"{self.path}: static {name}")) for name in self.static}
-        self._arrays = {name: group[name] for name in self.dynamic}
+        self._static = {name: torch.from_numpy(read_stored(open_stored(group, name, str(self.path)), None, f"{self.path}: static {name}"))
+                        for name in self.static}
+        self._arrays = {name: open_stored(group, name, str(self.path)) for name in self.dynamic}
 
     def _check(self, t: int) -> int:
         if not isinstance(t, int | np.integer) or not 0 <= t < self.num_frames:

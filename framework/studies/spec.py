@@ -324,13 +324,13 @@ def _variants(row: Mapping[str, Any], index: int, shared: Mapping[str, Any], sou
     for point in itertools.product(*grid.values()):
         chosen = dict(zip(grid, point))
         resolved = values
+        suffix = ", ".join(f"{labels[key]}={value}" for key, value in chosen.items())
         try:
             for key, value in {**overrides, **chosen}.items():
                 resolved = set_value(resolved, key, value, where)
+            variants.append(Variant(f"{name} ({suffix})" if suffix else name, Config(f"{where} ({config.source})", resolved), segmenter))
         except ConfigError as error:
             raise StudyError(str(error)) from error
-        suffix = ", ".join(f"{labels[key]}={value}" for key, value in chosen.items())
-        variants.append(Variant(f"{name} ({suffix})" if suffix else name, Config(f"{where} ({config.source})", resolved), segmenter))
     return variants
 
 

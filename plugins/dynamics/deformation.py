@@ -128,6 +128,7 @@ class _Run:
         self.pairs = torch.as_tensor(np.argwhere(present.T))  # [P, 2]: (tracks frame k, camera index)
         self.cameras = RenderCameras.from_cameras(context.cameras)
         self.step = 0
+        self.resumed_from: int | None = None
         self.elapsed = 0.0
         self.recent: list[tuple[float, float]] = []
 
@@ -203,6 +204,7 @@ class _Run:
         self.densify_state.clear()
         self.densify_state.update(payload["densifier"])
         self.step, self.elapsed, self.recent = int(payload["step"]), float(payload["elapsed"]), list(payload["recent"])
+        self.resumed_from = self.step
 
     # --------------------------------------------------------------------------------------- output
 
@@ -225,6 +227,7 @@ class _Run:
         cache = self.session.cache
         return {
             "iterations": self.step,
+            "resumed_from": self.resumed_from,
             "depth": self.settings.depth,
             "width": self.settings.width,
             "field_parameters": sum(p.numel() for p in self.field.parameters()),

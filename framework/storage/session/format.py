@@ -127,9 +127,15 @@ def open_group(url: str | os.PathLike, mode: str, storage_options: dict | None):
         return zarr.open_group(str(local) if local is not None else url, mode=mode, zarr_format=3, **kwargs)
     except (FileNotFoundError, zarr.errors.GroupNotFoundError) as error:
         raise MissingFileError(f"no session at {os.fspath(url)}") from error
+    except ValueError as error:  # a garbled zarr.json (json.JSONDecodeError) or metadata zarr cannot parse
+        if local is None:
+            raise InputError(f"{os.fspath(url)}: cannot be opened as a session store ({error})") from error
+        raise InputError(f"{os.fspath(url)}: the store's metadata (zarr.json) is garbled ({error}); the store is damaged") from error
     except NotADirectoryError as error:
         raise InputError(f"{os.fspath(url)}: a file lies where the session's folder would be ({error})") from error
-    except (ValueError, ImportError, NotImplementedError, OSError) as error:  # fsspec: unknown protocol, its package missing, a bad URL
+    except FileExistsError:  # mode 'w-' on existing data: the writer says what to do
+        raise
+    except (ImportError, NotImplementedError, OSError) as error:  # fsspec: its package missing, a bad URL
         if local is not None:
             raise
         raise InputError(f"{os.fspath(url)}: cannot be opened as a session store ({error})") from error

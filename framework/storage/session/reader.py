@@ -9,7 +9,7 @@ import numpy as np
 
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.scene.camera import Camera
-from mmcsplat.storage.chunks import read_stored
+from mmcsplat.storage.chunks import open_stored, read_stored
 
 from .cache import DEFAULT_CACHE_BYTES, FrameCache
 from .format import (
@@ -59,7 +59,8 @@ class SessionBase:
         """[T] bool (read-only): which frames exist for ``camera``."""
         self.camera(camera)
         if camera not in self._present:
-            present = np.asarray(self._group[f"cameras/{camera}/present"][:], dtype=bool)
+            where = f"session {self.url}: camera {camera!r} present"
+            present = np.asarray(read_stored(open_stored(self._group, f"cameras/{camera}/present", where), None, where), dtype=bool)
             present.setflags(write=False)
             self._present[camera] = present
         return self._present[camera]
@@ -116,7 +117,7 @@ class SessionReader(SessionBase):
         """The zarr array ``name`` of ``camera`` (opened once)."""
         key = (camera, name)
         if key not in self._arrays:
-            self._arrays[key] = self._group[f"cameras/{camera}/{name}"]
+            self._arrays[key] = open_stored(self._group, f"cameras/{camera}/{name}", f"session {self.url}")
         return self._arrays[key]
 
     def _stored(self, camera: str, name: str, field: str, t: int) -> np.ndarray:
@@ -147,7 +148,7 @@ class SessionReader(SessionBase):
         self.camera(camera)
         if camera not in self._plates:
             return None
-        plate = read_stored(self._group[f"cameras/{camera}/{PLATE}"], None, f"session {self.url}: camera {camera!r} plate")
+        plate = read_stored(open_stored(self._group, f"cameras/{camera}/{PLATE}", f"session {self.url}"), None, f"session {self.url}: camera {camera!r} plate")
         plate.setflags(write=False)
         return plate
 

@@ -169,7 +169,7 @@ class SessionWriter(Transaction):
         if camera not in self._cameras:
             raise InputError(f"{self.url}: unknown camera {camera!r}; the session has {list(self._cameras)}")
         plate = checked_array(self.url, self._cameras[camera], "rgb", None, rgb)
-        self._group.create_array(f"cameras/{camera}/{PLATE}", data=plate, overwrite=True)
+        self._group.create_array(f"cameras/{camera}/{PLATE}", data=plate, overwrite=True, config={"write_empty_chunks": True})
         if camera not in self._plates:
             self._plates.append(camera)
 
@@ -188,7 +188,7 @@ class SessionWriter(Transaction):
             if problems:
                 raise InputError("\n".join(problems))
             for camera, present in self._present.items():
-                self._group.create_array(f"cameras/{camera}/present", data=present)
+                self._group.create_array(f"cameras/{camera}/present", data=present, config={"write_empty_chunks": True})
             fields = {camera: {field: field for field in fields} for camera, fields in self._fields.items()}
             self._group.attrs.update({"fields": fields, "plates": self._plates, "complete": True})
             if self._partial is not None:
