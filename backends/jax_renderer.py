@@ -110,15 +110,22 @@ class _JaxRender(torch.autograd.Function):
         return None, None, None, *(g.to(dtype) for g, dtype in zip(grads, ctx.dtypes, strict=True))
 
 
+def _divides_tile(_instance: object, field: attrs.Attribute, value: int) -> None:
+    if 16 % value:
+        raise ValueError(f"{field.name} must divide the 16-pixel tile (1, 2, 4, 8 or 16), got {value!r}")
+
+
 @attrs.define
 class JaxRenderer(Renderer):
     """The ``jax`` backend (lists and bucketing: :class:`~mmcsplat.backends.jax_buckets.JaxRasterizer`);
     one instance keeps its compiled programs, so reuse it across a run."""
 
     block_size: int = parameter(32, doc="Gaussians per list block", validator=at_least(1))
-    cell_size: int = parameter(8, doc="pixels per side of a bucketing cell; divides the 16-pixel tile", validator=at_least(1))
+    cell_size: int = parameter(8, doc="pixels per side of a bucketing cell; divides the 16-pixel tile",
+                               validator=[at_least(1), _divides_tile])
     ratio: float = parameter(1.25, doc="growth factor between bucket sizes", validator=above(1))
-    rasterizer: JaxRasterizer = attrs.field(init=False, repr=False)
+    #: The rasterizer, with its compiled programs and learnt capacities (internal state, not a parameter).
+    rasterizer: JaxRasterizer = attrs.field(init=False, repr=False, eq=False)
 
     def __attrs_post_init__(self) -> None:
         self.rasterizer = JaxRasterizer(block_size=self.block_size, cell_size=self.cell_size, ratio=self.ratio)

@@ -26,6 +26,13 @@ from mmcsplat.plugin_api.render_contract import (
 )
 
 
+def _torch_device(_instance: object, field: attrs.Attribute, value: str) -> None:
+    try:
+        torch.device(value)
+    except (RuntimeError, TypeError) as error:
+        raise ValueError(f"{field.name} must be a torch device such as 'cuda' or 'cuda:1', got {value!r}") from error
+
+
 @attrs.frozen
 class GsplatRenderer(Renderer):
     """Renders on ``device`` (a CUDA device) in float32; inputs elsewhere are moved there and the images
@@ -33,7 +40,7 @@ class GsplatRenderer(Renderer):
     ``device``): its values are the 2D means, its ``.grad`` after backward the contract's screen-space
     gradient."""
 
-    device: str = parameter("cuda", doc="the CUDA device to render on")
+    device: str = parameter("cuda", doc="the CUDA device to render on (a torch device string, e.g. cuda:1)", validator=_torch_device)
 
     def render(self, gaussians: Gaussians, cameras: RenderCameras, background: torch.Tensor | None = None) -> RenderOutput:
         """Render every camera with ``gsplat.rasterization`` (RGB + expected depth, features as extra channels)."""

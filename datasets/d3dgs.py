@@ -46,7 +46,7 @@ class _CameraFrames:
 class D3DGSReader(Reader):
     """Reads the Dynamic3DGaussians layout; ``fps`` is the capture's frame rate, which the files lack."""
 
-    fps: float = parameter(30.0, doc="the capture's frame rate", validator=finite_positive)
+    fps: float = parameter(30.0, doc="the capture's frame rate, frames per second", converter=float, validator=finite_positive)
 
     def detect(self, source: Path) -> bool:
         """A folder with a ``train_meta.json``."""

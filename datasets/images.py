@@ -77,7 +77,7 @@ def camera_folders(source: Path) -> list[Path]:
 class ImageSequenceReader(Reader):
     """Reads per-camera image folders."""
 
-    fps: float = parameter(30.0, doc="the capture's frame rate", validator=finite_positive)
+    fps: float = parameter(30.0, doc="the capture's frame rate, frames per second", converter=float, validator=finite_positive)
     size_mismatch: str = SIZE_MISMATCH_PARAMETER
     missing_frames: str = parameter("error", doc="an image number missing in a camera's sequence: error, or absent (marked absent)",
                                     validator=one_of("error", "absent"))

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import attrs
 import numpy as np
 import pytest
 import torch
@@ -62,18 +63,20 @@ def moved(gaussians: Gaussians, t: int, step: float = 0.005, bend: float = 0.04)
 
 def write_session(path: Path, cameras: int = 5, heldout: tuple[str, ...] = ("cam_0",), blank: tuple[str, ...] = (),
                   frames: int = 1, absent: tuple[tuple[str, int], ...] = (), zoom: int = 1, truth: Gaussians | None = None,
-                  masks: bool = True, depth: bool = True, plates: bool = False, supersample: int = 1) -> Path:
+                  masks: bool = True, depth: bool = True, plates: bool = False, supersample: int = 1, taller: tuple[str, ...] = ()) -> Path:
     """Render ``truth`` (default ``subject()``), moving over ``frames``, into ``cameras`` ring cameras of ``zoom`` times the
     base resolution; cameras in ``blank`` get an empty image/mask; the (camera, frame) pairs in ``absent``
     are left out of the session; ``masks`` / ``depth`` false leave those fields out (a capture without them);
     with ``plates`` the subject is seen in front of each camera's :func:`plate` (else black), stored as its
     clean plate; ``supersample`` > 1 makes each pixel the mean of that many sub-pixels per side (a pixel
-    integrating over its area)."""
+    integrating over its area); cameras in ``taller`` have two more rows (as a real rig's 1088-row cameras
+    beside 1080-row ones)."""
     from mmcsplat.backends.torch_reference import TorchReferenceRenderer
     from mmcsplat.training.supersampling import supersampled
 
     renderer = supersampled(TorchReferenceRenderer(), supersample)
     rig = [ring_camera(f"cam_{i}", 2 * np.pi * i / cameras, zoom=zoom) for i in range(cameras)]
+    rig = [attrs.evolve(c, height=c.height + 2, K=c.K + np.array([[0, 0, 0], [0, 0, 1], [0, 0, 0]])) if c.name in taller else c for c in rig]
     with SessionWriter(path, cameras=rig, num_frames=frames, fps=30.0, heldout=heldout, source="fitting-scene") as writer:
         for t in range(frames):
             gaussians = moved(subject() if truth is None else truth, t)

@@ -12,6 +12,7 @@ from mmcsplat.cli import main
 from mmcsplat.configuration.config import load_config
 from mmcsplat.pipeline.evaluate import evaluate
 from mmcsplat.pipeline.fit import CHECKPOINT, FirstFrameFit
+from mmcsplat.pipeline.track import track_run
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.training.finite import NonFiniteError
 
@@ -127,3 +128,13 @@ def test_a_built_in_configuration_runs_unchanged_on_every_backend(session, tmp_p
     assert info.status == "complete" and info.renderer == backend
     metrics = evaluate(tmp_path / backend, backend=backend)
     assert metrics["train_masked_psnr"] > 12, metrics  # an empty render scores about 8 dB inside these masks
+
+
+def test_cameras_of_different_sizes_fit_track_and_evaluate_together(tmp_path):
+    session = write_session(tmp_path / "mixed.zarr", frames=2, taller=("cam_1", "cam_0"))
+    assert {(c.width, c.height) for c in SessionReader(session).cameras} == {(48, 36), (48, 38)}
+    config = load_config(write_config(tmp_path / "fit.toml", iterations=8, checkpoint_every=8))
+    assert FirstFrameFit(SessionReader(session), config, tmp_path / "run", progress=False).run().complete
+    track_run(tmp_path / "run", dynamics="iterative", overrides=["dynamics.iterations=2"], progress=False)
+    metrics = evaluate(tmp_path / "run")
+    assert {"cam_0", "cam_1", "cam_2"} <= set(metrics["per_camera"]) and metrics["val_masked_psnr"] is not None

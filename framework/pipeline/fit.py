@@ -138,8 +138,8 @@ class FirstFrameFit:
             raise InputError(f"{self.config.source}: the initializers placed no Gaussians")
         return GaussianModel(gaussians, tuple(c.name for c in self.train_cameras), self.settings.lrs, self.scene.scale)
 
-    def _render_cameras(self) -> RenderCameras:
-        return RenderCameras.from_cameras(self.train_cameras)
+    def _render_cameras(self) -> tuple[RenderCameras, ...]:
+        return RenderCameras.each(self.train_cameras)
 
     # -------------------------------------------------------------------------------------- training
 
@@ -171,7 +171,7 @@ class FirstFrameFit:
             for step in bar:
                 index = schedule.next()
                 view = self.views[index]
-                render = self.renderer.render(model.gaussians(), cameras.select([index]))
+                render = self.renderer.render(model.gaussians(), cameras[index])
                 loss, image = view_loss(model, view, render, settings)
                 for initializer in self.initializers:
                     extra = initializer.extra_loss(step, render, view.camera, self.scene)

@@ -96,6 +96,12 @@ class RenderCameras:
         viewmats = torch.as_tensor(np.stack([camera.world_to_camera for camera in cameras]), dtype=dtype)
         return cls(K, viewmats, width, height)
 
+    @classmethod
+    def each(cls, cameras: Sequence[Camera], dtype: torch.dtype = torch.float32) -> tuple[RenderCameras, ...]:
+        """One single-camera batch per camera, so that a rig whose cameras differ in size (real rigs often
+        do: 1080 and 1088 rows) renders camera by camera, as training does anyway."""
+        return tuple(cls.from_cameras([camera], dtype) for camera in cameras)
+
 
 @attrs.frozen(eq=False)
 class RenderOutput:

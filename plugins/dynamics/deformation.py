@@ -126,7 +126,7 @@ class _Run:
         # Every (frame, training camera) the session holds; images are drawn from these uniformly.
         present = np.stack([session.present(c.name)[context.frames.start : context.frames.stop] for c in context.cameras])
         self.pairs = torch.as_tensor(np.argwhere(present.T))  # [P, 2]: (tracks frame k, camera index)
-        self.cameras = RenderCameras.from_cameras(context.cameras)
+        self.cameras = RenderCameras.each(context.cameras)
         self.step = 0
         self.resumed_from: int | None = None
         self.elapsed = 0.0
@@ -160,7 +160,7 @@ class _Run:
             view = load_view(self.session, context.frames[k], context.cameras[index], index, context.initializers, context.backdrops[index])
             require_masks([view], context.settings, self.session, context.frames[k])
             noise = float(torch.randn((), generator=self.generator)) * settings.noise_std(step, frames)
-            render = context.renderer.render(gaussians_from_params(self.deformed(k, noise)), self.cameras.select([index]))
+            render = context.renderer.render(gaussians_from_params(self.deformed(k, noise)), self.cameras[index])
             loss, image = view_loss(model, view, render, context.settings)
             self.densifier.step_pre_backward(model, self.densify_state, step, render)
             loss.backward()

@@ -99,7 +99,7 @@ class IterativeDynamics(Dynamics):
         foreground = torch.sigmoid(params["seg_logits"].detach()[:, 0]) > self.foreground
         graph = NeighbourGraph.build(params["means"], foreground, self.neighbours, self.lambda_w)
         prior = RigidityPrior(graph)
-        cameras = RenderCameras.from_cameras(context.cameras)
+        cameras = RenderCameras.each(context.cameras)
         generator = torch.Generator().manual_seed(self.seed)
         static = {name: params[name].detach() for name in self._static_names()}
         attributes = {"first_frame": context.frames.start, "foreground_gaussians": len(graph.foreground),
@@ -143,7 +143,7 @@ class IterativeDynamics(Dynamics):
             params["quats"].copy_(self._unit(2 * quats - prev_quats))
         return means, quats
 
-    def _fit_frame(self, model: GaussianModel, prior: RigidityPrior, context: TrackingContext, cameras: RenderCameras,
+    def _fit_frame(self, model: GaussianModel, prior: RigidityPrior, context: TrackingContext, cameras: tuple[RenderCameras, ...],
                    t: int, generator: torch.Generator) -> FrameResult:
         from tqdm import tqdm
 
@@ -156,7 +156,7 @@ class IterativeDynamics(Dynamics):
         bar = tqdm(range(self.iterations), desc=f"frame {t}", unit="it", leave=False, disable=not context.progress)
         for step in bar:
             view: TrainingView = views[schedule.next()]
-            render = context.renderer.render(model.gaussians(), cameras.select([view.index]))
+            render = context.renderer.render(model.gaussians(), cameras[view.index])
             loss, image = view_loss(model, view, render, context.settings, self.lambda_seg)
             rigid, rot, iso = prior.losses(model.params["means"], model.params["quats"])
             loss = loss + self.lambda_rigid * rigid + self.lambda_rot * rot + self.lambda_iso * iso

@@ -24,11 +24,11 @@ KNN_SAMPLES = 7
 
 
 def _learn_frames(_instance: object, field: attrs.Attribute, value: tuple[int, int] | None) -> None:
-    if value is not None and not 0 <= value[0] < value[1]:
+    if value is not None and not (len(value) == 2 and 0 <= value[0] < value[1]):
         raise ValueError(f"{field.name} must be [start, stop) frame indices with 0 ≤ start < stop, got {list(value)}")
 
 
-@attrs.define
+@attrs.frozen
 class BackgroundSegmenter(PostProcessedSegmenter):
     """Foreground = what differs from the camera's background model, learnt from the learning frames (a
     few seconds of the empty mat are best; by default the whole sequence, which finds the subject only
@@ -39,10 +39,10 @@ class BackgroundSegmenter(PostProcessedSegmenter):
     a morphological opening then closing."""
 
     method: str = parameter("mog2", doc="mog2, knn or median", validator=one_of(*DEFAULT_THRESHOLDS))
-    threshold: float | None = parameter(None, doc="foreground cut-off (none: the method's default, DEFAULT_THRESHOLDS)", validator=finite_positive)
+    threshold: float | None = parameter(None, doc="foreground cut-off (none: the method's default): mog2 squared Mahalanobis distance (16), knn squared distance (400), median grey levels (30)", validator=finite_positive)
     background_ratio: float = parameter(0.5, doc="mog2/knn: a colour seen in this share of the learning frames is background", validator=[above(0), between(0, 1)])
     learn_frames: tuple[int, int] | None = parameter(None, doc="[start, stop) frames the background is learnt from (none: all)", validator=_learn_frames)
-    history: int | None = parameter(None, doc="frames the mog2/knn model remembers (none: all learning frames)", validator=at_least(1))
+    history: int | None = parameter(None, doc="mog2/knn: frames the model remembers (none: all learning frames)", validator=at_least(1))
     samples: int = parameter(25, doc="median: learning frames sampled", validator=at_least(2))
     passes: int = parameter(3, doc="mog2/knn: passes over the learning frames", validator=at_least(1))
     shadows: bool = parameter(True, doc="mog2/knn: detect shadows and count them as background")

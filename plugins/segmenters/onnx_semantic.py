@@ -122,7 +122,12 @@ def _batches(items: Sequence[int], size: int) -> Iterator[list[int]]:
         yield batch
 
 
-@attrs.define(slots=False)
+def _internal() -> Any:
+    """A field the constructor computes from the parameters (not a parameter; not compared or shown)."""
+    return attrs.field(init=False, repr=False, eq=False)
+
+
+@attrs.define
 class OnnxSemanticSegmenter(PostProcessedSegmenter):
     """Semantic segmentation with an ONNX model on onnxruntime's CPUExecutionProvider (nothing is
     downloaded). Labels are stored as the remapped class ids of the sidecar (docs/plugins.md)."""
@@ -134,10 +139,20 @@ class OnnxSemanticSegmenter(PostProcessedSegmenter):
     batch_size: int = parameter(4, doc="frames per inference call (a model with a fixed batch uses its own)", validator=at_least(1))
     threads: int | None = parameter(None, doc="onnxruntime intra-op threads (none: onnxruntime's choice)", validator=at_least(1))
 
+    path: Path = _internal()  # the model file, expanded
+    description: Sidecar = _internal()  # the sidecar, loaded
+    subject_id: int = _internal()  # the class id of ``subject``
+    table: np.ndarray = _internal()  # [num_classes] uint16: the stored label of each class id
+    session: Any = _internal()  # the onnxruntime.InferenceSession
+    _input: Any = _internal()  # the model's input port (onnxruntime.NodeArg)
+    _output: str = _internal()  # the name of the model's output used
+    fixed_batch: int | None = _internal()  # the model's static batch size, if it has one
+    frames_per_call: int = _internal()  # frames per inference call: fixed_batch, else batch_size
+
     def __attrs_post_init__(self) -> None:
         import onnxruntime
 
-        path = Path(self.model).expanduser()
+        path = self.path = Path(self.model).expanduser()
         if not path.is_file():
             raise MissingFileError(f"ONNX model {path} does not exist (mmcsplat downloads nothing: point 'model' at a local .onnx file)")
         self.description = Sidecar.load(Path(self.sidecar).expanduser() if self.sidecar else path.with_suffix(".json"))
@@ -153,7 +168,6 @@ class OnnxSemanticSegmenter(PostProcessedSegmenter):
             self.session = onnxruntime.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
         except Exception as error:  # onnxruntime raises its own exception types for unreadable models
             raise InputError(f"ONNX model {path} cannot be loaded: {error}") from error
-        self.path = path
         self._input = self._port(self.session.get_inputs(), self.description.input, "input")
         self._output = self._port(self.session.get_outputs(), self.description.output, "output").name
         if self._input.type not in _INPUT_DTYPES:

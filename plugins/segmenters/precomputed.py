@@ -17,7 +17,7 @@ from mmcsplat.plugins.segmenters.postprocess import PostProcessedSegmenter, pres
 from mmcsplat.storage.session import SessionReader
 
 
-@attrs.define
+@attrs.frozen
 class PrecomputedSegmenter(PostProcessedSegmenter):
     """Yields the masks a camera was ingested with; its labels are left as they are (yielded as ``None``)."""
 

@@ -40,7 +40,7 @@ class ConstantVelocityDynamics(Dynamics):
         model.camera_offset.requires_grad_(False)
         params = {name: value.detach() for name, value in model.params.items()}
         moving = (torch.sigmoid(params["seg_logits"][:, 0]) > self.foreground).to(params["means"].dtype)[:, None]
-        cameras = RenderCameras.from_cameras(context.cameras)
+        cameras = RenderCameras.each(context.cameras)
         static = {name: value for name, value in params.items() if name not in ("means", "quats")}
         shifts = [torch.zeros(3, dtype=params["means"].dtype)] * 2
         psnrs: list[float] = []
@@ -54,7 +54,7 @@ class ConstantVelocityDynamics(Dynamics):
                 for step in range(self.iterations if views else 0):
                     view = views[step % len(views)]
                     moved = gaussians_from_params(params | {"means": params["means"] + moving * shift})
-                    loss, image = view_loss(model, view, context.renderer.render(moved, cameras.select([view.index])), context.settings)
+                    loss, image = view_loss(model, view, context.renderer.render(moved, cameras[view.index]), context.settings)
                     optimizer.zero_grad()
                     loss.backward()
                     check_finite(loss, model, step, "gradient")
