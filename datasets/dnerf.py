@@ -54,8 +54,9 @@ class _Image:
     index: int
 
 
+@attrs.frozen
 class DNeRFReader(Reader):
-    """Reads the D-NeRF / Blender layout."""
+    """Reads the D-NeRF / Blender layout (no parameters: the files give poses, times and splits)."""
 
     def detect(self, source: Path) -> bool:
         """A folder with a ``transforms_train.json``."""

@@ -9,9 +9,11 @@ import numpy as np
 import pytest
 import rig_fixtures as rig
 
+from mmcsplat.configuration.registry import default_registry
 from mmcsplat.datasets.images import ImageSequenceReader
 from mmcsplat.datasets.rig import name_key, natural_key
 from mmcsplat.pipeline.ingest import detect_format, ingest
+from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.storage.calibration import write_calibration
 
 
@@ -94,3 +96,24 @@ def test_bad_inputs(tmp_path: Path) -> None:
         ImageSequenceReader().open(source)
     with pytest.raises(ValueError, match="size_mismatch"):
         ImageSequenceReader(size_mismatch="stretch")
+
+
+@pytest.mark.parametrize("name", ["images", "d3dgs"])
+@pytest.mark.parametrize("fps, message", [
+    (0, "fps must be a finite number > 0, got 0.0"),
+    (-25, "fps must be a finite number > 0, got -25.0"),
+    (float("inf"), "fps must be a finite number > 0, got inf"),
+    ("25", "parameter 'fps' must be a number, got '25'"),
+])
+def test_readers_refuse_a_frame_rate_that_is_not_positive(name: str, fps, message: str) -> None:
+    with pytest.raises(InputError, match=f"reader '{name}': {message}"):
+        default_registry().create("reader", name, fps=fps)
+
+
+def test_reader_parameters_keep_their_defaults() -> None:
+    registry = default_registry()
+    assert registry.create("reader", "images") == ImageSequenceReader(fps=30.0, size_mismatch="scale")
+    assert ImageSequenceReader(fps=25).fps == 25.0 and isinstance(ImageSequenceReader(fps=25).fps, float)
+    assert registry.create("reader", "images", fps=25, size_mismatch="crop").size_mismatch == "crop"
+    with pytest.raises(InputError, match="reader 'videos': size_mismatch must be one of 'scale', 'crop', 'error', got 'stretch'"):
+        registry.create("reader", "videos", size_mismatch="stretch")

@@ -35,3 +35,19 @@ def test_sigterm_during_a_fit_exits_143_and_the_fit_resumes(tmp_path):
     assert done.returncode == 0, done.stderr
     assert f"resumed from iteration {stopped['iterations']}" in done.stdout
     assert json.loads((out / "run.json").read_text())["resumed_from"] == stopped["iterations"]
+
+
+def test_a_compiled_kernel_interrupted_mid_call_reads_as_an_interrupt(monkeypatch, capsys):
+    import mmcsplat.cli.configs as command
+    from mmcsplat.cli.main import main
+
+    def interrupted_in_numba(args):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as interrupt:  # numba's dispatcher then reports the pending exception so
+            raise SystemError("CPUDispatcher(<function composite_forward>) returned a result with an exception set") from interrupt
+
+    monkeypatch.setattr(command, "run", interrupted_in_numba)
+    assert main(["configs"]) == 130
+    err = capsys.readouterr().err
+    assert "interrupted" in err and "unexpected" not in err

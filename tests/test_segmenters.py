@@ -11,6 +11,7 @@ import zarr
 
 from mmcsplat.cli import main
 from mmcsplat.configuration.registry import default_registry
+from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.session import SessionReader, SessionWriter
 
@@ -252,11 +253,25 @@ def test_background_subtraction_needs_a_sequence(tmp_path: Path) -> None:
     ({"background_ratio": 0}, "background_ratio must be > 0"),
     ({"learn_frames": [5, 2]}, r"learn_frames must be \[start, stop\) frame indices"),
     ({"learn_frames": [1, 2, 3]}, "parameter 'learn_frames' must be a list of 2 values or none"),
+    ({"history": 0}, "history must be ≥ 1, got 0"),
+    ({"samples": 1}, "samples must be ≥ 2, got 1"),
+    ({"open_radius": -1}, "open_radius must be ≥ 0, got -1"),
+    ({"dilation": -2}, "dilation must be ≥ 0, got -2"),
+    ({"threshold": "high"}, "parameter 'threshold' must be a number or none, got 'high'"),
     ({"treshold": 3}, "unknown parameter.*treshold"),
 ])
 def test_background_refuses_settings_that_would_empty_the_masks(params, message) -> None:
-    with pytest.raises(ValueError, match=f"segmenter 'background': {message}"):
+    with pytest.raises(InputError, match=f"segmenter 'background': {message}"):
         _segmenter("background", **params)
+
+
+def test_background_parameters_keep_their_defaults_and_effective_threshold() -> None:
+    segmenter = _segmenter("background")
+    assert (segmenter.method, segmenter.threshold, segmenter.cutoff) == ("mog2", None, 16.0)
+    assert (segmenter.largest_component, segmenter.dilation, segmenter.bridge) == (True, 0, 1)
+    assert _segmenter("background", method="median").cutoff == 30.0
+    assert _segmenter("background", method="knn", threshold=250).cutoff == 250.0
+    assert _segmenter("background", learn_frames=[0, 4]).learn_frames == (0, 4)
 
 
 # --------------------------------------------------------------------------------------------- precomputed
