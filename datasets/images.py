@@ -9,13 +9,22 @@ is found as for the ``videos`` format. Images carry no frame rate: ``fps`` gives
 from __future__ import annotations
 
 import re
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 
 import attrs
 import numpy as np
 
-from mmcsplat.datasets.rig import SIZE_MISMATCH_PARAMETER, RigRecording, common_length, find_calibration, fit_camera, match_cameras, natural_key
+from mmcsplat.datasets.rig import (
+    CAMERA_MAP_PARAMETER,
+    SIZE_MISMATCH_PARAMETER,
+    RigRecording,
+    common_length,
+    find_calibration,
+    fit_camera,
+    match_cameras,
+    natural_key,
+)
 from mmcsplat.plugin_api.errors import InputError, NotAFolderError
 from mmcsplat.plugin_api.interfaces import Reader, RecordedFrame, Recording
 from mmcsplat.plugin_api.parameters import finite_positive, one_of, parameter
@@ -79,6 +88,7 @@ class ImageSequenceReader(Reader):
 
     fps: float = parameter(30.0, doc="the capture's frame rate, frames per second", converter=float, validator=finite_positive)
     size_mismatch: str = SIZE_MISMATCH_PARAMETER
+    camera_map: Mapping[str, str] | None = CAMERA_MAP_PARAMETER
     missing_frames: str = parameter("error", doc="an image number missing in a camera's sequence: error, or absent (marked absent)",
                                     validator=one_of("error", "absent"))
 
@@ -92,7 +102,7 @@ class ImageSequenceReader(Reader):
             raise NotAFolderError(f"images source {source} is not a folder")
         calibration = find_calibration(source, calibration)
         calibrated = read_calibration(calibration, units)
-        folders = match_cameras(calibrated, camera_folders(source), "image folder", source)
+        folders = match_cameras(calibrated, camera_folders(source), "image folder", source, self.camera_map)
         files, num_frames = frames_by_number({name: image_files(folder) for name, folder in folders.items()}, self.missing_frames, source)
         cameras = []
         for camera in calibrated:

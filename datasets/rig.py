@@ -60,10 +60,19 @@ def find_calibration(source: Path, calibration: Path | None) -> Path:
     raise InputError(f"{source}: several calibration files ({names}); choose one with --calibration")
 
 
-def match_cameras(cameras: Sequence[Camera], paths: Iterable[Path], what: str, where: Path) -> dict[str, Path]:
-    """Camera name → its file, by the module's name rule; an error naming any camera without one.
+def _within(outer: tuple, inner: tuple) -> bool:
+    """Whether the name key ``inner`` (which must hold a number) runs contiguously inside ``outer``."""
+    if not any(isinstance(part, int) for part in inner):
+        return False
+    return any(outer[i : i + len(inner)] == inner for i in range(len(outer) - len(inner) + 1))
 
-    Files that match no camera are ignored with a warning.
+
+def match_cameras(cameras: Sequence[Camera], paths: Iterable[Path], what: str, where: Path,
+                  camera_map: Mapping[str, str] | None = None) -> dict[str, Path]:
+    """Camera name → its file: by ``camera_map`` (calibration name → file stem) where given, else by the
+    module's name rule — the same stem, else the same name key, else a file whose key runs inside the
+    camera's (Pose2Sim names ``cam01.mp4``'s camera ``int_cam01_img``); an error naming any camera without
+    one. Files that match no camera are ignored with a warning.
     """
     by_stem: dict[str, Path] = {}
     by_key: dict[tuple, list[Path]] = {}
@@ -71,25 +80,47 @@ def match_cameras(cameras: Sequence[Camera], paths: Iterable[Path], what: str, w
         label = path.stem if path.is_file() else path.name
         by_stem[label] = path
         by_key.setdefault(name_key(label), []).append(path)
+    unknown = sorted(set(camera_map or {}) - {camera.name for camera in cameras})
+    if unknown:
+        raise InputError(f"{where}: camera_map names {', '.join(map(repr, unknown))}, not calibrated cameras "
+                         f"({', '.join(camera.name for camera in cameras)})")
     matched: dict[str, Path] = {}
     for camera in cameras:
+        if camera_map and camera.name in camera_map:
+            if camera_map[camera.name] not in by_stem:
+                raise MissingFileError(f"{where}: camera_map gives {camera_map[camera.name]!r} for camera {camera.name!r}, but no {what} "
+                                       f"is called so (found: {', '.join(sorted(by_stem, key=natural_key)) or 'none'})")
+            matched[camera.name] = by_stem[camera_map[camera.name]]
+            continue
         if camera.name in by_stem:
             matched[camera.name] = by_stem[camera.name]
             continue
         candidates = by_key.get(name_key(camera.name), [])
+        if not candidates:
+            candidates = [path for key, found in by_key.items() if _within(name_key(camera.name), key) for path in found]
         if len(candidates) > 1:
             names = ", ".join(sorted(path.name for path in candidates))
             raise InputError(f"{where}: camera {camera.name!r} matches several {what}s ({names}); rename them")
         if not candidates:
             available = ", ".join(sorted(by_stem, key=natural_key)) or "none"
-            raise MissingFileError(f"{where}: no {what} for calibrated camera {camera.name!r} (found: {available})")
+            raise MissingFileError(f"{where}: no {what} for calibrated camera {camera.name!r} (found: {available}); map names with "
+                                   f"--set 'camera_map={{{camera.name}=\"FILE_STEM\"}}'")
         matched[camera.name] = candidates[0]
+    owners: dict[Path, list[str]] = {}
+    for name, path in matched.items():
+        owners.setdefault(path, []).append(name)
+    shared = {path: names for path, names in owners.items() if len(names) > 1}
+    if shared:
+        path, names = next(iter(shared.items()))
+        raise InputError(f"{where}: cameras {', '.join(map(repr, names))} both match {path.name}; say which is which with --set camera_map")
     unused = sorted(set(by_stem.values()) - set(matched.values()))
     if unused:
         warnings.warn(f"{where}: ignoring {what}s of no calibrated camera: {', '.join(p.name for p in unused)}", stacklevel=3)
     return matched
 
 
+#: The ``camera_map`` parameter of the readers that match files to calibrated cameras.
+CAMERA_MAP_PARAMETER = parameter(None, doc="calibration camera name → its file's or folder's name, where the names differ")
 #: The ``size_mismatch`` parameter of the readers that decode images against a calibration.
 SIZE_MISMATCH_PARAMETER = parameter("scale", doc="a decoded size unlike the calibration's: scale K, crop, or error (fit_camera)",
                                     validator=one_of(*SIZE_MISMATCH_POLICIES))

@@ -11,13 +11,13 @@ Frames are decoded lazily with OpenCV, one camera's decoder open at a time.
 from __future__ import annotations
 
 import warnings
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 
 import attrs
 import numpy as np
 
-from mmcsplat.datasets.rig import SIZE_MISMATCH_PARAMETER, RigRecording, common_length, find_calibration, fit_camera, match_cameras
+from mmcsplat.datasets.rig import CAMERA_MAP_PARAMETER, SIZE_MISMATCH_PARAMETER, RigRecording, common_length, find_calibration, fit_camera, match_cameras
 from mmcsplat.plugin_api.errors import InputError, NotAFolderError
 from mmcsplat.plugin_api.interfaces import Reader, RecordedFrame, Recording
 from mmcsplat.plugin_api.parameters import parameter
@@ -94,6 +94,7 @@ class VideoReader(Reader):
     """Reads a folder of per-camera videos."""
 
     size_mismatch: str = SIZE_MISMATCH_PARAMETER
+    camera_map: Mapping[str, str] | None = CAMERA_MAP_PARAMETER
     verify: bool = parameter(True, doc="decode each video once with ffmpeg first: a damaged one is an error naming the frame")
 
     def detect(self, source: Path) -> bool:
@@ -105,7 +106,7 @@ class VideoReader(Reader):
             raise NotAFolderError(f"videos source {source} is not a folder")
         calibration = find_calibration(source, calibration)
         calibrated = read_calibration(calibration, units)
-        paths = match_cameras(calibrated, video_files(source), "video", source)
+        paths = match_cameras(calibrated, video_files(source), "video", source, self.camera_map)
         infos = {camera.name: probe(paths[camera.name]) for camera in calibrated}
         if self.verify:
             for camera in calibrated:

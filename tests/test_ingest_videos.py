@@ -342,3 +342,19 @@ def test_bad_plates_fail_clearly_and_leave_no_session(tmp_path: Path, problem: s
     with pytest.raises((FileNotFoundError, ValueError), match=message):
         _ingest(tmp_path / "capture", tmp_path / "out.zarr", plates=tmp_path / "nowhere" if problem == "folder" else None)
     assert rig.no_session_left(tmp_path / "out.zarr")
+
+
+@pytest.mark.skipif(not POSE2SIM.is_dir(), reason=f"shared Pose2Sim demo not found at {POSE2SIM}")
+def test_pose2sim_scene_calibration_names_match_its_videos(tmp_path: Path) -> None:
+    # Calib_scene.toml names its cameras int_cam01_img…; the videos are cam01.mp4…: the file's name runs inside the camera's.
+    with pytest.warns(UserWarning, match="decodes at 1080×1920"):
+        recording = VideoReader(verify=False).open(POSE2SIM, POSE2SIM / "Calib_scene.toml")
+    assert [camera.name for camera in recording.cameras] == ["int_cam01_img", "int_cam02_img", "int_cam03_img", "int_cam04_img"]
+    assert recording.describe()["videos"]["int_cam03_img"].endswith("cam03.mp4")
+    with pytest.raises(ValueError, match="'int_cam01_img', 'int_cam02_img' both match cam02.mp4"):
+        VideoReader(verify=False, camera_map={"int_cam01_img": "cam02"}).open(POSE2SIM, POSE2SIM / "Calib_scene.toml")
+    swapped = VideoReader(verify=False, camera_map={"int_cam01_img": "cam02", "int_cam02_img": "cam01"})
+    with pytest.warns(UserWarning):
+        assert swapped.open(POSE2SIM, POSE2SIM / "Calib_scene.toml").describe()["videos"]["int_cam01_img"].endswith("cam02.mp4")
+    with pytest.raises(ValueError, match="camera_map names 'cam9', not calibrated cameras"):
+        VideoReader(verify=False, camera_map={"cam9": "cam01"}).open(POSE2SIM, POSE2SIM / "Calib_scene.toml")
