@@ -197,7 +197,7 @@ class VisualHullInitializer(Initializer):
         return inside, colors
 
 
-@attrs.define
+@attrs.define(eq=False)  # identity equality and hash, as before: it holds tensors and an optimiser
 class DepthSupervisedInitializer(Initializer):
     """An L1 loss between rendered depth and a per-camera depth map, with a learnable per-camera scale and
     offset (monocular depth is only defined up to them). The maps come from a ``depth-source`` plugin,
@@ -217,7 +217,7 @@ class DepthSupervisedInitializer(Initializer):
         options = {"name": self.source} if isinstance(self.source, str) else dict(self.source)
         name = options.pop("name", None)
         if not isinstance(name, str):
-            raise InputError(f"depth-supervised initializer: source must be a depth-source name or a table with a 'name', got {self.source!r}")
+            raise InputError(f"source must be a depth-source name or a table with a 'name', got {self.source!r}")
         self.depth_source = self.registry.create("depth-source", name, **options)
 
     def _load(self, scene: SceneContext) -> None:

@@ -10,6 +10,7 @@ import torch
 from fitting_scene import scene_context, write_session
 
 from mmcsplat.configuration.registry import default_registry
+from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.render_contract import Gaussians, RenderCameras
 from mmcsplat.scene.gaussian_table import GAUSSIAN_PARAMETERS
 from mmcsplat.storage.session import SessionReader
@@ -212,5 +213,21 @@ def test_budget_does_nothing_outside_its_window(scene):
 
 
 def test_budget_rejects_a_cap_below_one():
-    with pytest.raises(ValueError, match="densifier 'budget': cap must be ≥ 1"):
+    with pytest.raises(InputError, match="densifier 'budget': cap must be ≥ 1, got 0"):
         densifier("budget", cap=0)
+
+
+@pytest.mark.parametrize("name, params, message", [
+    ("budget", {"cap": 2.5}, "parameter 'cap' must be an integer, got 2.5"),
+    ("budget", {"dead_opacity": 1.5}, "dead_opacity must be between 0 and 1, got 1.5"),
+    ("budget", {"growth": -0.1}, "growth must be ≥ 0, got -0.1"),
+    ("budget", {"every": "often"}, "parameter 'every' must be an integer, got 'often'"),
+    ("default", {"grad_threshold": 0.0}, "grad_threshold must be a finite number > 0, got 0.0"),
+    ("default", {"prune_opacity": -0.01}, "prune_opacity must be between 0 and 1, got -0.01"),
+    ("default", {"reset_every": 0}, "reset_every must be ≥ 1, got 0"),
+    ("default", {"start": -1}, "start must be ≥ 0, got -1"),
+    ("default", {"split_factor": "half"}, "parameter 'split_factor' must be a number, got 'half'"),
+])
+def test_densifiers_refuse_out_of_range_and_mistyped_parameters_naming_themselves(name, params, message):
+    with pytest.raises(InputError, match=f"densifier '{name}': {message}"):
+        densifier(name, **params)

@@ -95,8 +95,38 @@ def test_random_places_the_requested_count_inside_the_cube_reproducibly(scene):
     ({"halfsize": 1.0}, "unknown parameter.*halfsize; known: num_points, half_size"),
 ])
 def test_random_rejects_bad_parameters_naming_itself(params, message):
-    with pytest.raises(ValueError, match=f"initializer 'random': {message}"):
+    with pytest.raises(InputError, match=f"initializer 'random': {message}"):
         initializer("random", **params)
+
+
+@pytest.mark.parametrize("name, params, message", [
+    ("masked", {"radius": 0.0}, "radius must be a finite number > 0, got 0.0"),
+    ("masked", {"every": "often"}, "parameter 'every' must be an integer, got 'often'"),
+    ("sparsity-pruned", {"every": 0}, "every must be ≥ 1, got 0"),
+    ("sparsity-pruned", {"max_distance": True}, "parameter 'max_distance' must be a number, got True"),
+    ("in-view", {"every": 0}, "every must be ≥ 1, got 0"),
+    ("in-view", {"every": 2.0}, "parameter 'every' must be an integer, got 2.0"),
+    ("visual-hull", {"tolerance": -1}, "tolerance must be ≥ 0, got -1"),
+    ("visual-hull", {"max_rounds": 0}, "max_rounds must be ≥ 1, got 0"),
+    ("visual-hull", {"num_points": "many"}, "parameter 'num_points' must be an integer, got 'many'"),
+    ("depth-supervised", {"weight": -0.1}, "weight must be ≥ 0, got -0.1"),
+    ("depth-supervised", {"lr": 0.0}, "lr must be a finite number > 0, got 0.0"),
+    ("depth-supervised", {"source": 3}, "parameter 'source' must be a string or a table, got 3"),
+])
+def test_initializers_refuse_out_of_range_and_mistyped_parameters_naming_themselves(name, params, message):
+    with pytest.raises(InputError, match=f"initializer '{name}': {message}"):
+        initializer(name, **params)
+
+
+@pytest.mark.parametrize("params, message", [
+    ({"noise": -0.1}, "noise must be ≥ 0, got -0.1"), ({"noise": float("nan")}, "noise must be ≥ 0, got nan"),
+    ({"noise": "loud"}, "parameter 'noise' must be a number, got 'loud'"), ({"seed": 1.5}, "parameter 'seed' must be an integer, got 1.5"),
+])
+def test_the_session_depth_source_refuses_bad_parameters_naming_itself(params, message):
+    with pytest.raises(InputError, match=f"depth-source 'session': {message}"):
+        default_registry().create("depth-source", "session", **params)
+    with pytest.raises(InputError, match=f"initializer 'depth-supervised': depth-source 'session': {message}"):
+        initializer("depth-supervised", source={"name": "session", **params})
 
 
 def test_random_starts_segmentation_on_the_subject_high_and_off_it_low(scene):
