@@ -115,7 +115,7 @@ def test_bench_command_writes_the_report(tmp_path, capsys, monkeypatch):
     registry = Registry(plugin_modules=[("bench-stub", "tests", plugin)])
     monkeypatch.setattr("mmcsplat.cli.bench.default_registry", lambda: registry)
     path = tmp_path / "docs" / "performance.md"
-    assert main(["bench", "--scene", "A", "C", "--backend", "stub", "--repeats", "2", "--json", "--write", str(path)]) == 0
+    assert main(["bench", "--scene", "A,C", "--backend", "stub", "--repeats", "2", "--json", "--write", str(path)]) == 0
     data = json.loads(capsys.readouterr().out)
     assert [r["scene"] for r in data["results"]] == ["A", "C"]
     (timing,) = data["results"][0]["timings"]

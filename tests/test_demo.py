@@ -13,7 +13,7 @@ from mmcsplat.cli import main
 from mmcsplat.configuration.config import load_config
 from mmcsplat.jobs.demo import TRACK_ITERATIONS, DemoPaths, tracking_choice
 
-TINY = ["--frames", "3", "--width", "64", "--height", "48", "--track-iterations", "2", "--no-progress",
+TINY = ["--num-frames", "3", "--width", "64", "--height", "48", "--track-iterations", "2", "--no-progress",
         "--set", "fit.iterations=10"]  # fmt: skip
 STEPS = ("synthesize", "ingest + segment", "first-frame fit", "track (iterative)", "evaluate",
          "render trajectories", "render novel view", "report")  # fmt: skip

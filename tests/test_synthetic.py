@@ -287,14 +287,14 @@ def test_slide_moves_the_whole_infant_along_x(tmp_path):
 
 def test_cli(tmp_path, capsys):
     out = tmp_path / "cap"
-    assert main(["synth", str(out), "--frames", "2", "--cameras", "2", "--width", "32", "--height", "24", "--no-adult-leg", "--quiet", "--seed", "7",
+    assert main(["synth", str(out), "--num-frames", "2", "--num-cameras", "2", "--width", "32", "--height", "24", "--no-adult-leg", "--no-progress", "--seed", "7",
                  "--slide", "0.5"]) == 0
     assert "2 cameras × 2 frames" in capsys.readouterr().out
     truth = SynthGroundTruth(out)
     assert truth.seed == 7 and truth.group.attrs["config"]["adult_leg"] is False and truth.group.attrs["config"]["slide"] == 0.5
-    assert main(["synth", str(out), "--quiet"]) == 2
+    assert main(["synth", str(out), "--no-progress"]) == 2
     assert "not empty" in capsys.readouterr().err
-    assert main(["synth", str(tmp_path / "bad"), "--frames", "0", "--quiet"]) == 2
+    assert main(["synth", str(tmp_path / "bad"), "--num-frames", "0", "--no-progress"]) == 2
     assert "frames must be an integer" in capsys.readouterr().err
     assert not (tmp_path / "bad").exists()
 

@@ -13,18 +13,30 @@ import sys
 from pathlib import Path
 
 from mmcsplat.cli.main import CommandError
+from mmcsplat.cli.options import add_progress, comma_list
 from mmcsplat.configuration.registry import default_registry
 from mmcsplat.outputs.markdown_sections import replace_section
 
+SCENES = ("A", "B", "C")
+
+
+def _scenes(text: str) -> list[str]:
+    scenes = comma_list(text)
+    unknown = [scene for scene in scenes if scene not in SCENES]
+    if unknown:
+        raise argparse.ArgumentTypeError(f"unknown scene(s) {', '.join(unknown)}; the scenes are {', '.join(SCENES)}")
+    return scenes
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--scene", action="extend", nargs="+", choices=("A", "B", "C"), metavar="A|B|C",
-                        help="scenes to run (default: A B C)")
-    parser.add_argument("--backend", action="extend", nargs="+", metavar="NAME",
+    parser.add_argument("--scene", action="extend", type=_scenes, metavar="A,B,…",
+                        help="scenes to run (default: A,B,C)")
+    parser.add_argument("--backend", action="extend", type=comma_list, metavar="A,B,…",
                         help="renderer backends to time (default: every available one)")
     parser.add_argument("--repeats", type=int, default=7, help="timed runs per backend and scene (default 7)")
     parser.add_argument("--json", action="store_true", help="print the results as JSON")
     parser.add_argument("--write", type=Path, metavar="PATH", help="put the markdown report into its section of this page")
+    add_progress(parser)
 
 
 def _renderers(names: list[str] | None) -> dict:
@@ -50,8 +62,8 @@ def run(args: argparse.Namespace) -> int:
     renderers = _renderers(args.backend)
     if not renderers:
         raise CommandError("no renderer backend is available")
-    scenes = list(dict.fromkeys(args.scene or ["A", "B", "C"]))
-    with tqdm(desc="bench", unit="step", disable=args.json, file=sys.stderr) as bar:
+    scenes = list(dict.fromkeys(args.scene or SCENES))
+    with tqdm(desc="bench", unit="step", disable=args.json or args.no_progress, file=sys.stderr) as bar:
         def progress(message: str) -> None:
             bar.set_postfix_str(message)
             bar.update()

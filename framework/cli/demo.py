@@ -12,6 +12,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from mmcsplat.cli.options import add_progress, add_settings
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from mmcsplat.jobs.demo import TRACK_ITERATIONS
@@ -19,21 +21,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, type=Path, help="output directory (created; reused steps are skipped)")
     parser.add_argument("--config", default="masked-plate", help="configuration to fit and track with (default: masked-plate)")
     parser.add_argument("--backend", help="renderer backend (default: the configuration's)")
-    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                        help="override a configuration value (repeatable)")
-    parser.add_argument("--frames", type=int, default=30, help="frames to synthesize (default 30)")
+    add_settings(parser, "override a configuration value (repeatable)")
+    parser.add_argument("--num-frames", type=int, default=30, metavar="N", help="frames to synthesize (default 30)")
     parser.add_argument("--width", type=int, default=256, help="image width of the synthetic capture in pixels (default 256)")
     parser.add_argument("--height", type=int, default=192, help="image height of the synthetic capture in pixels (default 192)")
     parser.add_argument("--track-iterations", type=int, metavar="N",
                         help="iterations per frame of the iterative method (default: the configuration's [dynamics] "
                              f"table, else {TRACK_ITERATIONS})")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+    add_progress(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     from mmcsplat.jobs.demo import DemoSettings, run_demo, summary
 
-    settings = DemoSettings(frames=args.frames, width=args.width, height=args.height, config=args.config,
+    settings = DemoSettings(frames=args.num_frames, width=args.width, height=args.height, config=args.config,
                             overrides=args.overrides, backend=args.backend, track_iterations=args.track_iterations)
     print(summary(run_demo(args.out, settings, progress=not args.no_progress)))
     return 0

@@ -13,6 +13,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from mmcsplat.cli.options import add_progress
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("run", type=Path, help="run directory of `mmcsplat fit` (with RUN/tracks.zarr after `mmcsplat track`)")
@@ -25,7 +27,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scale", type=float, default=1.0, help="output image scale, e.g. 0.5 for half size (default 1)")
     parser.add_argument("--backend", help="renderer backend by name (default: the one that fitted)")
     parser.add_argument("--out", type=Path, help="output directory (default: RUN/renders)")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+    add_progress(parser)
 
 
 def run(args: argparse.Namespace) -> int:

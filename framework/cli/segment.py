@@ -8,32 +8,22 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import Any
 
+from mmcsplat.cli.options import add_names, add_progress, add_settings, settings_table
 from mmcsplat.pipeline.segment import segment_session
-
-
-def _cameras(values: list[str]) -> list[str]:
-    return [name.strip() for value in values for name in value.split(",") if name.strip()]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("session", help="the session to update (a path or URL)")
     parser.add_argument("--segmenter", required=True, metavar="NAME", help="a registered segmenter (see `mmcsplat plugins`)")
-    parser.add_argument(
-        "--set", dest="params", action="append", default=[], metavar="KEY=VALUE",
-        help="a segmenter parameter; the value is read as TOML when it can be, dotted keys make tables (remap.toy=person)",
-    )
-    parser.add_argument("--cameras", nargs="+", metavar="CAMERA", help="segment only these cameras (default: all)")
+    add_settings(parser, "a segmenter parameter (`mmcsplat plugins --show NAME`); read as TOML when it can be, dotted keys make "
+                         "tables (remap.toy=person)", dest="params")
+    add_names(parser, "--cameras", "segment only these cameras (default: all)")
+    add_progress(parser)
 
 
 def run(args: argparse.Namespace) -> int:
-    from mmcsplat.configuration.config import apply_override
-
-    params: dict[str, Any] = {}
-    for override in args.params:
-        params = apply_override(params, override, "--set")
-    summaries = segment_session(args.session, args.segmenter, params, _cameras(args.cameras) if args.cameras else None)
+    summaries = segment_session(args.session, args.segmenter, settings_table(args.params), args.cameras, progress=not args.no_progress)
     for summary in summaries:
         print(f"{summary.camera}: {summary.frames} frames, mean coverage {summary.coverage:.1%}, {summary.empty} empty")
         if summary.frames and summary.empty == summary.frames:

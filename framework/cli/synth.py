@@ -12,11 +12,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from mmcsplat.cli.options import add_progress
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("out_dir", type=Path, metavar="OUT_DIR", help="the capture folder to write (must not exist or be empty)")
-    parser.add_argument("--frames", type=int, default=30, help="number of frames (default: 30)")
-    parser.add_argument("--cameras", type=int, default=8, help="number of cameras on the ring (default: 8)")
+    parser.add_argument("--num-frames", type=int, default=30, metavar="N", help="number of frames (default: 30)")
+    parser.add_argument("--num-cameras", type=int, default=8, metavar="N", help="number of cameras on the ring (default: 8)")
     parser.add_argument("--width", type=int, default=256, help="image width in pixels (default: 256)")
     parser.add_argument("--height", type=int, default=192, help="image height in pixels (default: 192)")
     parser.add_argument("--seed", type=int, default=0, help="fixes the motion and the rig's small variations (default: 0)")
@@ -27,17 +29,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="move the whole infant along +x at this speed in m/s (default: 0); at about 1 m/s it leaves "
                              "some views within a second — a failure regime for `mmcsplat stability`")  # fmt: skip
     parser.add_argument("--overwrite", action="store_true", help="replace an existing OUT_DIR")
-    parser.add_argument("--quiet", action="store_true", help="no progress bars")
+    add_progress(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     from mmcsplat.synthetic import SynthConfig, synthesize
 
     config = SynthConfig(
-        frames=args.frames, cameras=args.cameras, width=args.width, height=args.height,
+        frames=args.num_frames, cameras=args.num_cameras, width=args.width, height=args.height,
         seed=args.seed, fps=args.fps, adult_leg=args.adult_leg, slide=args.slide,
     )  # fmt: skip
-    result = synthesize(args.out_dir, config, overwrite=args.overwrite, progress=not args.quiet)
+    result = synthesize(args.out_dir, config, overwrite=args.overwrite, progress=not args.no_progress)
     print(f"wrote {result.out_dir}: {len(result.cameras)} cameras × {result.num_frames} frames of "
           f"{config.width}×{config.height} in {result.seconds:.1f} s")  # fmt: skip
     return 0

@@ -9,17 +9,18 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from mmcsplat.cli.options import add_frames, add_progress, add_settings
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("run", type=Path, help="run directory of a completed `mmcsplat fit`")
     parser.add_argument("--config", help="a built-in configuration name or TOML file (default: the run's own)")
     parser.add_argument("--dynamics", metavar="NAME", help="dynamics method by name, instead of the configuration's [dynamics]")
-    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                        help="override a configuration value, e.g. --set dynamics.iterations=300 (repeatable)")
+    add_settings(parser, "override a configuration value, e.g. --set dynamics.iterations=300 (repeatable)")
     parser.add_argument("--backend", help="renderer backend by name (default: the one that fitted)")
-    parser.add_argument("--frames", type=int, metavar="N", help="track only the first N frames (the fitted one included; default: all)")
+    add_frames(parser, "session frames to track, from the fitted one: :STOP tracks up to frame STOP − 1 (default: all)")
     parser.add_argument("--overwrite", action="store_true", help="replace existing RUN/tracks.zarr")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+    add_progress(parser)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -65,10 +65,11 @@ def track_run(
     registry: Registry | None = None,
     progress: bool = True,
     overwrite: bool = False,
-    frames: int | None = None,
+    frames: slice | None = None,
 ) -> dict[str, Any]:
-    """Track the first-frame fit in ``run`` through its session (only its first ``frames`` frames, the
-    fitted one included, when given); writes RUN/tracks.zarr and RUN/track.json (returned)."""
+    """Track the first-frame fit in ``run`` through its session — through the session frames ``frames``
+    when given, a range that starts at the fitted frame (or leaves its start out) with step 1 — and write
+    RUN/tracks.zarr and RUN/track.json (returned)."""
     run = Path(run)
     registry = registry or default_registry()
     info, params, camera_scale, camera_offset = load_fitted(run)
@@ -81,7 +82,11 @@ def track_run(
     session = SessionReader(info.session)
     settings = FitSettings.from_config(loaded)
     first = info.frame
-    stop = session.num_frames if frames is None else min(session.num_frames, first + frames)
+    frames = frames or slice(None)
+    if frames.start not in (None, first) or frames.step not in (None, 1):
+        raise InputError(f"{run}: --frames {frames.start or ''}:{frames.stop or ''}{':' + str(frames.step) if frames.step else ''} — tracking "
+                         f"runs on from the fitted frame {first}, one frame at a time: give {first}:STOP or :STOP")
+    stop = session.num_frames if frames.stop is None else min(session.num_frames, frames.stop)
     if stop - first < 2:
         raise InputError(f"{run}: frames {first}–{stop - 1} of session {session.url!r} leave nothing to track after the fitted frame")
     renderer_name = backend or info.renderer

@@ -1,0 +1,56 @@
+"""The options several commands share, defined once so that they are spelled and read alike everywhere:
+``--no-progress``; lists of names as one comma-separated value (``--cameras a,b``); ``--frames`` always a
+range of frame indices ``START:STOP[:STEP]``; counts as ``--num-*``; ``--set KEY=VALUE`` read as TOML.
+tests/test_cli_options.py walks every command's options and fails on another spelling."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def comma_list(text: str) -> list[str]:
+    """``a,b`` → ``["a", "b"]`` (an argparse type)."""
+    names = [name.strip() for name in text.split(",") if name.strip()]
+    if not names:
+        raise argparse.ArgumentTypeError("expected comma-separated names, e.g. cam_1,cam_2")
+    return names
+
+
+def frame_range(text: str) -> slice:
+    """``START:STOP[:STEP]`` (either end may be omitted) → a slice of frame indices (an argparse type)."""
+    from mmcsplat.pipeline.ingest import parse_frames
+
+    try:
+        return parse_frames(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
+def add_progress(parser: argparse.ArgumentParser) -> None:
+    """``--no-progress``."""
+    parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+
+
+def add_names(parser: argparse.ArgumentParser, flag: str, help: str, **kwargs) -> None:
+    """A comma-separated list of names (``--cameras a,b``); repeating the option adds to the list."""
+    parser.add_argument(flag, type=comma_list, action="extend", metavar="A,B,…", help=help, **kwargs)
+
+
+def add_frames(parser: argparse.ArgumentParser, help: str) -> None:
+    """``--frames START:STOP[:STEP]``."""
+    parser.add_argument("--frames", type=frame_range, metavar="START:STOP[:STEP]", help=help)
+
+
+def settings_table(pairs: list[str]) -> dict:
+    """The table ``--set KEY=VALUE`` options make, for a plugin's parameters (dotted keys make tables)."""
+    from mmcsplat.configuration.config import apply_override
+
+    table: dict = {}
+    for pair in pairs:
+        table = apply_override(table, pair, "--set")
+    return table
+
+
+def add_settings(parser: argparse.ArgumentParser, help: str, dest: str = "overrides") -> None:
+    """``--set KEY=VALUE`` (repeatable; the value read as TOML when it can be)."""
+    parser.add_argument("--set", dest=dest, action="append", default=[], metavar="KEY=VALUE", help=help)
