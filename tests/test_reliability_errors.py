@@ -1,5 +1,5 @@
-"""Reliability, classes 3 and 4: names from files never escape the output folder, and every user error
-is one line naming its cause with exit status 2, never a traceback."""
+"""Reliability, class 4: every user error is one line naming its cause with exit status 2, never a
+traceback."""
 
 from __future__ import annotations
 
@@ -21,16 +21,6 @@ def scene(tmp_path_factory) -> tuple[Path, Path, Path]:
     folder = tmp_path_factory.mktemp("errors")
     session = write_session(folder / "s.zarr", frames=2)
     return session, write_fitted_run(folder / "run", session), write_config(folder / "fit.toml", iterations=5)
-
-
-@pytest.mark.parametrize("name", ["../../../escaped", "/tmp/absolute", "a/b", ".hidden"])
-def test_a_study_name_cannot_leave_the_output_folder(tmp_path, capsys, name):
-    study = tmp_path / "study.toml"
-    study.write_text(f'[sessions."{name}"]\nsynthetic = {{}}\n[[variant]]\nname = "a"\nconfig = "paper-masked"\n')
-    out = tmp_path / "deep" / "er" / "out"
-    assert main(["compare", str(study), "--out", str(out), "--dry-run"]) == 2
-    assert "a session name becomes a folder under --out" in capsys.readouterr().err
-    assert not (tmp_path / "escaped").exists() and not (tmp_path / "deep").exists()
 
 
 @pytest.mark.parametrize("setting, message", [
