@@ -17,6 +17,7 @@ COMMANDS = {
     "demo": "demo",
     "synth": "synth",
     "ingest": "ingest",
+    "plates": "plates",
     "segment": "segment",
     "fit": "fit",
     "track": "track",

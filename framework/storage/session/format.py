@@ -16,6 +16,9 @@ On-disk layout (format version 2; version 1 had no plates nor ``source_mask`` an
             fields: {camera: {field: array name}}   where each optional field of a camera lives, and
                                                      source_mask: the replaced masks it was written with
             plates: [camera name]        the cameras with a clean plate
+            plate_arrays: {camera: name} where a plate replaced by SessionUpdater lives (default ``plate``)
+            plate_sources: {camera: {...}} how each plate was made: {"kind": "recorded"} (the default) or
+                                         {"kind": "estimated", ...} with the estimate's quality (pipeline.plates)
         cameras/<camera>/              one sub-group per camera (images may differ in size between cameras)
             present  [T] bool              which frames exist (D-NeRF is monocular: one camera per frame)
             rgb      [T, H, W, 3] uint8

@@ -148,9 +148,18 @@ class SessionReader(SessionBase):
         self.camera(camera)
         if camera not in self._plates:
             return None
-        plate = read_stored(open_stored(self._group, f"cameras/{camera}/{PLATE}", f"session {self.url}"), None, f"session {self.url}: camera {camera!r} plate")
+        name = self._attributes.get("plate_arrays", {}).get(camera, PLATE)
+        plate = read_stored(open_stored(self._group, f"cameras/{camera}/{name}", f"session {self.url}"), None, f"session {self.url}: camera {camera!r} plate")
         plate.setflags(write=False)
         return plate
+
+    def plate_source(self, camera: str) -> dict[str, Any] | None:
+        """How ``camera``'s plate was made (``{"kind": "recorded"}`` or ``{"kind": "estimated", …}``), or
+        ``None`` without a plate."""
+        self.camera(camera)
+        if camera not in self._plates:
+            return None
+        return dict(self._attributes.get("plate_sources", {}).get(camera, {"kind": "recorded"}))
 
     def has_source_mask(self, camera: str) -> bool:
         """Whether ``camera`` has masks from when the session was written (at ingest: the capture's own)."""

@@ -14,6 +14,7 @@ from mmcsplat.storage.transaction import Transaction
 
 from .format import (
     FIELDS,
+    PLATE,
     SOURCE_MASK,
     checked_array,
     coverage_error,
@@ -46,15 +47,17 @@ class SessionUpdater(SessionBase, Transaction):
             raise
         self._token = uuid.uuid4().hex[:8]
         self._new: dict[tuple[str, str], tuple[Any, np.ndarray]] = {}  # (camera, field) -> (array, written)
+        self._new_plates: dict[str, dict[str, Any]] = {}  # camera -> its plate's source record
 
     def _remove_orphans(self) -> None:
         """Delete the ``<field>.<token>`` arrays of updaters killed before their commit (no field names them)."""
+        plates = self._attributes.get("plate_arrays", {})
         for camera in self.camera_names:
-            referenced = set(self._field_names.get(camera, {}).values())
+            referenced = {*self._field_names.get(camera, {}).values(), plates.get(camera, PLATE)}
             group = self._group[f"cameras/{camera}"]
             for name in list(group.array_keys()):
                 field, dot, token = name.partition(".")
-                if dot and field in FIELDS and name not in referenced:
+                if dot and (field in FIELDS or field == PLATE) and name not in referenced:
                     del group[name]
 
     def _release(self) -> None:
@@ -76,8 +79,16 @@ class SessionUpdater(SessionBase, Transaction):
         target[t] = value
         written[t] = True
 
+    def write_plate(self, camera: str, rgb: np.ndarray, source: dict[str, Any]) -> None:
+        """Set ``camera``'s clean plate ([H, W, 3] uint8) and the record of how it was made (``source``,
+        e.g. ``{"kind": "estimated", ...}``), replacing any plate it had."""
+        self._check_open()
+        plate = checked_array(self.url, self.camera(camera), "rgb", None, rgb)
+        self._group.create_array(f"cameras/{camera}/{PLATE}.{self._token}", data=plate, config={"write_empty_chunks": True})
+        self._new_plates[camera] = dict(source)
+
     def commit(self) -> None:
-        """Swap every written field in at once. On failure the session is left as it was."""
+        """Swap every written field and plate in at once. On failure the session is left as it was."""
         self._check_open()
         problems = [
             coverage_error(self.url, camera, field, written, self.present(camera))
@@ -96,7 +107,14 @@ class SessionUpdater(SessionBase, Transaction):
             elif field in names:
                 replaced.append(f"cameras/{camera}/{names[field]}")
             names[field] = f"{field}.{self._token}"
-        self._group.attrs.update({"fields": fields})
+        plate_arrays = dict(self._attributes.get("plate_arrays", {}))
+        plate_sources = dict(self._attributes.get("plate_sources", {}))
+        for camera, source in self._new_plates.items():
+            if camera in self._plates:
+                replaced.append(f"cameras/{camera}/{plate_arrays.get(camera, PLATE)}")
+            plate_arrays[camera], plate_sources[camera] = f"{PLATE}.{self._token}", source
+        plates = sorted({*self._plates, *self._new_plates}, key=self.camera_names.index)
+        self._group.attrs.update({"fields": fields, "plates": plates, "plate_arrays": plate_arrays, "plate_sources": plate_sources})
         self._field_names = fields
         self._done = True
         try:
@@ -113,5 +131,7 @@ class SessionUpdater(SessionBase, Transaction):
         try:
             for camera, field in self._new:
                 del self._group[f"cameras/{camera}/{field}.{self._token}"]
+            for camera in self._new_plates:
+                del self._group[f"cameras/{camera}/{PLATE}.{self._token}"]
         finally:
             self._release()

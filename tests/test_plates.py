@@ -1,0 +1,48 @@
+"""Clean plates estimated from the sequence: the temporal median with the subject masked out recovers the
+recorded plate wherever the subject uncovered the scene, and is stored as an estimated plate."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from fitting_scene import plate, write_session
+
+from mmcsplat.cli.main import main
+from mmcsplat.pipeline.plates import estimate_plates, median_plate
+from mmcsplat.storage.session import SessionReader
+
+
+def test_the_median_skips_masked_samples_and_reports_what_it_never_saw():
+    frames = np.full((5, 4, 4, 3), 100, np.uint8)
+    frames[:2, 0, 0] = 250  # the subject on pixel (0, 0) in two frames: outvoted even unmasked
+    frames[:, 1, 1] = 30  # always covered: reported, not invented
+    masks = np.zeros((5, 4, 4), bool)
+    masks[:, 1, 1] = True
+    plate, stable, uncovered = median_plate(frames, masks)
+    assert plate[0, 0].tolist() == [100, 100, 100] and plate[2, 2].tolist() == [100, 100, 100]
+    assert uncovered[1, 1] and uncovered.sum() == 1 and plate[1, 1].tolist() == [30, 30, 30]
+    assert stable[2, 2] and not stable[0, 0]
+
+
+def test_estimated_plates_match_the_recorded_ones_where_the_subject_moved_off(tmp_path, capsys):
+    session = write_session(tmp_path / "s.zarr", frames=6, plates=True)
+    recorded = {name: SessionReader(session).plate(name).copy() for name in ("cam_1", "cam_2")}
+    assert main(["plates", str(session), "--no-progress"]) == 0  # every camera has a plate: nothing to do
+    assert "already has a plate" in capsys.readouterr().out
+    estimates = estimate_plates(session, ["cam_1", "cam_2"], replace=True, progress=False)
+    reader = SessionReader(session)
+    for estimate in estimates:
+        camera = reader.camera(estimate.camera)
+        assert np.array_equal(recorded[estimate.camera], plate(camera))
+        estimated = reader.plate(estimate.camera).astype(int)
+        error = np.abs(estimated - plate(camera).astype(int)).max(axis=-1)
+        assert np.median(error) == 0 and np.mean(error > 10) < 0.05 + estimate.uncovered_share
+        source = reader.plate_source(estimate.camera)
+        assert source["kind"] == "estimated" and source["samples"] == 6 and source["masked"]
+    assert reader.plate_source("cam_3") == {"kind": "recorded"}
+
+
+def test_too_short_a_sequence_is_refused(tmp_path):
+    session = write_session(tmp_path / "s.zarr", frames=2)
+    with pytest.raises(ValueError, match="camera 'cam_0' has 2 frame\\(s\\); a plate from the sequence needs at least 3"):
+        estimate_plates(session, progress=False)
