@@ -46,3 +46,23 @@ def test_too_short_a_sequence_is_refused(tmp_path):
     session = write_session(tmp_path / "s.zarr", frames=2)
     with pytest.raises(ValueError, match="camera 'cam_0' has 2 frame\\(s\\); a plate from the sequence needs at least 3"):
         estimate_plates(session, progress=False)
+
+
+def test_plate_segmentation_finds_the_subject_and_consistency_drops_what_one_view_alone_sees(tmp_path):
+    from mmcsplat.analysis.visual_hull import consistent_mask
+    from mmcsplat.pipeline.segment import segment_session
+    from mmcsplat.scene.rig import rig_center, rig_scale
+
+    session = write_session(tmp_path / "s.zarr", frames=2, plates=True)
+    segment_session(session, "background", {"method": "plate", "largest_component": False}, progress=False, consistent=True)
+    reader = SessionReader(session)
+    for camera in reader.camera_names:
+        found, truth = reader.frame(0, camera).mask, reader.source_mask(0, camera)
+        assert (found & truth).sum() / (found | truth).sum() > 0.8, camera
+    views = [(reader.camera(name), reader.source_mask(0, name).copy()) for name in reader.camera_names]
+    camera, mask = views[1]
+    bystander = mask.copy()
+    bystander[:6, :6] = True  # something in one corner of one view only
+    center = rig_center(reader.cameras)
+    kept = consistent_mask(camera, bystander, views[:1] + views[2:], center, rig_scale(reader.cameras, center))
+    assert not kept[:6, :6].any() and kept[mask].mean() > 0.95

@@ -20,6 +20,8 @@ RAY_SAMPLES = 64
 #: … of at most this many of the mask's pixels (evenly spread over it): on the synthetic capture at
 #: 256 × 192 its scores are within 0.03 of 128 depths × 2000 pixels, in a tenth of the time.
 AGREEMENT_PIXELS = 500
+#: Pixels whose rays are tested at once by :func:`rays_meet_hull`.
+HULL_CHUNK = 4096
 
 def dilated(mask: np.ndarray, margin_px: int) -> np.ndarray:
     """``mask`` grown by ``margin_px`` pixels (a disc)."""
@@ -51,19 +53,47 @@ def floater_share(means: np.ndarray, opacities: np.ndarray, views: Sequence[View
     return float(np.sum(opacities[outside]) / total)
 
 
+def rays_meet_hull(camera: Camera, pixels: np.ndarray, others: Sequence[View], center: np.ndarray, radius: float,
+                   samples: int = RAY_SAMPLES, tolerance: int = 0, min_share: float = 0.0) -> np.ndarray:
+    """[P] bool: whether the ray of each of ``camera``'s ``pixels`` [P, 2], sampled at ``samples`` depths
+    through the sphere of ``radius`` about ``center``, meets the visual hull of the ``others`` views (masks
+    already dilated; ``tolerance`` as for :func:`in_hull`) at a point on the masks of at least
+    ``min_share`` of them."""
+    distance = float(np.linalg.norm(camera.center - np.asarray(center, dtype=np.float64)))
+    depths = np.linspace(max(distance - radius, 1e-3 * distance), distance + radius, samples)
+    met = np.zeros(len(pixels), bool)
+    for start in range(0, len(pixels), HULL_CHUNK):  # bounded memory for large masks
+        chunk = pixels[start : start + HULL_CHUNK]
+        seen, inside = mask_votes(pixel_rays(camera, chunk, depths).reshape(-1, 3), others)
+        hull = in_hull(seen, inside, tolerance) & (inside >= min_share * len(others))
+        met[start : start + len(chunk)] = hull.reshape(len(chunk), samples).any(axis=1)
+    return met
+
+
 def mask_agreement(camera: Camera, mask: np.ndarray, others: Sequence[View], center: np.ndarray, radius: float,
                    samples: int = RAY_SAMPLES, max_pixels: int = AGREEMENT_PIXELS, tolerance: int = 0) -> float | None:
-    """The share of ``camera``'s ``mask`` [H, W] bool pixels whose ray, sampled at ``samples`` depths
-    through the sphere of ``radius`` about ``center``, meets the visual hull of the ``others`` views
-    (masks already dilated; ``tolerance`` as for :func:`in_hull`); ``None`` for an empty mask. The hull
-    of the others contains the subject, so a camera consistent with them scores about 1; one whose
-    calibration (or mask) is off sees the subject where the others see none, and scores less."""
+    """The share of ``camera``'s ``mask`` [H, W] bool pixels whose ray meets the visual hull of the
+    ``others`` views (:func:`rays_meet_hull`); ``None`` for an empty mask. The hull of the others contains
+    the subject, so a camera consistent with them scores about 1; one whose calibration (or mask) is off
+    sees the subject where the others see none, and scores less."""
     ys, xs = np.nonzero(mask)
     if not len(xs):
         return None
     pick = np.unique(np.linspace(0, len(xs) - 1, min(len(xs), max_pixels)).round().astype(int))
-    distance = float(np.linalg.norm(camera.center - np.asarray(center, dtype=np.float64)))
-    depths = np.linspace(max(distance - radius, 1e-3 * distance), distance + radius, samples)
-    points = pixel_rays(camera, np.stack([xs[pick], ys[pick]], axis=1), depths).reshape(-1, 3)
-    met = in_hull(*mask_votes(points, others), tolerance).reshape(len(pick), samples).any(axis=1)
-    return float(met.mean())
+    return float(rays_meet_hull(camera, np.stack([xs[pick], ys[pick]], axis=1), others, center, radius, samples, tolerance).mean())
+
+
+def consistent_mask(camera: Camera, mask: np.ndarray, others: Sequence[View], center: np.ndarray, radius: float,
+                    min_share: float = 0.5) -> np.ndarray:
+    """``mask`` [H, W] bool without the pixels whose ray meets no point that most other views agree is
+    the subject — on the masks (dilated by :data:`FLOATER_MARGIN_PX`) of at least ``min_share`` of
+    ``others``. What only this camera or a few see as subject (a bystander's leg at the edge of some
+    views, a shadow, a reflection) is dropped; a majority, not unanimity, so that a few cameras whose own
+    masks are wrong do not veto the others."""
+    ys, xs = np.nonzero(mask)
+    kept = np.zeros_like(mask, dtype=bool)
+    if len(xs) and others:
+        grown = [(view, dilated(view_mask, FLOATER_MARGIN_PX)) for view, view_mask in others]
+        met = rays_meet_hull(camera, np.stack([xs, ys], axis=1), grown, center, radius, tolerance=len(others), min_share=min_share)
+        kept[ys[met], xs[met]] = True
+    return kept

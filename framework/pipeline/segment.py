@@ -1,18 +1,26 @@
 """Segment the subject in a session's frames with a segmenter plugin and store the masks (and labels).
 
 The session is updated atomically: the new masks and labels replace the old ones all at once when every
-selected camera is done, and a failure or interruption leaves the session exactly as it was.
+selected camera is done, and a failure or interruption leaves the session exactly as it was. With
+``consistent``, each mask then keeps only the pixels the other cameras' masks agree on
+(:func:`mmcsplat.analysis.visual_hull.consistent_mask`): what a single segmenter finds in one view — a
+bystander at the edge of the picture, a shadow — is dropped because no other camera sees it as subject.
 """
 
 from __future__ import annotations
 
 import os
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import attrs
+import numpy as np
 
 from mmcsplat.configuration.registry import default_registry
+from mmcsplat.plugin_api.errors import InputError
+
+if TYPE_CHECKING:  # imported on use: the CLI parser imports this module for every command
+    from mmcsplat.storage.session import SessionReader, SessionUpdater
 
 
 @attrs.frozen
@@ -32,6 +40,7 @@ def segment_session(
     params: Mapping[str, Any] | None = None,
     cameras: Sequence[str] | None = None,
     progress: bool = True,
+    consistent: bool = False,
 ) -> list[CameraSummary]:
     """Run the registered ``segmenter`` (built with ``params``) on ``cameras`` of the session at ``url``
     (default: all, held-out ones included: evaluation needs their masks) and write its masks, and labels
@@ -45,19 +54,40 @@ def segment_session(
     for camera in selected:
         session.camera(camera)  # an unknown camera is an error naming the session and camera
     instance = default_registry().create("segmenter", segmenter, **dict(params or {}))
-    summaries = []
+    if consistent and len(selected) < 3:
+        raise InputError(f"session {session.url}: multi-view consistency needs masks of at least 3 cameras, got {len(selected)}")
     total = sum(int(session.present(camera).sum()) for camera in selected)
-    with SessionUpdater(url) as updater, tqdm(total=total, unit="frame", desc=f"segment ({segmenter})", disable=not progress) as bar:
-        for camera in selected:
-            frames = empty = 0
-            covered = 0.0
-            for t, mask, labels in instance.segment(session, camera):
-                updater.write(camera, "mask", t, mask)
-                if labels is not None:
-                    updater.write(camera, "labels", t, labels)
-                frames += 1
-                empty += not mask.any()
-                covered += float(mask.mean())
-                bar.update()
-            summaries.append(CameraSummary(camera, frames, empty, covered / max(frames, 1)))
-    return summaries
+    with SessionUpdater(url) as updater:
+        with tqdm(total=total, unit="frame", desc=f"segment ({segmenter})", disable=not progress) as bar:
+            for camera in selected:
+                for t, mask, labels in instance.segment(session, camera):
+                    updater.write(camera, "mask", t, mask)
+                    if labels is not None:
+                        updater.write(camera, "labels", t, labels)
+                    bar.update()
+        if consistent:
+            _keep_what_the_others_see(session, updater, selected, progress)
+        return [_summary(session, updater, camera) for camera in selected]
+
+
+def _keep_what_the_others_see(session: SessionReader, updater: SessionUpdater, cameras: Sequence[str], progress: bool) -> None:
+    """Replace every written mask by its multi-view consistent part, frame by frame."""
+    from tqdm import tqdm
+
+    from mmcsplat.analysis.visual_hull import consistent_mask
+    from mmcsplat.scene.rig import rig_center, rig_scale
+
+    center = rig_center(session.cameras)
+    radius = rig_scale(session.cameras, center)
+    for t in tqdm(range(session.num_frames), unit="frame", desc="multi-view consistency", disable=not progress):
+        masks = {camera: updater.pending(camera, "mask")[t] for camera in cameras if session.present(camera)[t]}
+        views = [(session.camera(camera), mask) for camera, mask in masks.items()]
+        for index, (camera, mask) in enumerate(views):
+            others = views[:index] + views[index + 1:]
+            updater.write(camera.name, "mask", t, consistent_mask(camera, mask, others, center, radius) if len(others) >= 2 else mask)
+
+
+def _summary(session: SessionReader, updater: SessionUpdater, camera: str) -> CameraSummary:
+    masks = updater.pending(camera, "mask")
+    coverages = [float(masks[int(t)].mean()) for t in np.flatnonzero(session.present(camera))]
+    return CameraSummary(camera, len(coverages), sum(c == 0 for c in coverages), float(np.mean(coverages)) if coverages else 0.0)

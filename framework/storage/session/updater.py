@@ -79,6 +79,13 @@ class SessionUpdater(SessionBase, Transaction):
         target[t] = value
         written[t] = True
 
+    def pending(self, camera: str, field: str) -> Any:
+        """The array of ``field`` being written for ``camera`` (readable before the commit)."""
+        self._check_open()
+        if (camera, field) not in self._new:
+            raise InputError(f"{self.url}: no {field} of camera {camera!r} has been written in this update")
+        return self._new[camera, field][0]
+
     def write_plate(self, camera: str, rgb: np.ndarray, source: dict[str, Any]) -> None:
         """Set ``camera``'s clean plate ([H, W, 3] uint8) and the record of how it was made (``source``,
         e.g. ``{"kind": "estimated", ...}``), replacing any plate it had."""
