@@ -20,7 +20,7 @@ def test_the_median_skips_masked_samples_and_reports_what_it_never_saw():
     masks[:, 1, 1] = True
     plate, stable, uncovered = median_plate(frames, masks)
     assert plate[0, 0].tolist() == [100, 100, 100] and plate[2, 2].tolist() == [100, 100, 100]
-    assert uncovered[1, 1] and uncovered.sum() == 1 and plate[1, 1].tolist() == [30, 30, 30]
+    assert uncovered[1, 1] and uncovered.sum() == 1 and np.abs(plate[1, 1].astype(int) - 100).max() <= 5  # inpainted from around it
     assert stable[2, 2] and not stable[0, 0]
 
 

@@ -30,5 +30,5 @@ def run(args: argparse.Namespace) -> int:
     for estimate in estimates:
         masks = "subject masked out" if estimate.masked else "no masks: the subject must move for the median to skip it"
         print(f"{estimate.camera}: plate from {estimate.samples} frames ({masks}); stable background {estimate.stable_share:.1%}"
-              f"{f', never uncovered {estimate.uncovered_share:.1%}' if estimate.masked else ''}")
+              f"{f', never uncovered (inpainted) {estimate.uncovered_share:.1%}' if estimate.masked else ''}")
     return 0

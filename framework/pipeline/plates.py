@@ -3,8 +3,9 @@
 Each camera's plate is the per-pixel temporal median of frames spread evenly through its recording, with
 the subject left out where the session has masks (grown by a few pixels, so its soft edge does not bleed
 into the plate): a pixel is background in most frames if the subject moves, and the median keeps that.
-Where the subject covered a pixel in every sampled frame (it never moved there), the plate falls back to
-the plain median and the pixel is counted as *uncovered*. The quality is reported per camera: the share
+Where the subject covered a pixel in every sampled frame (it never moved there: an infant's trunk), the
+sequence never shows the scene behind it: those pixels are filled in from their surroundings (OpenCV's
+Telea inpainting) and counted as *uncovered*. The quality is reported per camera: the share
 of pixels whose background is *stable* — the interquartile range of its unmasked samples under
 :data:`STABLE_SPREAD` grey levels — and the share uncovered. Plates are stored like recorded ones and
 marked ``{"kind": "estimated", ...}`` in the session (:meth:`SessionReader.plate_source`).
@@ -28,6 +29,8 @@ DEFAULT_SAMPLES = 25
 STABLE_SPREAD = 10.0
 #: Pixels the masks are grown by before their pixels are left out.
 MASK_MARGIN_PX = 3
+#: The neighbourhood inpainting fills never-uncovered pixels from, pixels.
+INPAINT_RADIUS_PX = 5
 #: Rows processed at once (bounds the float copy of the samples).
 STRIP_ROWS = 64
 
@@ -49,7 +52,7 @@ class PlateEstimate:
 
 def median_plate(frames: np.ndarray, masks: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(plate [H, W, 3] uint8, stable [H, W] bool, uncovered [H, W] bool) of ``frames`` [S, H, W, 3] uint8,
-    leaving out the pixels where ``masks`` [S, H, W] bool is true."""
+    leaving out the pixels where ``masks`` [S, H, W] bool is true; uncovered pixels are inpainted."""
     samples, height, width, _ = frames.shape
     plate = np.empty((height, width, 3), np.uint8)
     stable = np.empty((height, width), bool)
@@ -62,7 +65,7 @@ def median_plate(frames: np.ndarray, masks: np.ndarray | None) -> tuple[np.ndarr
             strip[hidden] = np.nan
             never = hidden.all(axis=0)
             uncovered[rows] = never
-            strip[:, never] = frames[:, rows][:, never]  # the subject never moved off these: the plain median
+            strip[:, never] = frames[:, rows][:, never]  # statistics of something; the plate is inpainted there
         # One sort serves the median and the quartiles (NaN sorts last; each pixel has its own count), ten
         # times faster than nanmedian + nanpercentile.
         ordered = np.sort(strip, axis=0)
@@ -75,6 +78,8 @@ def median_plate(frames: np.ndarray, masks: np.ndarray | None) -> tuple[np.ndarr
         plate[rows] = np.clip(np.round(median), 0, 255).astype(np.uint8)
         spread = rank((3 * (count - 1)) // 4) - rank((count - 1) // 4)
         stable[rows] = spread.max(axis=-1) < STABLE_SPREAD
+    if uncovered.any():
+        plate = cv2.inpaint(plate, uncovered.astype(np.uint8), INPAINT_RADIUS_PX, cv2.INPAINT_TELEA)
     return plate, stable, uncovered
 
 
