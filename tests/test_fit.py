@@ -65,7 +65,7 @@ def test_killed_run_resumes_to_the_same_parameters(session, tmp_path, monkeypatc
     assert straight_info["loss_min"] is not None and straight_info["loss_min"] <= straight_info["loss_final"]
     assert (resumed_info["loss_min"], resumed_info["loss_final"]) == (straight_info["loss_min"], straight_info["loss_final"])
     # The resumed run says so; the straight one never resumed.
-    assert (resumed_info["resumed_from"], straight_info["resumed_from"]) == (10, None) and resumed_info["version"] == 1
+    assert (resumed_info["resumed_from"], straight_info["resumed_from"]) == (10, None) and resumed_info["version"] == 2
 
 
 def test_nan_stops_cleanly_keeping_the_last_good_checkpoint(session, tmp_path, monkeypatch):

@@ -45,3 +45,15 @@ def test_a_bad_record_is_one_error_naming_the_file(tmp_path, content, message):
 def test_a_missing_record_names_the_run(tmp_path):
     with pytest.raises(MissingFileError, match="not a fit run directory"):
         RunInfo.read(tmp_path)
+
+
+def test_a_project_folder_moved_whole_still_finds_its_session(tmp_path):
+    project = tmp_path / "project"
+    (project / "run").mkdir(parents=True)
+    RunInfo.from_json(VERSION_0 | {"session": str(project / "s.zarr")}, "test").write(project / "run")
+    assert json.loads((project / "run" / RUN_INFO).read_text())["session"] == "../s.zarr"
+    moved = tmp_path / "elsewhere"
+    project.rename(moved)
+    assert RunInfo.read(moved / "run").session == str(moved / "s.zarr")
+    RunInfo.from_json(VERSION_0 | {"session": "s3://bucket/s.zarr"}, "test").write(moved / "run")  # URLs stay as they are
+    assert RunInfo.read(moved / "run").session == "s3://bucket/s.zarr"

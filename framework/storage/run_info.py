@@ -5,7 +5,8 @@ training diverges ("diverged", with the ``error``); tracking, evaluation, render
 read it through :class:`RunInfo` only, so a missing or garbled field is one error naming the file.
 
 Versions: 0 is every run.json written before the field ``version`` existed (identical fields, no
-``resumed_from``); 1 adds ``version`` and ``resumed_from``. Fit settings absent from an older run's
+``resumed_from``); 1 adds ``version`` and ``resumed_from``; 2 stores a local session's path relative to the
+run directory, so a project folder copied or moved whole still works (read back as an absolute path). Fit settings absent from an older run's
 ``config_values`` read as the defaults they had when it was written (``fit.supersample`` 1, black
 background).
 """
@@ -13,6 +14,7 @@ background).
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -23,8 +25,12 @@ from mmcsplat.plugin_api.errors import InputError, MissingFileError
 from mmcsplat.storage.atomic import write_json_atomic
 
 RUN_INFO = "run.json"
-RUN_INFO_VERSION = 1
+RUN_INFO_VERSION = 2
 RUNNING, COMPLETE, DIVERGED = "running", "complete", "diverged"
+
+
+def _is_url(path: str) -> bool:
+    return "://" in path
 
 
 def _names(value: Any) -> tuple[str, ...]:
@@ -37,7 +43,7 @@ class RunInfo:
 
     #: "running", "complete" or "diverged".
     status: str = attrs.field(validator=attrs.validators.in_((RUNNING, COMPLETE, DIVERGED)))
-    #: The session's path (absolute) or URL.
+    #: The session's URL, or its local path: absolute in memory, relative to the run directory on disk.
     session: str
     #: The configuration's name or file, and its values after overrides.
     config: str
@@ -86,8 +92,11 @@ class RunInfo:
         return attrs.asdict(self, recurse=False, value_serializer=lambda _i, _f, value: list(value) if isinstance(value, tuple) else value)
 
     def write(self, run: Path) -> None:
-        """Replace ``run``/run.json atomically."""
-        write_json_atomic(Path(run) / RUN_INFO, self.to_json())
+        """Replace ``run``/run.json atomically, the session's local path relative to ``run``."""
+        data = self.to_json()
+        if not _is_url(self.session):
+            data["session"] = os.path.relpath(os.path.abspath(self.session), os.path.abspath(run))
+        write_json_atomic(Path(run) / RUN_INFO, data)
 
     @classmethod
     def read(cls, run: Path) -> RunInfo:
@@ -100,7 +109,10 @@ class RunInfo:
             raise MissingFileError(f"{path} does not exist: {Path(run)} is not a fit run directory") from error
         except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
             raise InputError(f"{path} is not readable JSON ({error})") from error
-        return cls.from_json(data, path)
+        info = cls.from_json(data, path)
+        if _is_url(info.session) or os.path.isabs(info.session):
+            return info
+        return attrs.evolve(info, session=os.path.normpath(os.path.join(os.path.abspath(run), info.session)))
 
     @classmethod
     def from_json(cls, data: Any, source: Path | str) -> RunInfo:
