@@ -9,8 +9,18 @@ module per step of the data flow), :mod:`mmcsplat.analysis`, :mod:`mmcsplat.outp
 and :mod:`mmcsplat.datasets` and are reached only through the registry.
 """
 
-from .plugin_api.hookspecs import hookimpl
-from .plugin_api.registration import Registration, needs_modules
+import os
+
+# The CPU kernels run on numba's OpenMP threads, whose default is to spin while they wait: on a machine
+# shared with other work, two spinning threads made a render 1.6× slower than one thread. Passive waiting
+# keeps two threads as fast as one under load, for 10–25 % less speed-up on an idle machine
+# (docs/performance.md, "Threads"). Set here, before any OpenMP runtime starts; the environment's own
+# setting wins (OMP_WAIT_POLICY=ACTIVE on a dedicated machine).
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+os.environ.setdefault("NUMBA_THREADING_LAYER", "omp")
+
+from .plugin_api.hookspecs import hookimpl  # noqa: E402
+from .plugin_api.registration import Registration, needs_modules  # noqa: E402
 
 __version__ = "0.1.0"
 

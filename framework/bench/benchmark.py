@@ -279,7 +279,7 @@ def environment() -> dict[str, Any]:
         threads["usable_cpus"] = len(os.sched_getaffinity(0))
     if "numba" in sys.modules:
         threads["numba"] = sys.modules["numba"].config.NUMBA_NUM_THREADS
-    threads.update({k: os.environ[k] for k in ("OMP_NUM_THREADS", "NUMBA_NUM_THREADS", "XLA_FLAGS") if k in os.environ})
+    threads.update({k: os.environ[k] for k in ("OMP_NUM_THREADS", "OMP_WAIT_POLICY", "NUMBA_NUM_THREADS", "NUMBA_THREADING_LAYER", "XLA_FLAGS") if k in os.environ})
     machine = {"platform": platform.platform(), "cpu": _cpu_model(), "memory_gib": round(_total_memory() / 2**30, 1)}
     if torch.cuda.is_available():
         machine["cuda_device"] = torch.cuda.get_device_name()
