@@ -27,6 +27,7 @@ def test_shared_options_have_one_spelling(command):
     options = _options(_subcommands()[command])
     source = inspect.getsource(importlib.import_module(f"mmcsplat.cli.{COMMANDS[command]}"))
     assert "--quiet" not in options and "--no-progress-bar" not in options
+    assert "--verbose" in options and "--log-file" in options, f"{command} lacks the logging options"
     if "progress" in source:  # a command that can show progress bars lets the user turn them off, one way
         assert "--no-progress" in options, f"{command} shows progress but has no --no-progress"
     for flag, action in options.items():

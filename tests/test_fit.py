@@ -138,3 +138,15 @@ def test_cameras_of_different_sizes_fit_track_and_evaluate_together(tmp_path):
     track_run(tmp_path / "run", dynamics="iterative", overrides=["dynamics.iterations=2"], progress=False)
     metrics = evaluate(tmp_path / "run")
     assert {"cam_0", "cam_1", "cam_2"} <= set(metrics["per_camera"]) and metrics["val_masked_psnr"] is not None
+
+
+def test_every_fit_logs_to_its_run_and_verbose_shows_it(session, tmp_path, capsys):
+    config = write_config(tmp_path / "fit.toml", iterations=4, checkpoint_every=2)
+    out, extra = tmp_path / "run", tmp_path / "extra.log"
+    assert main(["fit", session.url, "--config", str(config), "--out", str(out), "--no-progress", "--verbose", "--log-file", str(extra)]) == 0
+    log = (out / "log.txt").read_text()
+    assert "fit of session" in log and "fit complete: 4 iterations" in log
+    assert "fit of session" in capsys.readouterr().err and "fit complete" in extra.read_text()
+    assert main(["fit", session.url, "--config", str(config), "--out", str(out), "--no-progress"]) == 0  # nothing left to do
+    assert (out / "log.txt").read_text().count("fit of session") == 2  # appended, not replaced
+    assert "fit of session" not in capsys.readouterr().err  # quiet without --verbose

@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import logging
 import os
 import signal
 import sys
 import threading
 
 from mmcsplat import __version__
+from mmcsplat.cli.options import add_logging
 from mmcsplat.plugin_api.errors import MmcsplatError
 
 #: Sub-command name → module in mmcsplat.cli defining ``add_arguments(parser)`` and ``run(args) -> int``.
@@ -52,6 +54,7 @@ def build_parser() -> argparse.ArgumentParser:
         summary = (module.__doc__ or "").strip().split("\n")[0]
         sub = commands.add_parser(name, help=summary, description=(module.__doc__ or "").strip())
         module.add_arguments(sub)
+        add_logging(sub)
         sub.set_defaults(_run=module.run)
     return parser
 
@@ -96,10 +99,34 @@ def _interruption(error: BaseException) -> KeyboardInterrupt | None:
     return None
 
 
+def _log_to(verbose: bool, log_file: str | None) -> list[logging.Handler]:
+    """Handlers on the ``mmcsplat`` logger for this command: the console with ``--verbose`` (warnings
+    always), the file of ``--log-file``; returned so that main removes them when the command ends."""
+    logger = logging.getLogger("mmcsplat")
+    logger.setLevel(logging.DEBUG)
+    console = logging.StreamHandler(sys.stderr)
+    console.setLevel(logging.INFO if verbose else logging.WARNING)
+    console.setFormatter(logging.Formatter("mmcsplat: %(message)s"))
+    handlers: list[logging.Handler] = [console]
+    if log_file:
+        file = logging.FileHandler(log_file, encoding="utf-8")
+        file.setLevel(logging.DEBUG)
+        file.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+        handlers.append(file)
+    for handler in handlers:
+        logger.addHandler(handler)
+    return handlers
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the process exit status (2 for a user's error, 130 for Ctrl-C, 143 for SIGTERM)."""
     args = build_parser().parse_args(argv)
     previous = signal.signal(signal.SIGTERM, _terminate) if threading.current_thread() is threading.main_thread() else None
+    try:
+        handlers = _log_to(args.verbose, args.log_file)
+    except OSError as error:
+        print(f"mmcsplat {args.command}: error: --log-file: {error}", file=sys.stderr)
+        return 2
     try:
         return int(args._run(args) or 0)
     except KeyboardInterrupt as interrupt:
@@ -122,6 +149,9 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
+        for handler in handlers:
+            logging.getLogger("mmcsplat").removeHandler(handler)
+            handler.close()
 
 
 def _interrupted(interrupt: KeyboardInterrupt) -> int:

@@ -1,5 +1,5 @@
 """The options several commands share, defined once so that they are spelled and read alike everywhere:
-``--no-progress``; lists of names as one comma-separated value (``--cameras a,b``); ``--frames`` always a
+``--no-progress``, ``--verbose`` and ``--log-file``; lists of names as one comma-separated value (``--cameras a,b``); ``--frames`` always a
 range of frame indices ``START:STOP[:STEP]``; counts as ``--num-*``; ``--set KEY=VALUE`` read as TOML.
 tests/test_cli_options.py walks every command's options and fails on another spelling."""
 
@@ -49,6 +49,12 @@ def settings_table(pairs: list[str]) -> dict:
     for pair in pairs:
         table = apply_override(table, pair, "--set")
     return table
+
+
+def add_logging(parser: argparse.ArgumentParser) -> None:
+    """``--verbose`` and ``--log-file``, on every command."""
+    parser.add_argument("--verbose", action="store_true", help="also print what the command does (its log) on the console")
+    parser.add_argument("--log-file", metavar="PATH", help="append the command's full log to this file (fits and tracks also log to RUN/log.txt)")
 
 
 def add_settings(parser: argparse.ArgumentParser, help: str, dest: str = "overrides") -> None:

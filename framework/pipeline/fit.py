@@ -8,6 +8,7 @@ and the final Gaussians.
 
 from __future__ import annotations
 
+import logging
 import re
 import time
 from collections.abc import Sequence
@@ -27,6 +28,7 @@ from mmcsplat.scene.camera import Camera
 from mmcsplat.scene.rig import rig_center, rig_scale
 from mmcsplat.storage.locking import run_lock
 from mmcsplat.storage.run_info import COMPLETE, DIVERGED, RUN_INFO, RUNNING, RunInfo
+from mmcsplat.storage.run_log import run_log
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.training.backdrop import Background, camera_backdrop, parse_background
 from mmcsplat.training.checked_renderer import CheckedRenderer
@@ -147,8 +149,20 @@ class FirstFrameFit:
         """Train to ``settings.iterations`` (resuming from a checkpoint in ``out``); returns run.json's
         record. A second fit into the same ``out`` while this one runs is refused."""
         self.out.mkdir(parents=True, exist_ok=True)
-        with run_lock(self.out):
-            return self._train()
+        with run_lock(self.out), run_log(self.out) as log:
+            log.info("fit of session %s with %s into %s: %d iterations, renderer %s, training cameras %s, held out %s",
+                     self.session.url, self.config.source, self.out, self.settings.iterations, self.renderer_name,
+                     ", ".join(c.name for c in self.train_cameras), ", ".join(c.name for c in self.heldout_cameras) or "none")
+            for warning in self.warnings:  # shown on the console as a Python warning already
+                log.info("warning: %s", warning)
+            try:
+                info = self._train()
+            except BaseException as error:
+                log.error("fit stopped: %s", f"{type(error).__name__}: {error}" if str(error) else type(error).__name__)
+                raise
+            log.info("fit %s: %d iterations, %d Gaussians, %.1f s, lowest block loss %s", info.status, info.iterations,
+                     info.num_gaussians, info.wall_s, info.loss_min)
+            return info
 
     def _train(self) -> RunInfo:
         from tqdm import tqdm
@@ -164,6 +178,7 @@ class FirstFrameFit:
         if checkpoint.exists():
             start, elapsed, record = self._resume(checkpoint, model, generator, schedule, densify_state)
             self.resumed_from = start
+            logging.getLogger(__name__).info("resumed from the checkpoint at iteration %d", start)
         cameras = self._render_cameras()
         bar = tqdm(range(start, settings.iterations), initial=start, total=settings.iterations, desc="fit", disable=not self.progress, unit="it")
         began = time.perf_counter() - elapsed

@@ -22,6 +22,7 @@ from mmcsplat.plugin_api.interfaces import Dynamics, TrackingContext
 from mmcsplat.storage.atomic import write_json_atomic
 from mmcsplat.storage.locking import run_lock
 from mmcsplat.storage.run_info import RUN_INFO, RunInfo
+from mmcsplat.storage.run_log import run_log
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.storage.tracks import TRACKS_DIR
 from mmcsplat.training.backdrop import camera_backdrop
@@ -114,10 +115,16 @@ def track_run(
         progress=progress,
         overwrite=overwrite,
     )
-    with run_lock(run):
+    with run_lock(run), run_log(run) as log:
+        log.info("track with %s %s over session frames %d–%d, renderer %s", choice.name, dict(choice.params), first, stop - 1, renderer_name)
         began = time.perf_counter()
-        summary = method.track(context, run)
+        try:
+            summary = method.track(context, run)
+        except BaseException as error:
+            log.error("tracking stopped: %s", f"{type(error).__name__}: {error}" if str(error) else type(error).__name__)
+            raise
         wall = time.perf_counter() - began
+        log.info("tracked %d frames in %.1f s", len(context.frames), wall)
         record = {
             "method": choice.name,
             "params": dict(choice.params),
