@@ -23,14 +23,11 @@ import attrs
 
 from mmcsplat.plugin_api.errors import InputError, MissingFileError
 from mmcsplat.storage.atomic import write_json_atomic
+from mmcsplat.storage.session.format import local_path
 
 RUN_INFO = "run.json"
 RUN_INFO_VERSION = 2
 RUNNING, COMPLETE, DIVERGED = "running", "complete", "diverged"
-
-
-def _is_url(path: str) -> bool:
-    return "://" in path
 
 
 def _names(value: Any) -> tuple[str, ...]:
@@ -94,7 +91,7 @@ class RunInfo:
     def write(self, run: Path) -> None:
         """Replace ``run``/run.json atomically, the session's local path relative to ``run``."""
         data = self.to_json()
-        if not _is_url(self.session):
+        if local_path(self.session) is not None:
             data["session"] = os.path.relpath(os.path.abspath(self.session), os.path.abspath(run))
         write_json_atomic(Path(run) / RUN_INFO, data)
 
@@ -110,7 +107,7 @@ class RunInfo:
         except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
             raise InputError(f"{path} is not readable JSON ({error})") from error
         info = cls.from_json(data, path)
-        if _is_url(info.session) or os.path.isabs(info.session):
+        if local_path(info.session) is None or os.path.isabs(info.session):
             return info
         return attrs.evolve(info, session=os.path.normpath(os.path.join(os.path.abspath(run), info.session)))
 
