@@ -1,17 +1,24 @@
-"""mmcsplat export --ply: per-frame PLY files in the 3DGS viewers' layout, read back without a PLY library."""
+"""mmcsplat export: per-frame PLY files in the 3DGS viewers' layouts (the compact one read back without a PLY
+library, both through plyfile), and the reference trainer's model folder (--inria)."""
 
 from __future__ import annotations
 
+import ast
+import json
+import re
 import shutil
 
 import numpy as np
 import pytest
 import torch
+from plyfile import PlyData
 from render_fixtures import add_tracks, expected_means, fitted_run
 
 from mmcsplat.cli import main
-from mmcsplat.outputs.ply import PROPERTIES, SH_C0
+from mmcsplat.outputs.ply import FULL_PROPERTIES, PROPERTIES, SH_C0
 from mmcsplat.pipeline.fit import load_fitted
+from mmcsplat.storage.run_info import RunInfo
+from mmcsplat.storage.session import SessionReader
 
 FRAMES = 3
 
@@ -70,3 +77,100 @@ def test_export_of_a_directory_that_is_no_run_fails_clearly(tmp_path, capsys):
     assert main(["export", str(tmp_path / "missing"), "--ply", str(tmp_path / "out")]) == 2
     assert "does not exist" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+# ------------------------------------------------------------------------------------- through plyfile
+
+
+def plyfile_vertices(path):
+    """{property: [N] values} of ``path``'s vertex element read by plyfile, after checking it is its only
+    element, binary little-endian, all float32."""
+    data = PlyData.read(str(path))
+    assert [element.name for element in data.elements] == ["vertex"] and not data.text and data.byte_order == "<"
+    vertices = data["vertex"].data
+    assert all(vertices.dtype[name] == np.dtype("<f4") for name in vertices.dtype.names)
+    return {name: vertices[name] for name in vertices.dtype.names}
+
+
+def check_vertices(vertices, params, means, full):
+    """``vertices`` (read by plyfile) hold ``params`` at Gaussian centres ``means`` in the layout asked for."""
+    assert tuple(vertices) == (FULL_PROPERTIES if full else PROPERTIES)
+    assert len(FULL_PROPERTIES) == 62 and [name for name in FULL_PROPERTIES if name.startswith("f_rest_")] == [f"f_rest_{i}" for i in range(45)]
+    np.testing.assert_allclose(np.stack([vertices[k] for k in "xyz"], 1), means, atol=1e-6)
+    colour = torch.sigmoid(params["color_logits"]).numpy()
+    np.testing.assert_allclose(np.stack([vertices[f"f_dc_{i}"] for i in range(3)], 1) * SH_C0 + 0.5, colour, atol=1e-6)
+    np.testing.assert_allclose(vertices["opacity"], params["opacity_logits"].numpy(), atol=1e-6)
+    np.testing.assert_allclose(np.stack([vertices[f"scale_{i}"] for i in range(3)], 1), params["log_scales"].numpy(), atol=1e-6)
+    quats = params["quats"].numpy() / np.linalg.norm(params["quats"].numpy(), axis=1, keepdims=True)
+    np.testing.assert_allclose(np.stack([vertices[f"rot_{i}"] for i in range(4)], 1), quats, atol=1e-6)
+    assert not np.any([vertices[name] for name in vertices if name[0] == "n" or name.startswith("f_rest_")])
+
+
+@pytest.mark.parametrize("full", [False, True], ids=["degree-0", "full-sh"])
+def test_both_layouts_read_back_through_plyfile(runs, tmp_path, full):
+    out = tmp_path / "ply"
+    assert main(["export", str(runs[0]), "--ply", str(out), "--no-progress", *(["--full-sh"] if full else [])]) == 0
+    _, params, _, _ = load_fitted(runs[0])
+    for t in range(FRAMES):
+        check_vertices(plyfile_vertices(out / f"frame_{t:04d}.ply"), params, expected_means(runs[0], t), full)
+
+
+# ------------------------------------------------------------------------------------------- --inria
+
+
+def test_inria_model_folder(runs, tmp_path):
+    out = tmp_path / "model"
+    assert main(["export", str(runs[0]), "--inria", str(out), "--frame", "2"]) == 0
+    info = RunInfo.read(runs[0])
+    assert sorted(str(path.relative_to(out)) for path in out.rglob("*") if path.is_file()) == [
+        "cameras.json", "cfg_args", f"point_cloud/iteration_{info.iterations}/point_cloud.ply"]
+    assert not [path for path in tmp_path.iterdir() if path.name.startswith(".")], "the temporary folder is left behind"
+    _, params, _, _ = load_fitted(runs[0])
+    check_vertices(plyfile_vertices(out / f"point_cloud/iteration_{info.iterations}/point_cloud.ply"), params, expected_means(runs[0], 2), True)
+
+    text = (out / "cfg_args").read_text()
+    call = ast.parse(text, mode="eval").body
+    assert isinstance(call, ast.Call) and call.func.id == "Namespace" and not call.args
+    fields = {keyword.arg: ast.literal_eval(keyword.value) for keyword in call.keywords}
+    assert fields == {"sh_degree": 3, "source_path": info.session, "model_path": str(out.resolve()), "images": "images",
+                      "resolution": -1, "white_background": False, "data_device": "cuda", "eval": False}
+    assert re.fullmatch(r"Namespace\(sh_degree=3, .*\)", text)
+
+    session = SessionReader(info.session)
+    entries = json.loads((out / "cameras.json").read_text())
+    assert len(entries) == len(session.cameras) == 5
+    for index, (entry, camera) in enumerate(zip(entries, session.cameras, strict=True)):
+        assert list(entry) == ["id", "img_name", "width", "height", "position", "rotation", "fy", "fx"]
+        assert (entry["id"], entry["img_name"], entry["width"], entry["height"]) == (index, camera.name, camera.width, camera.height)
+        rotation = np.array(entry["rotation"])
+        np.testing.assert_allclose(entry["position"], camera.center, atol=1e-12)
+        np.testing.assert_allclose(rotation @ [0, 0, 1], camera.R[2], atol=1e-12)  # the viewing direction in world
+        np.testing.assert_allclose(rotation @ rotation.T, np.eye(3), atol=1e-9)
+        ahead = camera.center + rotation @ [0, 0, 1]  # a point 1 m along the optical axis lands at depth 1
+        np.testing.assert_allclose(camera.R @ ahead + camera.t, [0, 0, 1], atol=1e-9)
+        assert (entry["fx"], entry["fy"]) == (camera.K[0, 0], camera.K[1, 1])
+
+
+def test_inria_export_of_a_run_without_tracks_is_its_fit(runs, tmp_path):
+    out = tmp_path / "model"
+    out.mkdir()  # an empty directory is fine
+    assert main(["export", str(runs[1]), "--inria", str(out)]) == 0
+    _, params, _, _ = load_fitted(runs[1])
+    ply = next(out.glob("point_cloud/iteration_*/point_cloud.ply"))
+    check_vertices(plyfile_vertices(ply), params, params["means"].numpy(), True)
+
+
+@pytest.mark.parametrize(("arguments", "message"), [
+    (["--inria", "{tmp}/full"], "already exists and is not an empty directory"),
+    (["--inria", "{tmp}/new", "--frame", str(FRAMES)], f"run frame {FRAMES} does not exist"),
+    ([], "choose at least one output"),
+    (["--inria", "{tmp}/new", "--full-sh"], "--full-sh sets the layout of --ply files"),
+    (["--ply", "{tmp}/new", "--frame", "0"], "--frame picks the run frame of --inria"),
+])
+def test_inria_export_errors_are_one_line(runs, tmp_path, capsys, arguments, message):
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "keep.txt").write_text("mine")
+    assert main(["export", str(runs[0]), *(argument.format(tmp=tmp_path) for argument in arguments)]) == 2
+    error = capsys.readouterr().err
+    assert message in error and error.count("\n") == 1
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["full"] and (tmp_path / "full" / "keep.txt").read_text() == "mine"

@@ -1,9 +1,15 @@
-"""Export a run's Gaussians per frame, in the PLY layout common 3DGS viewers read.
+"""Export a run's Gaussians for 3DGS viewers and tools: per-frame PLY files, or the reference trainer's model folder.
 
---ply DIR writes one PLY per frame (frame_NNNN.ply, by session frame): position, SH degree-0 colour,
-logit opacity, log scales, quaternion.
+--ply DIR writes one PLY per run frame (frame_NNNN.ply, by session frame): position, SH degree-0 colour,
+logit opacity, log scales, quaternion. --full-sh writes them in the reference 3DGS layout instead: the
+same properties plus f_rest_0..44, zero (SH degree 3; the fit's colour is view-independent).
 
-A run with tracks exports every tracked frame; without tracks, its first-frame fit.
+--inria DIR writes one run frame (--frame K, default 0: the first) as the reference trainer's model
+folder, which its SIBR viewer opens: DIR/cfg_args, DIR/cameras.json (every session camera) and
+DIR/point_cloud/iteration_N/point_cloud.ply (full layout; N the fit's iteration count). DIR must not exist
+or be empty; the folder is written under a temporary name and renamed into place.
+
+A run with tracks exports every tracked frame; without tracks, its first-frame fit (run frame 0).
 """
 
 from __future__ import annotations
@@ -16,13 +22,33 @@ from mmcsplat.cli.options import add_progress
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("run", type=Path, help="run directory of `mmcsplat fit` (with RUN/tracks.zarr after `mmcsplat track`)")
-    parser.add_argument("--ply", type=Path, required=True, metavar="DIR", help="directory to write the PLY files into")
+    parser.add_argument("--ply", type=Path, metavar="DIR", help="directory to write one PLY per run frame into")
+    parser.add_argument("--full-sh", action="store_true",
+                        help="--ply files in the reference 3DGS layout (f_rest_0..44 zero-padded to SH degree 3) instead of SH degree 0")
+    parser.add_argument("--inria", type=Path, metavar="DIR",
+                        help="write the reference 3DGS trainer's model folder here (cfg_args, cameras.json, point_cloud/iteration_N/point_cloud.ply)")
+    parser.add_argument("--frame", type=int, metavar="K",
+                        help="the run frame --inria writes (0 to frames − 1; default 0, the first)")
     add_progress(parser)
 
 
 def run(args: argparse.Namespace) -> int:
-    from mmcsplat.outputs.ply import export_ply
+    from mmcsplat.cli.main import CommandError
+    from mmcsplat.outputs.ply import FULL_SH_DEGREE, export_ply
 
-    paths = export_ply(args.run, args.ply, progress=not args.no_progress)
-    print(f"{args.ply}: {len(paths)} PLY file(s), {paths[0].name} … {paths[-1].name}")
+    if args.ply is None and args.inria is None:
+        raise CommandError("choose at least one output: --ply DIR or --inria DIR")
+    if args.full_sh and args.ply is None:
+        raise CommandError("--full-sh sets the layout of --ply files (--inria always writes the full layout)")
+    if args.frame is not None and args.inria is None:
+        raise CommandError("--frame picks the run frame of --inria (--ply writes every frame)")
+    if args.inria is not None:
+        from mmcsplat.outputs.inria_model import export_inria
+
+        frame = args.frame or 0
+        ply = export_inria(args.run, args.inria, frame=frame)
+        print(f"{args.inria}: reference 3DGS model folder of run frame {frame}, {ply.relative_to(args.inria)}")
+    if args.ply is not None:
+        paths = export_ply(args.run, args.ply, progress=not args.no_progress, sh_degree=FULL_SH_DEGREE if args.full_sh else 0)
+        print(f"{args.ply}: {len(paths)} PLY file(s), {paths[0].name} … {paths[-1].name}")
     return 0
