@@ -19,8 +19,10 @@ from mmcsplat.pipeline.evaluate import evaluate
 from mmcsplat.pipeline.track import track_run
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.render_contract import Gaussians, RenderCameras
+from mmcsplat.plugins.dynamics import deformation
 from mmcsplat.plugins.dynamics.deformation import CHECKPOINT, DeformationDynamics, _Run
 from mmcsplat.plugins.dynamics.deformation_field import DeformationField, sinusoidal_encoding
+from mmcsplat.storage.curves import read_curves
 from mmcsplat.storage.session import SessionWriter
 from mmcsplat.storage.tracks import TrackReader
 
@@ -88,6 +90,7 @@ def test_follows_a_moving_subject(session, tmp_path):
 
 def test_killed_run_resumes_to_the_same_tracks(session, tmp_path, monkeypatch):
     settings = ["dynamics.iterations=40", "dynamics.checkpoint_every=10", "dynamics.densifier.start=5", "dynamics.densifier.every=10"]
+    monkeypatch.setattr(deformation, "CURVE_EVERY", 10)
     straight = write_fitted_run(tmp_path / "straight", session)
     track_run(straight, dynamics="deformation", overrides=settings, progress=False)
 
@@ -109,6 +112,10 @@ def test_killed_run_resumes_to_the_same_tracks(session, tmp_path, monkeypatch):
     assert a.num_gaussians == b.num_gaussians
     for k in (0, FRAMES - 1):
         np.testing.assert_array_equal(a.means(k), b.means(k))
+    # RUN/curves.csv: the resumed run's rows are the straight run's, none lost or repeated by the kill.
+    straight_rows, resumed_rows = ([row for row in read_curves(run) if row["stage"] == "track"] for run in (straight, resumed))
+    assert [row["step"] for row in straight_rows] == [10, 20, 30, 40]
+    assert [(r["step"], r["loss"], r["psnr"]) for r in resumed_rows] == [(r["step"], r["loss"], r["psnr"]) for r in straight_rows]
 
     shutil.rmtree(resumed / "tracks.zarr")  # a kept checkpoint of other settings is refused, not resumed
     with pytest.raises(ValueError, match="deformation.pt: its settings differ from this run.s"):

@@ -17,6 +17,7 @@ from mmcsplat.pipeline.track import TRACK_INFO, track_run
 from mmcsplat.plugins.dynamics.iterative import IterativeDynamics
 from mmcsplat.plugins.dynamics.rigidity import NeighbourGraph, RigidityPrior
 from mmcsplat.scene.quaternions import quat_multiply
+from mmcsplat.storage.curves import read_curves
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.storage.tracks import TrackReader
 from mmcsplat.training.model import GaussianModel, LearningRates
@@ -116,6 +117,13 @@ def test_track_writes_every_frame(tracked):
     assert info["method"] == "iterative" and info["params"] == {"iterations": 40, "means_lr": 1e-3}
     cameras = [frame["cameras"] for frame in info["summary"]["frames"]]
     assert cameras == [3, 4]  # cam_3 is absent at frame 1: skipped there
+    # RUN/curves.csv: the fit's rows kept, then one tracking row per tracked frame with its summary's means.
+    curve = read_curves(tracked)
+    tracking = [row for row in curve if row["stage"] == "track"]
+    assert [row["stage"] for row in curve] == sorted(row["stage"] for row in curve)  # fit, then track
+    assert [(row["step"], row["frame"]) for row in tracking] == [(40, 1), (80, 2)]
+    for row, frame in zip(tracking, info["summary"]["frames"], strict=True):
+        assert row["loss"] == pytest.approx(frame["loss"], rel=1e-5) and row["psnr"] == pytest.approx(frame["psnr"], rel=1e-5)
 
 
 def test_tracking_follows_the_subject(tracked, scene):

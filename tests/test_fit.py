@@ -13,6 +13,7 @@ from mmcsplat.configuration.config import load_config
 from mmcsplat.pipeline.evaluate import evaluate
 from mmcsplat.pipeline.fit import CHECKPOINT, FirstFrameFit
 from mmcsplat.pipeline.track import track_run
+from mmcsplat.storage.curves import read_curves
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.training.finite import NonFiniteError
 
@@ -66,6 +67,12 @@ def test_killed_run_resumes_to_the_same_parameters(session, tmp_path, monkeypatc
     assert (resumed_info["loss_min"], resumed_info["loss_final"]) == (straight_info["loss_min"], straight_info["loss_final"])
     # The resumed run says so; the straight one never resumed.
     assert (resumed_info["resumed_from"], straight_info["resumed_from"]) == (10, None) and resumed_info["version"] == 2
+    # RUN/curves.csv: one row per block, the same for both; no row of the killed stretch is repeated.
+    straight_curve, resumed_curve = (read_curves(tmp_path / run) for run in ("straight", "resumed"))
+    assert [row["step"] for row in straight_curve] == [4, 8, 12, 16, 20, 24, 28]
+    assert [(r["loss"], r["psnr"], r["gaussians"]) for r in resumed_curve] == [(r["loss"], r["psnr"], r["gaussians"]) for r in straight_curve]
+    assert min(row["loss"] for row in straight_curve) == pytest.approx(straight_info["loss_min"], rel=1e-5)
+    assert all(row["stage"] == "fit" and row["frame"] == 0 and 0 < row["psnr"] < 100 for row in straight_curve)
 
 
 def test_nan_stops_cleanly_keeping_the_last_good_checkpoint(session, tmp_path, monkeypatch):

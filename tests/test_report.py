@@ -17,6 +17,7 @@ from render_fixtures import add_tracks
 
 from mmcsplat.cli import main
 from mmcsplat.configuration.registry import default_registry
+from mmcsplat.storage.curves import TrainingCurve
 from mmcsplat.studies.cells import COMPLETE, CellOutcome
 from mmcsplat.studies.runner import write_results
 from mmcsplat.studies.spec import expand, load_study
@@ -57,6 +58,11 @@ def runs(tmp_path_factory):
     static = write_fitted_run(root / "static", session)
     run = add_tracks(write_fitted_run(root / "run", session), FRAMES)
     truth = write_ground_truth(root / "truth.zarr", FRAMES)
+    for stage, steps in (("fit", range(4, 44, 4)), ("track", range(1, FRAMES))):
+        curve = TrainingCurve(stage)
+        for step in steps:
+            curve.log(step=step, frame=0 if stage == "fit" else step, loss=1.0 / step, psnr=10.0 + step, gaussians=60)
+        curve.write(run)
     assert main(["evaluate", str(run), "--ground-truth", str(truth)]) == 0
     assert main(["render", str(run), "--novel", "--trajectories", "--depth", "--frames-per-segment", "1", "--no-progress"]) == 0
     assert main(["report", str(run)]) == 0
@@ -99,11 +105,12 @@ def test_run_page_shows_views_metrics_chart_and_renders(runs):
     run, _ = runs
     page = (run / "report.html").read_text()
     assert_self_contained(page)
-    for heading in ("Renders beside the ground truth", "<h3>cam_0</h3>", "Metrics", "Per camera", "Tracking", "Figures and videos"):
+    for heading in ("Renders beside the ground truth", "<h3>cam_0</h3>", "Metrics", "Per camera", "Tracking", "Training curves", "Figures and videos"):
         assert heading in page
-    # colour, depth, segmentation rendered and ground truth; the per-frame chart; the trajectory strip
+    # colour, depth, segmentation rendered and ground truth; the per-frame chart; the training curves; the trajectory strip
     pngs = embedded(page, "image/png")
-    assert len(pngs) == 3 * 2 + 1 + 1 and all(png.startswith(b"\x89PNG") for png in pngs)
+    assert "the first-frame fit (means over each round of the training cameras), then the tracking" in page
+    assert len(pngs) == 3 * 2 + 1 + 1 + 1 and all(png.startswith(b"\x89PNG") for png in pngs)
     assert "3D error, median (mm)" in page and "synthetic" in page
     metrics = json.loads((run / "metrics.json").read_text())
     assert "held-out masked PSNR, mask less its edge (dB)" in page and "mask share on the others&#x27; hull" in page
@@ -123,6 +130,7 @@ def test_untouched_run_says_which_commands_make_what_is_missing(runs, tmp_path):
     assert_self_contained(page)
     assert f"mmcsplat evaluate {static}" in page and f"mmcsplat track {static}" in page
     assert f"mmcsplat render {static} --trajectories --novel --depth" in page
+    assert "No curves.csv" in page
     assert len(embedded(page, "image/png")) == 6 and not embedded(page, "video/mp4")
 
 

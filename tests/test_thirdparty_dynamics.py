@@ -40,6 +40,8 @@ def test_constant_velocity_plugin_tracks_through_the_cli(tmp_path):
     assert done.returncode == 0, done.stderr
     record = json.loads((run / "track.json").read_text())
     assert record["summary"]["iterations_per_frame"] == 30
+    curve = (run / "curves.csv").read_text().splitlines()  # logged through TrackingContext.curve
+    assert len(curve) == FRAMES and curve[1].startswith("track,30,1,")
     tracks = TrackReader(run)
     assert tracks.method == "constant-velocity" and tracks.num_frames == FRAMES
     # The subject slides 5 mm per frame along x (its bent half moves more): one translation follows the slide.

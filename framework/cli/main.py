@@ -28,6 +28,7 @@ COMMANDS = {
     "stability": "stability",
     "render": "render",
     "export": "export",
+    "view": "view",
     "report": "report",
     "bench": "bench",
     "plugins": "plugins",

@@ -24,6 +24,7 @@ from mmcsplat.pipeline.evaluate import METRICS_FILE
 from mmcsplat.pipeline.fit import CHECKPOINT
 from mmcsplat.plugin_api.errors import InputError, MissingFileError
 from mmcsplat.storage.atomic import write_text_atomic
+from mmcsplat.storage.curves import CURVES_FILE, STAGES, read_curves
 from mmcsplat.storage.run_info import RUN_INFO
 
 if TYPE_CHECKING:  # torch-heavy modules are imported only when a run is reported
@@ -94,7 +95,8 @@ def run_report(run: Path, backend: str | None = None, registry: Registry | None 
     states = RunStates(run)
     renderer = RunRenderer(states, backend=backend, registry=registry, progress=False)
     metrics = json.loads((run / METRICS_FILE).read_text()) if (run / METRICS_FILE).is_file() else None
-    sections = [run_summary(states), views_section(renderer, backend or states.info.renderer), metrics_section(run, metrics), renders_section(run, states)]
+    sections = [run_summary(states), views_section(renderer, backend or states.info.renderer), metrics_section(run, metrics),
+                curves_section(run), renders_section(run, states)]
     return page(f"Run {Path(run).resolve()}", sections)
 
 
@@ -207,6 +209,43 @@ def per_frame_chart(metrics: dict[str, Any]) -> bytes:
         axes.grid(alpha=0.3)
     axes.set_xlabel("tracked frame")
     axes.xaxis.set_major_locator(MaxNLocator(integer=True))
+    buffer = io.BytesIO()
+    figure_.savefig(buffer, format="png", bbox_inches="tight")
+    return buffer.getvalue()
+
+
+def curves_section(run: Path) -> str:
+    """The training curves of ``RUN/curves.csv``: loss and PSNR against iterations, one column per stage."""
+    rows = read_curves(run)
+    if not rows:
+        return f'<h2>Training curves</h2><p class="note">No {CURVES_FILE}: the run was fitted by an mmcsplat that did not record curves.</p>'
+    stages = [stage for stage in STAGES if any(row["stage"] == stage for row in rows)]
+    caption = ("Loss and training-view PSNR as the training went: the first-frame fit (means over each round of the "
+               "training cameras)" + (", then the tracking" if "track" in stages else "") + f"; the numbers are in {CURVES_FILE}")
+    return "<h2>Training curves</h2>" + image(curves_chart(rows, stages), "training curves", caption)
+
+
+def curves_chart(rows: list[dict], stages: list[str]) -> bytes:
+    """PNG: loss (log scale) and PSNR against the stage's step, one column per stage."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    figure_ = Figure(figsize=(3.2 * len(stages) + 1, 3.6), dpi=100)
+    FigureCanvasAgg(figure_)
+    grid = figure_.subplots(2, len(stages), sharex="col", squeeze=False)
+    for column, stage in enumerate(stages):
+        mine = [row for row in rows if row["stage"] == stage]
+        steps = [row["step"] for row in mine]
+        loss_axes, psnr_axes = grid[:, column]
+        loss_axes.plot(steps, [row["loss"] for row in mine], color="C0", marker="." if len(mine) < 60 else None)
+        loss_axes.set_yscale("log")
+        loss_axes.set_title({"fit": "first-frame fit", "track": "tracking"}[stage], fontsize=9)
+        psnr_axes.plot(steps, [np.nan if row["psnr"] is None else row["psnr"] for row in mine], color="C1", marker="." if len(mine) < 60 else None)
+        psnr_axes.set_xlabel("iteration", fontsize=8)
+        for axes, label in ((loss_axes, "loss"), (psnr_axes, "PSNR (dB)")):
+            axes.grid(alpha=0.3)
+            if column == 0:
+                axes.set_ylabel(label, fontsize=8)
     buffer = io.BytesIO()
     figure_.savefig(buffer, format="png", bbox_inches="tight")
     return buffer.getvalue()

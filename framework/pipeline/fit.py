@@ -26,6 +26,7 @@ from mmcsplat.plugin_api.interfaces import Densifier, Initializer, Renderer, Sce
 from mmcsplat.plugin_api.render_contract import RenderCameras
 from mmcsplat.scene.camera import Camera
 from mmcsplat.scene.rig import rig_center, rig_scale
+from mmcsplat.storage.curves import TrainingCurve
 from mmcsplat.storage.locking import run_lock
 from mmcsplat.storage.run_info import COMPLETE, DIVERGED, RUN_INFO, RUNNING, RunInfo
 from mmcsplat.storage.run_log import run_log
@@ -46,26 +47,32 @@ CHECKPOINT = "checkpoint.pt"
 
 @attrs.define
 class BlockLosses:
-    """The loss averaged over each block of ``size`` iterations — one block of the camera schedule, every
-    training camera once — whose lowest (``lowest``) and latest (``last``) complete means run.json
-    records as ``loss_min`` and ``loss_final``. Single iterations each see another camera, so their
-    losses differ by the camera more than by the training; block means compare. A blow-up is a final
-    mean far above the lowest. Saved in the checkpoint, so a resumed fit records the same."""
+    """The loss and PSNR averaged over each block of ``size`` iterations — one block of the camera schedule,
+    every training camera once — whose lowest (``lowest``) and latest (``last``) complete loss means
+    run.json records as ``loss_min`` and ``loss_final``, and whose means are the fit's rows of
+    ``RUN/curves.csv``. Single iterations each see another camera, so their losses differ by the camera
+    more than by the training; block means compare. A blow-up is a final mean far above the lowest. Saved
+    in the checkpoint, so a resumed fit records the same."""
 
     size: int
     total: float = 0.0
+    psnr_total: float = 0.0
     count: int = 0
     lowest: float | None = None
     last: float | None = None
 
-    def add(self, loss: float) -> None:
-        """Count one iteration's loss; the block's mean is taken when it is complete."""
+    def add(self, loss: float, psnr: float) -> tuple[float, float] | None:
+        """Count one iteration; returns the block's (mean loss, mean PSNR) when it completes the block."""
         self.total += loss
+        self.psnr_total += psnr
         self.count += 1
-        if self.count == self.size:
-            self.last = self.total / self.size
-            self.lowest = self.last if self.lowest is None else min(self.lowest, self.last)
-            self.total, self.count = 0.0, 0
+        if self.count < self.size:
+            return None
+        self.last = self.total / self.size
+        self.lowest = self.last if self.lowest is None else min(self.lowest, self.last)
+        means = self.last, self.psnr_total / self.size
+        self.total, self.psnr_total, self.count = 0.0, 0.0, 0
+        return means
 
 
 def select_cameras(session: SessionReader, holdout: Sequence[str] | None) -> tuple[list[Camera], list[Camera]]:
@@ -172,11 +179,12 @@ class FirstFrameFit:
         model = self._initial_model(generator)
         schedule = CameraSchedule(len(self.views), generator)
         record = BlockLosses(len(self.views))
+        curve = TrainingCurve("fit")
         densify_state = self.densifier.initialize_state(self.scene.scale) if self.densifier else {}
         start, elapsed = 0, 0.0
         checkpoint = self.out / CHECKPOINT
         if checkpoint.exists():
-            start, elapsed, record = self._resume(checkpoint, model, generator, schedule, densify_state)
+            start, elapsed, record, curve.rows = self._resume(checkpoint, model, generator, schedule, densify_state)
             self.resumed_from = start
             logging.getLogger(__name__).info("resumed from the checkpoint at iteration %d", start)
         cameras = self._render_cameras()
@@ -201,12 +209,16 @@ class FirstFrameFit:
                     self.densifier.step_post_backward(model, densify_state, step, render)
                 self._prune(model, step)
                 check_finite(loss, model, step, "parameter")
-                record.add(loss.item())
-                if step % 10 == 0:
-                    bar.set_postfix(loss=f"{loss.item():.4f}", psnr=f"{view_psnr(image, view):.2f}", n=model.count)
+                psnr = view_psnr(image, view)
                 done = step + 1
+                block = record.add(loss.item(), psnr)
+                if block is not None:
+                    curve.log(step=done, frame=settings.frame, loss=block[0], psnr=block[1], gaussians=model.count,
+                              elapsed_s=time.perf_counter() - began)
+                if step % 10 == 0:
+                    bar.set_postfix(loss=f"{loss.item():.4f}", psnr=f"{psnr:.2f}", n=model.count)
                 if done % settings.checkpoint_every == 0 or done == settings.iterations:
-                    self._checkpoint(checkpoint, model, generator, schedule, record, densify_state, done, time.perf_counter() - began)
+                    self._checkpoint(checkpoint, model, generator, schedule, record, curve, densify_state, done, time.perf_counter() - began)
         except FitError as error:
             self._info(model, record, step, time.perf_counter() - began, DIVERGED, str(error)).write(self.out)
             raise
@@ -229,7 +241,8 @@ class FirstFrameFit:
 
     # -------------------------------------------------------------------------------- checkpointing
 
-    def _checkpoint(self, path: Path, model, generator, schedule, record: BlockLosses, densify_state, step: int, elapsed: float) -> None:
+    def _checkpoint(self, path: Path, model, generator, schedule, record: BlockLosses, curve: TrainingCurve, densify_state, step: int,
+                    elapsed: float) -> None:
         state = {
             "step": step,
             "elapsed": elapsed,
@@ -237,23 +250,27 @@ class FirstFrameFit:
             "generator": generator.get_state(),
             "schedule": list(schedule.queue),
             "losses": attrs.asdict(record),
+            "curve": curve.rows,
             "densifier": densify_state,
         }
         save_checkpoint(path, self._key(), state)
+        curve.write(self.out)
         self._info(model, record, step, elapsed, RUNNING if step < self.settings.iterations else COMPLETE).write(self.out)
 
     def _key(self) -> dict[str, Any]:
         """What a checkpoint must have been written with to be resumed."""
         return {"configuration": self.config.values, "session": self.session.url, "training cameras": [c.name for c in self.train_cameras]}
 
-    def _resume(self, path: Path, model, generator, schedule, densify_state) -> tuple[int, float, BlockLosses]:
+    def _resume(self, path: Path, model, generator, schedule, densify_state) -> tuple[int, float, BlockLosses, list[dict]]:
         payload = resume_checkpoint(path, self._key(), "use a new --out or delete the checkpoint")
         model.load_state_dict(payload["model"])
         generator.set_state(payload["generator"])
         schedule.queue = list(payload["schedule"])
         densify_state.clear()
         densify_state.update(payload["densifier"])
-        return int(payload["step"]), float(payload["elapsed"]), BlockLosses(**payload["losses"])
+        # A checkpoint of an older mmcsplat holds no curve (or PSNR sum): the curve restarts from here.
+        losses = {"psnr_total": 0.0, **payload["losses"]}
+        return int(payload["step"]), float(payload["elapsed"]), BlockLosses(**losses), list(payload.get("curve", []))
 
     def _info(self, model: GaussianModel, record: BlockLosses, step: int, elapsed: float, status: str, error: str | None = None) -> RunInfo:
         return RunInfo(

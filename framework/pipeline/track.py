@@ -121,9 +121,11 @@ def track_run(
         try:
             summary = method.track(context, run)
         except BaseException as error:
+            context.curve.write(run)  # what was logged before the stop: a failed track's curve shows why
             log.error("tracking stopped: %s", f"{type(error).__name__}: {error}" if str(error) else type(error).__name__)
             raise
         wall = time.perf_counter() - began
+        context.curve.write(run)
         log.info("tracked %d frames in %.1f s", len(context.frames), wall)
         record = {
             "method": choice.name,

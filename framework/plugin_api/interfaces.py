@@ -18,6 +18,7 @@ import attrs
 import numpy as np
 
 from mmcsplat.scene.camera import Camera
+from mmcsplat.storage.curves import TrainingCurve
 
 if TYPE_CHECKING:  # heavy imports only for type checkers
     import torch
@@ -239,6 +240,9 @@ class TrackingContext:
     views: Callable[[int], list[TrainingView]]
     progress: bool = True
     overwrite: bool = False
+    #: Where a method logs its loss and PSNR per logged step (``curve.log(step=…, frame=…, loss=…, psnr=…)``);
+    #: the pipeline writes it to ``RUN/curves.csv`` and the report plots it.
+    curve: TrainingCurve = attrs.field(factory=lambda: TrainingCurve("track"))
 
 
 class Dynamics(ABC):

@@ -44,6 +44,7 @@ CHECKPOINT = "deformation.pt"
 #: Deformed parameters; the others are static over the sequence.
 DEFORMED = ("means", "quats", "log_scales")
 STATIC = ("opacity_logits", "color_logits", "seg_logits")
+CURVE_EVERY = 100  # iterations between the rows this method logs to RUN/curves.csv
 
 
 @attrs.frozen
@@ -178,6 +179,9 @@ class _Run:
                 bar.set_postfix(loss=f"{loss.item():.4f}", psnr=f"{psnr:.2f}", n=model.count)
             self.step = step + 1
             self.elapsed = time.perf_counter() - began
+            if self.step % CURVE_EVERY == 0:  # the mean of the last 10 logged iterations, over random frames and cameras
+                loss_mean, psnr_mean = np.mean(self.recent[-10:], axis=0).tolist()
+                context.curve.log(step=self.step, frame=None, loss=loss_mean, psnr=psnr_mean, gaussians=model.count, elapsed_s=self.elapsed)
             if self.step % settings.checkpoint_every == 0 or self.step == settings.iterations:
                 self._checkpoint(checkpoint)
         bar.close()
@@ -190,7 +194,7 @@ class _Run:
 
     def _checkpoint(self, path: Path) -> None:
         save_checkpoint(path, self._key(), {
-            "step": self.step, "elapsed": self.elapsed, "recent": self.recent,
+            "step": self.step, "elapsed": self.elapsed, "recent": self.recent, "curve": self.context.curve.rows,
             "model": self.model.state_dict(), "field": self.field.state_dict(), "optimizer": self.optimizer.state_dict(),
             "generator": self.generator.get_state(), "densifier": self.densify_state,
         })
@@ -204,6 +208,7 @@ class _Run:
         self.densify_state.clear()
         self.densify_state.update(payload["densifier"])
         self.step, self.elapsed, self.recent = int(payload["step"]), float(payload["elapsed"]), list(payload["recent"])
+        self.context.curve.rows[:] = payload.get("curve", [])
         self.resumed_from = self.step
 
     # --------------------------------------------------------------------------------------- output

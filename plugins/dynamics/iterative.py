@@ -118,6 +118,7 @@ class IterativeDynamics(Dynamics):
                 results.append(result)
                 writer.write_frame(k, **self._dynamic(model))
                 if result.loss is not None:
+                    context.curve.log(step=k * self.iterations, frame=t, loss=result.loss, psnr=result.psnr, gaussians=model.count)
                     frames.set_postfix(loss=f"{result.loss:.4f}", psnr=f"{result.psnr:.2f}")
         return {
             "iterations_per_frame": self.iterations,

@@ -61,6 +61,7 @@ class ConstantVelocityDynamics(Dynamics):
                     optimizer.step()
                     if step == self.iterations - 1:
                         psnrs.append(view_psnr(image, view))
+                        context.curve.log(step=k * self.iterations, frame=t, loss=loss.item(), psnr=psnrs[-1])
                 shifts.append(shift.detach())
                 writer.write_frame(k, means=params["means"] + moving * shifts[-1], quats=params["quats"])
         return {"iterations_per_frame": self.iterations, "moving_gaussians": int(moving.sum()),
