@@ -6,9 +6,9 @@ from mmcsplat import Registration, hookimpl, needs_modules
 
 
 def _cuda_unavailable() -> str | None:
-    missing = needs_modules("gsplat")()
+    missing = needs_modules("gsplat", extra="cuda")()
     if missing:
-        return f"{missing}; install the 'cuda' extra"
+        return missing
     import torch
 
     return None if torch.cuda.is_available() else "no CUDA device"
@@ -23,7 +23,7 @@ def mmcsplat_renderers() -> list[Registration]:
                      "fast CPU path: compiled tile kernels with a hand-written backward",
                      needs_modules("numba")),
         Registration("jax", "mmcsplat.backends.jax_renderer:JaxRenderer",
-                     "JAX, jit-compiled with bucketed static shapes", needs_modules("jax")),
+                     "JAX, jit-compiled with bucketed static shapes", needs_modules("jax", extra="jax")),
         Registration("torch-cuda", "mmcsplat.backends.torch_cuda:GsplatRenderer",
                      "gsplat's CUDA rasterization()", _cuda_unavailable),
     ]

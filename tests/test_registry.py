@@ -196,3 +196,11 @@ def test_bad_parameters_name_the_plugin():
     registry = Registry(plugin_modules=[("strict", "strict-dist", module)])
     with pytest.raises(Exception, match=r"metric 'strict'.*rejected its parameters"):
         registry.create("metric", "strict", no_such_parameter=1)
+
+
+def test_a_missing_module_names_the_extra_that_installs_it():
+    from mmcsplat import needs_modules
+
+    assert needs_modules("json")() is None
+    assert needs_modules("mmcsplat_no_such_module", extra="jax")() == "needs mmcsplat_no_such_module (not installed): pip install 'mmcsplat[jax]'"
+    assert needs_modules("mmcsplat_no_such_module")() == "needs mmcsplat_no_such_module (not installed)"

@@ -13,12 +13,15 @@ from typing import Any, Protocol
 import attrs
 
 
-def needs_modules(*modules: str) -> Callable[[], str | None]:
-    """An availability check: the reason the implementation cannot run when a module is missing."""
+def needs_modules(*modules: str, extra: str | None = None) -> Callable[[], str | None]:
+    """An availability check: the reason the implementation cannot run when a module is missing, with the
+    package ``extra`` that installs it when there is one."""
 
     def check() -> str | None:
         missing = [module for module in modules if importlib.util.find_spec(module) is None]
-        return f"needs {', '.join(missing)} (not installed)" if missing else None
+        if not missing:
+            return None
+        return f"needs {', '.join(missing)} (not installed)" + (f": pip install 'mmcsplat[{extra}]'" if extra else "")
 
     return check
 
