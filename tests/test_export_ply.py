@@ -161,7 +161,7 @@ def test_inria_export_of_a_run_without_tracks_is_its_fit(runs, tmp_path):
 
 
 @pytest.mark.parametrize(("arguments", "message"), [
-    (["--inria", "{tmp}/full"], "already exists and is not an empty directory"),
+    (["--inria", "{tmp}/full"], "already exists and is not an empty folder"),
     (["--inria", "{tmp}/new", "--frame", str(FRAMES)], f"run frame {FRAMES} does not exist"),
     ([], "choose at least one output"),
     (["--inria", "{tmp}/new", "--full-sh"], "--full-sh sets the layout of --ply files"),
@@ -174,3 +174,30 @@ def test_inria_export_errors_are_one_line(runs, tmp_path, capsys, arguments, mes
     error = capsys.readouterr().err
     assert message in error and error.count("\n") == 1
     assert sorted(path.name for path in tmp_path.iterdir()) == ["full"] and (tmp_path / "full" / "keep.txt").read_text() == "mine"
+
+
+def test_transforms_folder_holds_the_rig_and_the_fitted_frame(runs, tmp_path):
+    import cv2
+
+    out = tmp_path / "ns"
+    assert main(["export", str(runs[1]), "--transforms", str(out)]) == 0
+    info = RunInfo.read(runs[1])
+    session = SessionReader(info.session)
+    document = json.loads((out / "transforms.json").read_text())
+    assert document["camera_model"] == "OPENCV" and len(document["frames"]) == len(session.camera_names)
+    assert document["train_filenames"] == [f"images/{name}.png" for name in info.train_cameras]
+    assert document["val_filenames"] == [f"images/{name}.png" for name in info.heldout_cameras]
+    for name, entry in zip(session.camera_names, document["frames"], strict=True):
+        camera = session.camera(name)
+        c2w = np.array(entry["transform_matrix"]) @ np.diag([1.0, -1.0, -1.0, 1.0])  # OpenGL axes back to OpenCV's
+        np.testing.assert_allclose(c2w[:3, :3], camera.R.T, atol=1e-12)
+        np.testing.assert_allclose(c2w[:3, 3], camera.center, atol=1e-12)
+        # A pixel's centre: (u, v) in mmcsplat, (u + 0.5, v + 0.5) in nerfstudio.
+        assert (entry["cx"] - 0.5, entry["cy"] - 0.5, entry["fl_x"], entry["fl_y"]) == pytest.approx(
+            (camera.K[0, 2], camera.K[1, 2], camera.K[0, 0], camera.K[1, 1]))
+        assert (entry["w"], entry["h"]) == (camera.width, camera.height)
+        frame = session.frame(info.frame, name)
+        np.testing.assert_array_equal(cv2.imread(str(out / entry["file_path"]))[..., ::-1], frame.rgb)
+        np.testing.assert_array_equal(cv2.imread(str(out / entry["mask_path"]), cv2.IMREAD_GRAYSCALE) > 127, frame.mask)
+    assert not list(tmp_path.glob(".ns*"))
+    assert main(["export", str(runs[1]), "--transforms", str(out)]) == 2  # an existing folder is never replaced

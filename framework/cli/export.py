@@ -9,6 +9,10 @@ folder, which its SIBR viewer opens: DIR/cfg_args, DIR/cameras.json (every sessi
 DIR/point_cloud/iteration_N/point_cloud.ply (full layout; N the fit's iteration count). DIR must not exist
 or be empty; the folder is written under a temporary name and renamed into place.
 
+--transforms DIR writes the rig and the fitted frame's images (and masks) as a nerfstudio dataset folder:
+DIR/transforms.json (OPENCV intrinsics per camera, camera-to-world in OpenGL axes, train/val split as the
+run's) and DIR/images/CAMERA.png; the cameras.json of --inria is the reference trainer's view of the rig.
+
 A run with tracks exports every tracked frame; without tracks, its first-frame fit (run frame 0).
 """
 
@@ -27,6 +31,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="--ply files in the reference 3DGS layout (f_rest_0..44 zero-padded to SH degree 3) instead of SH degree 0")
     parser.add_argument("--inria", type=Path, metavar="DIR",
                         help="write the reference 3DGS trainer's model folder here (cfg_args, cameras.json, point_cloud/iteration_N/point_cloud.ply)")
+    parser.add_argument("--transforms", type=Path, metavar="DIR",
+                        help="write the rig and the fitted frame's images as a nerfstudio dataset folder (transforms.json, images/, masks/)")
     parser.add_argument("--frame", type=int, metavar="K",
                         help="the run frame --inria writes (0 to frames − 1; default 0, the first)")
     add_progress(parser)
@@ -36,8 +42,8 @@ def run(args: argparse.Namespace) -> int:
     from mmcsplat.cli.main import CommandError
     from mmcsplat.outputs.ply import FULL_SH_DEGREE, export_ply
 
-    if args.ply is None and args.inria is None:
-        raise CommandError("choose at least one output: --ply DIR or --inria DIR")
+    if args.ply is None and args.inria is None and args.transforms is None:
+        raise CommandError("choose at least one output: --ply DIR, --inria DIR or --transforms DIR")
     if args.full_sh and args.ply is None:
         raise CommandError("--full-sh sets the layout of --ply files (--inria always writes the full layout)")
     if args.frame is not None and args.inria is None:
@@ -48,6 +54,11 @@ def run(args: argparse.Namespace) -> int:
         frame = args.frame or 0
         ply = export_inria(args.run, args.inria, frame=frame)
         print(f"{args.inria}: reference 3DGS model folder of run frame {frame}, {ply.relative_to(args.inria)}")
+    if args.transforms is not None:
+        from mmcsplat.outputs.transforms_json import export_transforms
+
+        path = export_transforms(args.run, args.transforms)
+        print(f"{path}: nerfstudio dataset of the fitted frame")
     if args.ply is not None:
         paths = export_ply(args.run, args.ply, progress=not args.no_progress, sh_degree=FULL_SH_DEGREE if args.full_sh else 0)
         print(f"{args.ply}: {len(paths)} PLY file(s), {paths[0].name} … {paths[-1].name}")

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import uuid
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -30,7 +29,7 @@ from mmcsplat.outputs.ply import FULL_SH_DEGREE, write_ply
 from mmcsplat.outputs.run_frames import RunStates
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.scene.camera import Camera
-from mmcsplat.storage.atomic import remove_local_tree, write_json_atomic, write_text_atomic
+from mmcsplat.storage.atomic import new_folder, write_json_atomic, write_text_atomic
 
 WHITE = (1.0, 1.0, 1.0)
 
@@ -66,24 +65,12 @@ def export_inria(run: str | Path, out: str | Path, frame: int = 0) -> Path:
     states = RunStates(run)
     if not 0 <= frame < states.num_frames:
         raise InputError(f"{states.run}: run frame {frame} does not exist (the run has frames 0 to {states.num_frames - 1})")
-    out = Path(out)
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
-        raise InputError(f"{out} already exists and is not an empty directory: the model folder is written whole into a new one")
     cameras = [states.session.camera(name) for name in states.session.camera_names]
-    out.parent.mkdir(parents=True, exist_ok=True)
-    temporary = out.parent / f".{out.name}.{uuid.uuid4().hex}.tmp"
-    temporary.mkdir()
-    try:
-        model_path = os.path.abspath(out)
-        write_text_atomic(temporary / "cfg_args", cfg_args(states.info.session, model_path, states.background == WHITE))
-        write_json_atomic(temporary / "cameras.json", camera_entries(cameras))
-        ply = point_cloud_path(states.info.iterations)
-        (temporary / ply).parent.mkdir(parents=True)
-        write_ply(temporary / ply, states.params(frame), FULL_SH_DEGREE)
-        if out.exists():
-            out.rmdir()
-        os.replace(temporary, out)
-    except BaseException:
-        remove_local_tree(temporary)
-        raise
+    out = Path(out)
+    ply = point_cloud_path(states.info.iterations)
+    with new_folder(out) as folder:
+        write_text_atomic(folder / "cfg_args", cfg_args(states.info.session, os.path.abspath(out), states.background == WHITE))
+        write_json_atomic(folder / "cameras.json", camera_entries(cameras))
+        (folder / ply).parent.mkdir(parents=True)
+        write_ply(folder / ply, states.params(frame), FULL_SH_DEGREE)
     return out / ply

@@ -45,6 +45,29 @@ def write_json_atomic(path: str | os.PathLike, payload: Any) -> None:
     write_text_atomic(path, json.dumps(payload, indent=2))
 
 
+@contextmanager
+def new_folder(path: str | os.PathLike) -> Iterator[Path]:
+    """Yield a temporary folder beside ``path`` to fill; on success it becomes ``path``, on error it is
+    removed: a reader never sees a half-written folder. ``path`` must not exist or be an empty folder
+    (an error naming it otherwise: nothing the user made is replaced)."""
+    from mmcsplat.plugin_api.errors import OutputExistsError
+
+    path = Path(path)
+    if path.exists() and (not path.is_dir() or any(path.iterdir())):
+        raise OutputExistsError(f"{path} already exists and is not an empty folder: give a new one")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    temporary = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    os.chmod(temporary, 0o777 & ~_umask())
+    try:
+        yield temporary
+        if path.exists():
+            path.rmdir()
+        os.replace(temporary, path)
+    except BaseException:
+        remove_local_tree(temporary)
+        raise
+
+
 def remove_leftovers(folder: Path, prefix: str) -> None:
     """Delete what killed writers left in ``folder``: entries named ``prefix`` + anything (their partial
     or replaced copies). Only a writer holding the lock of what it writes may call it."""
