@@ -68,6 +68,9 @@ def test_the_scene_follows_the_frame_slider(viewer, run):
     session = viewer.states.session
     assert sorted(key for key in viewer.handles if key.startswith("camera ")) == sorted(f"camera {name}" for name in session.camera_names)
     assert viewer.frame.min == 0 and viewer.frame.max == FRAMES - 1 and viewer.view_from.value == "cam_0"
+    assert not viewer.handles["camera cam_0"].visible and viewer.handles["camera cam_1"].visible
+    viewer.look_from("cam_2")  # what choosing it in "view from" does: the frustum looked through is hidden
+    assert [viewer.handles[f"camera {name}"].visible for name in session.camera_names] == [name != "cam_2" for name in session.camera_names]
     viewer.frame.value = FRAMES - 1  # what a user's drag does: the callback redraws
     viewer.show(FRAMES - 1)
     np.testing.assert_allclose(viewer.handles["gaussians"].centers, expected_means(run, FRAMES - 1), atol=1e-5)

@@ -34,8 +34,10 @@ def run(args: argparse.Namespace) -> int:
     print(f"{args.run}: {frames} frame(s), {len(viewer.cameras)} cameras — viewer at {viewer.url} (Ctrl-C stops it)", flush=True)
     try:
         viewer.serve_forever()
-    except KeyboardInterrupt as interrupt:
-        if isinstance(interrupt, Terminated):
-            raise
+    except Terminated:
+        print("viewer stopped (SIGTERM)")
+        return 143
+    except KeyboardInterrupt:
+        pass
     print("viewer stopped")  # Ctrl-C is how a viewer ends: a normal exit
     return 0

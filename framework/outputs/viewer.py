@@ -87,7 +87,8 @@ class RunViewer:
         self.handles: dict[str, object] = {}
         self._add_cameras()
         self._add_controls()
-        self.server.on_client_connect(lambda client: self._look_from(client, self.view_from.value))
+        self.server.on_client_connect(lambda client: self._move(client, self.view_from.value))
+        self.look_from(self.view_from.value)
         self.show(0)
 
     @property
@@ -125,9 +126,17 @@ class RunViewer:
         self.view_from = gui.add_dropdown("view from", names, initial_value=default)
         for control in (self.frame, self.points, self.trails):
             control.on_update(lambda _: self.show(self.frame.value - first))
-        self.view_from.on_update(lambda event: [self._look_from(client, self.view_from.value) for client in self.server.get_clients().values()])
+        self.view_from.on_update(lambda _: self.look_from(self.view_from.value))
 
-    def _look_from(self, client, name: str) -> None:
+    def look_from(self, name: str) -> None:
+        """Put every connected browser's camera at session camera ``name`` and hide its frustum (from
+        inside, its image would cover the scene)."""
+        for camera in self.cameras:
+            self.handles[f"camera {camera.name}"].visible = camera.name != name
+        for client in self.server.get_clients().values():
+            self._move(client, name)
+
+    def _move(self, client, name: str) -> None:
         camera = next(camera for camera in self.cameras if camera.name == name)
         wxyz, position = camera_pose(camera)
         with client.atomic():
@@ -172,4 +181,5 @@ class RunViewer:
                 if self.playing.value and self.states.num_frames > 1:
                     self.step()
         finally:
-            self.server.stop()
+            with contextlib.redirect_stdout(io.StringIO()):  # viser announces its stop; the command says it once
+                self.server.stop()
