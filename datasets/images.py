@@ -22,14 +22,13 @@ from mmcsplat.datasets.rig import (
     common_length,
     find_calibration,
     fit_camera,
-    match_cameras,
-    natural_key,
 )
 from mmcsplat.plugin_api.errors import InputError, NotAFolderError
 from mmcsplat.plugin_api.interfaces import Reader, RecordedFrame, Recording
 from mmcsplat.plugin_api.parameters import finite_positive, one_of, parameter
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.calibration import read_calibration
+from mmcsplat.storage.camera_names import match_cameras, natural_key
 from mmcsplat.storage.capture_files import PLATES_FOLDER, read_image
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")

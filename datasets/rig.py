@@ -1,19 +1,14 @@
-"""What the readers of real-rig layouts (``videos``, ``images``) share: finding the calibration, matching
-files to calibrated cameras by name, reconciling decoded image sizes and frame counts, and the optional
-``ground_truth.zarr`` the synthetic capture writes next to its videos.
-
-Name matching: a file (or folder) belongs to a calibrated camera when its stem equals the camera's name,
-or else when both have the same *name key*: the lower-cased runs of letters and of digits, with digit runs
-compared as numbers and every other character ignored (so ``cam_01`` ↔ ``cam01.mp4`` ↔ ``Cam-1.avi``).
-Two files with the same key are ambiguous and an error.
+"""What the readers of real-rig layouts (``videos``, ``images``) share: finding the calibration,
+reconciling decoded image sizes and frame counts, and the optional ``ground_truth.zarr`` the synthetic
+capture writes next to its videos. Files are matched to calibrated cameras by
+:func:`mmcsplat.storage.camera_names.match_cameras`.
 """
 
 from __future__ import annotations
 
-import re
 import warnings
 from abc import abstractmethod
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 
 import attrs
@@ -29,16 +24,6 @@ SIZE_MISMATCH_POLICIES = ("scale", "crop", "error")
 #: Above this relative difference between the horizontal and vertical factors, scaling K makes no sense.
 MAX_ANISOTROPY = 0.05
 GROUND_TRUTH = "ground_truth.zarr"
-
-
-def natural_key(text: str) -> tuple:
-    """A sort key that orders digit runs as numbers (``frame2`` before ``frame10``)."""
-    return tuple((0, int(part), "") if part.isdigit() else (1, 0, part) for part in re.findall(r"\d+|\D+", text.lower()))
-
-
-def name_key(name: str) -> tuple:
-    """The fuzzy identity of a camera name: letter runs and digit runs (as numbers), separators ignored."""
-    return tuple(int(part) if part.isdigit() else part for part in re.findall(r"[a-z]+|\d+", name.lower()))
 
 
 def find_calibration(source: Path, calibration: Path | None) -> Path:
@@ -58,65 +43,6 @@ def find_calibration(source: Path, calibration: Path | None) -> Path:
         raise MissingFileError(f"{source}: no calibration.toml (or other *.toml) found; pass --calibration")
     names = ", ".join(path.name for path in candidates)
     raise InputError(f"{source}: several calibration files ({names}); choose one with --calibration")
-
-
-def _within(outer: tuple, inner: tuple) -> bool:
-    """Whether the name key ``inner`` (which must hold a number) runs contiguously inside ``outer``."""
-    if not any(isinstance(part, int) for part in inner):
-        return False
-    return any(outer[i : i + len(inner)] == inner for i in range(len(outer) - len(inner) + 1))
-
-
-def match_cameras(cameras: Sequence[Camera], paths: Iterable[Path], what: str, where: Path,
-                  camera_map: Mapping[str, str] | None = None) -> dict[str, Path]:
-    """Camera name → its file: by ``camera_map`` (calibration name → file stem) where given, else by the
-    module's name rule — the same stem, else the same name key, else a file whose key runs inside the
-    camera's (Pose2Sim names ``cam01.mp4``'s camera ``int_cam01_img``); an error naming any camera without
-    one. Files that match no camera are ignored with a warning.
-    """
-    by_stem: dict[str, Path] = {}
-    by_key: dict[tuple, list[Path]] = {}
-    for path in paths:
-        label = path.stem if path.is_file() else path.name
-        by_stem[label] = path
-        by_key.setdefault(name_key(label), []).append(path)
-    unknown = sorted(set(camera_map or {}) - {camera.name for camera in cameras})
-    if unknown:
-        raise InputError(f"{where}: camera_map names {', '.join(map(repr, unknown))}, not calibrated cameras "
-                         f"({', '.join(camera.name for camera in cameras)})")
-    matched: dict[str, Path] = {}
-    for camera in cameras:
-        if camera_map and camera.name in camera_map:
-            if camera_map[camera.name] not in by_stem:
-                raise MissingFileError(f"{where}: camera_map gives {camera_map[camera.name]!r} for camera {camera.name!r}, but no {what} "
-                                       f"is called so (found: {', '.join(sorted(by_stem, key=natural_key)) or 'none'})")
-            matched[camera.name] = by_stem[camera_map[camera.name]]
-            continue
-        if camera.name in by_stem:
-            matched[camera.name] = by_stem[camera.name]
-            continue
-        candidates = by_key.get(name_key(camera.name), [])
-        if not candidates:
-            candidates = [path for key, found in by_key.items() if _within(name_key(camera.name), key) for path in found]
-        if len(candidates) > 1:
-            names = ", ".join(sorted(path.name for path in candidates))
-            raise InputError(f"{where}: camera {camera.name!r} matches several {what}s ({names}); rename them")
-        if not candidates:
-            available = ", ".join(sorted(by_stem, key=natural_key)) or "none"
-            raise MissingFileError(f"{where}: no {what} for calibrated camera {camera.name!r} (found: {available}); map names with "
-                                   f"--set 'camera_map={{{camera.name}=\"FILE_STEM\"}}'")
-        matched[camera.name] = candidates[0]
-    owners: dict[Path, list[str]] = {}
-    for name, path in matched.items():
-        owners.setdefault(path, []).append(name)
-    shared = {path: names for path, names in owners.items() if len(names) > 1}
-    if shared:
-        path, names = next(iter(shared.items()))
-        raise InputError(f"{where}: cameras {', '.join(map(repr, names))} both match {path.name}; say which is which with --set camera_map")
-    unused = sorted(set(by_stem.values()) - set(matched.values()))
-    if unused:
-        warnings.warn(f"{where}: ignoring {what}s of no calibrated camera: {', '.join(p.name for p in unused)}", stacklevel=3)
-    return matched
 
 
 #: The ``camera_map`` parameter of the readers that match files to calibrated cameras.

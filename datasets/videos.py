@@ -17,12 +17,13 @@ from pathlib import Path
 import attrs
 import numpy as np
 
-from mmcsplat.datasets.rig import CAMERA_MAP_PARAMETER, SIZE_MISMATCH_PARAMETER, RigRecording, common_length, find_calibration, fit_camera, match_cameras
+from mmcsplat.datasets.rig import CAMERA_MAP_PARAMETER, SIZE_MISMATCH_PARAMETER, RigRecording, common_length, find_calibration, fit_camera
 from mmcsplat.plugin_api.errors import InputError, NotAFolderError
 from mmcsplat.plugin_api.interfaces import Reader, RecordedFrame, Recording
 from mmcsplat.plugin_api.parameters import parameter
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.calibration import read_calibration
+from mmcsplat.storage.camera_names import match_cameras
 
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv")
 #: Frame rate assumed for a video whose container states none.

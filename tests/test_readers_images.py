@@ -11,10 +11,10 @@ import rig_fixtures as rig
 
 from mmcsplat.configuration.registry import default_registry
 from mmcsplat.datasets.images import ImageSequenceReader
-from mmcsplat.datasets.rig import name_key, natural_key
 from mmcsplat.pipeline.ingest import detect_format, ingest
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.storage.calibration import write_calibration
+from mmcsplat.storage.camera_names import name_key, natural_key
 
 
 def _capture(folder: Path, names=("c1", "c2", "c3"), frames: int = 3) -> list:

@@ -15,8 +15,8 @@ from render_fixtures import add_tracks, fitted_run
 from mmcsplat.cli import main
 from mmcsplat.outputs.camera_path import camera_path, interpolate_camera, ring_order
 from mmcsplat.outputs.renders import default_frames_per_segment, draw_trails, trajectory_colors, trajectory_gaussians
-from mmcsplat.outputs.run_frames import RunStates
 from mmcsplat.outputs.video import probe_video, write_video
+from mmcsplat.pipeline.run_frames import RunStates
 
 FRAMES = 4
 TRAIN = 4  # the fitting scene's five cameras less the held-out cam_0

@@ -15,13 +15,13 @@ from mmcsplat.analysis.drift import off_subject
 from mmcsplat.analysis.trajectory_error import (
     GROUND_TRUTH_DIR,
     NothingFollowedError,
-    capture_frames,
     evaluate_tracks,
     find_ground_truth,
     follower_weights,
     read_surface_points,
     tracking_accuracy,
 )
+from mmcsplat.storage.session import SessionReader
 from mmcsplat.storage.tracks import TrackReader, TrackWriter
 
 T, P = 4, 30
@@ -87,7 +87,7 @@ def test_evaluate_reports_why_nothing_was_followed_instead_of_failing(tmp_path):
     zarr.open_group(str(path), mode="w", zarr_format=3).create_array("surface_points", data=truth)
     (tmp_path / "run").mkdir()
     write_tracks(tmp_path / "run", truth + [0.5, 0, 0])  # the whole fit 50 cm off the subject
-    metrics = evaluate_tracks(tmp_path / "run", SimpleNamespace(provenance={}), [], path)
+    metrics = evaluate_tracks(tmp_path / "run", SimpleNamespace(capture_frames=lambda frames: np.asarray(frames)), [], path)
     assert metrics["tracking_median_mm"] is metrics["tracking_p90_mm"] is metrics["tracking_2d_median_px"] is None
     assert (metrics["tracking_followed_points"], metrics["tracking_ground_truth_points"]) == (0, P)
     assert metrics["tracking_error"].startswith("no ground-truth surface point has a Gaussian within 10 mm at the first tracked frame")
@@ -101,8 +101,8 @@ def test_ground_truth_location_and_frame_mapping(tmp_path):
     assert find_ground_truth(SimpleNamespace(source=str(tmp_path))) is None
     assert find_ground_truth(SimpleNamespace(source="")) is None
     # ingest --frames 2:10:2 made session frame k capture frame 2 + 2k.
-    session = SimpleNamespace(provenance={"frames": [2, 10, 2]})
-    assert capture_frames(session, range(1, 4)).tolist() == [4, 6, 8]
+    capture_frames = SessionReader.capture_frames
+    assert capture_frames(SimpleNamespace(provenance={"frames": [2, 10, 2]}), range(1, 4)).tolist() == [4, 6, 8]
     assert capture_frames(SimpleNamespace(provenance={}), range(3)).tolist() == [0, 1, 2]
 
 

@@ -63,12 +63,6 @@ def find_ground_truth(session: SessionReader) -> Path | None:
     return candidate if candidate.is_dir() else None
 
 
-def capture_frames(session: SessionReader, frames: range) -> np.ndarray:
-    """The capture's frame numbers of session ``frames`` (ingest may have taken start:stop:step)."""
-    start, _, step = session.provenance.get("frames", [0, None, 1])
-    return start + np.asarray(frames) * (step or 1)
-
-
 def read_surface_points(path: str | Path, frames: np.ndarray) -> np.ndarray:
     """[len(frames), P, 3] ground-truth surface points (metres) at capture ``frames``."""
     import zarr
@@ -174,7 +168,7 @@ def evaluate_tracks(run: Path, session: SessionReader, heldout: list[str], groun
     if path is None:
         metrics.update(tracking_median_mm=None, tracking_p90_mm=None, tracking_2d_median_px=None)
         return metrics
-    truth = read_surface_points(path, capture_frames(session, frames))
+    truth = read_surface_points(path, session.capture_frames(frames))
     metrics.update(tracking_ground_truth=str(path), tracking_ground_truth_points=int(truth.shape[1]))
     try:
         accuracy = tracking_accuracy(tracks, truth, session.camera(heldout[0]) if heldout else None)

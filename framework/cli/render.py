@@ -33,7 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from mmcsplat.cli.main import CommandError
     from mmcsplat.outputs.renders import RunRenderer, render_depth, render_novel, render_trajectories
-    from mmcsplat.outputs.run_frames import RunStates
+    from mmcsplat.pipeline.run_frames import RunStates
 
     if not (args.novel or args.trajectories or args.depth):
         raise CommandError("choose at least one output: --novel, --trajectories or --depth")

@@ -145,10 +145,10 @@ def run_demo(out: Path, settings: DemoSettings = DemoSettings(), progress: bool 
     line per step."""
     from mmcsplat.outputs.renders import RunRenderer, render_novel, render_trajectories
     from mmcsplat.outputs.report import write_report
-    from mmcsplat.outputs.run_frames import RunStates
     from mmcsplat.pipeline.evaluate import evaluate
     from mmcsplat.pipeline.fit import FirstFrameFit
     from mmcsplat.pipeline.ingest import ingest
+    from mmcsplat.pipeline.run_frames import RunStates
     from mmcsplat.pipeline.segment import segment_session
     from mmcsplat.pipeline.track import track_run
     from mmcsplat.storage.run_info import RUN_INFO

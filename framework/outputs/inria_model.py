@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from mmcsplat.outputs.ply import FULL_SH_DEGREE, write_ply
-from mmcsplat.outputs.run_frames import RunStates
+from mmcsplat.pipeline.run_frames import RunStates
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.atomic import new_folder, write_json_atomic, write_text_atomic

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from mmcsplat.outputs.run_frames import RunStates
+from mmcsplat.pipeline.run_frames import RunStates
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.storage.atomic import atomic_path
 

@@ -20,8 +20,8 @@ import torch
 
 from mmcsplat.configuration.registry import Registry, default_registry
 from mmcsplat.outputs.camera_path import camera_path
-from mmcsplat.outputs.run_frames import RunStates
 from mmcsplat.outputs.video import write_png, write_video
+from mmcsplat.pipeline.run_frames import RunStates
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.interfaces import Renderer
 from mmcsplat.plugin_api.render_contract import NEAR_PLANE, RenderCameras, RenderOutput

@@ -29,7 +29,7 @@ from mmcsplat.storage.run_info import RUN_INFO
 
 if TYPE_CHECKING:  # torch-heavy modules are imported only when a run is reported
     from mmcsplat.outputs.renders import RunRenderer
-    from mmcsplat.outputs.run_frames import RunStates
+    from mmcsplat.pipeline.run_frames import RunStates
 
 REPORT_FILE = "report.html"
 RENDERS_DIR = "renders"
@@ -90,7 +90,7 @@ def write_report(path: Path, out: Path | None = None, backend: str | None = None
 def run_report(run: Path, backend: str | None = None, registry: Registry | None = None) -> str:
     """The page of a run directory."""
     from mmcsplat.outputs.renders import RunRenderer
-    from mmcsplat.outputs.run_frames import RunStates
+    from mmcsplat.pipeline.run_frames import RunStates
 
     states = RunStates(run)
     renderer = RunRenderer(states, backend=backend, registry=registry, progress=False)

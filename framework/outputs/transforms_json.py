@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from mmcsplat.outputs.run_frames import RunStates
+from mmcsplat.pipeline.run_frames import RunStates
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.atomic import new_folder, write_json_atomic
 

@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from mmcsplat.outputs.renders import TRAIL_FRAMES, trajectory_colors, trajectory_gaussians
-from mmcsplat.outputs.run_frames import RunStates
+from mmcsplat.pipeline.run_frames import RunStates
 from mmcsplat.scene.camera import Camera
 from mmcsplat.scene.quaternions import quat_to_rotmat
 

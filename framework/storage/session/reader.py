@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -109,6 +110,12 @@ class SessionReader(SessionBase):
         self.provenance: dict[str, Any] = attributes["provenance"]
         self.cache = FrameCache(cache_bytes)
         self._arrays: dict[tuple[str, str], Any] = {}
+
+    def capture_frames(self, frames: Sequence[int] | np.ndarray) -> np.ndarray:
+        """The frame numbers in the source capture of session ``frames`` (ingest may have taken
+        ``--frames START:STOP:STEP``)."""
+        start, _, step = self.provenance.get("frames", [0, None, 1])
+        return (start or 0) + np.asarray(frames, dtype=np.int64) * (step or 1)
 
     def __repr__(self) -> str:
         return f"SessionReader({self.url!r}: {len(self.cameras)} cameras, {self.num_frames} frames)"
