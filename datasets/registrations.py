@@ -16,4 +16,8 @@ def mmcsplat_readers() -> list[Registration]:
                      "Dynamic3DGaussians / CMU Panoptic (train_meta.json, ims/, seg/)"),
         Registration("dnerf", "mmcsplat.datasets.dnerf:DNeRFReader",
                      "D-NeRF / Blender (transforms_*.json, RGBA images; monocular)"),
+        Registration("nerfstudio", "mmcsplat.datasets.nerfstudio:NerfstudioReader",
+                     "nerfstudio (transforms.json: per-frame poses, intrinsics and OpenCV distortion)"),
+        Registration("colmap", "mmcsplat.datasets.colmap:ColmapReader",
+                     "a COLMAP sparse model (sparse/0/cameras, images: .bin or .txt) plus images/"),
     ]

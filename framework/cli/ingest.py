@@ -1,4 +1,4 @@
-"""Ingest a capture (a folder of videos, image sequences, d3dgs or D-NeRF data) into a session store.
+"""Ingest a capture (videos, image sequences, d3dgs, D-NeRF, nerfstudio or COLMAP data) into a session store.
 
 Frames are undistorted (stored cameras have zero distortion) and optionally rescaled; the session is
 written atomically, so a failed or interrupted ingest leaves no session behind.

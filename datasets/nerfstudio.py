@@ -1,0 +1,377 @@
+"""nerfstudio's ``transforms.json`` layout: posed images, each with pinhole intrinsics and OpenCV distortion.
+
+``transforms.json`` holds optional top-level intrinsics — ``fl_x``, ``fl_y``, ``cx``, ``cy``, ``w``, ``h``,
+the distortion ``k1``, ``k2``, ``k3``, ``k4``, ``p1``, ``p2`` and ``camera_model`` — and ``frames``, each
+with ``file_path`` (relative to the folder), ``transform_matrix`` (camera-to-world, OpenGL camera axes: x
+right, y up, looking along −z), optionally ``mask_path`` and its own intrinsics, which override the top
+level key by key. ``val_filenames`` / ``test_filenames`` (lists of file paths) mark held-out images.
+
+Conventions chosen here:
+
+- Camera models: ``OPENCV`` (the default when none is given) and ``PINHOLE``; both read the distortion
+  keys, as nerfstudio does. ``OPENCV_FISHEYE``, ``EQUIRECTANGULAR`` and any other model are refused. A
+  non-zero ``k4`` (nerfstudio's r⁸ term, which OpenCV's pinhole model lacks) is refused; the others
+  become OpenCV's (k1, k2, p1, p2[, k3]): none when all are zero, k3 only when it is non-zero.
+- Principal point: nerfstudio (like COLMAP) puts a pixel's centre at (u + 0.5, v + 0.5) — its rays pass
+  through pixel coordinates offset by half a pixel — whereas mmcsplat's pixel (u, v) is centred at (u, v),
+  so cx and cy are read minus 0.5 (the inverse of ``mmcsplat export --transforms``).
+- Cameras: OpenCV world-to-camera, obtained by flipping the camera's y and z axes
+  (:data:`mmcsplat.datasets.dnerf.GL_TO_CV`). A frame may name its camera with a ``camera`` key (a string
+  or a whole number; then every frame must, and a camera's frames must agree on pose and intrinsics);
+  otherwise frames with the same pose, intrinsics, size and distortion (to 9 decimals) are one camera.
+  When every camera has exactly one image, cameras are named after the image's file stem (when those are
+  unique), else ``cam_000``, ``cam_001``, … in order of first appearance.
+- Time: a frame's ``time`` key, or else its ``timestamp`` key, read as seconds (then every frame needs
+  one); frame indices are the sorted distinct times and fps is 1 / their median spacing. Without times,
+  every camera must have the same number of images: frame k of a camera is its k-th image in natural
+  order of ``file_path`` (one image per camera: a static capture of one frame) and the ``fps`` parameter
+  gives the frame rate. One camera with two images at one frame index is an error.
+- World: ``applied_transform`` (written by ``ns-process-data``) records the transform already applied to
+  the poses in the file; the poses are used as written and it is not applied again, only recorded in the
+  session's provenance. nerfstudio's dataparser_transforms.json (its own re-centring) is not read.
+- Images: RGB is read as stored (an alpha channel is dropped); ``mask_path`` gives a subject mask (values
+  above half the range, or the ones of a 0/1 image); with any ``mask_path``, every frame needs one.
+- Held out: a camera whose images are all listed in ``val_filenames`` or ``test_filenames``.
+- A separate ``--calibration`` is refused: the file gives every pose.
+
+:class:`PosedImageRecording`, the recording of posed images at frame indices, is shared with the
+``colmap`` reader.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import attrs
+import numpy as np
+
+from mmcsplat.datasets.dnerf import GL_TO_CV
+from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.plugin_api.interfaces import Reader, RecordedFrame, Recording
+from mmcsplat.plugin_api.parameters import finite_positive, parameter
+from mmcsplat.scene.camera import Camera
+from mmcsplat.storage.calibration import metres_per_unit
+from mmcsplat.storage.camera_names import natural_key
+from mmcsplat.storage.capture_files import read_image, read_json, read_mask, require_files
+
+#: Where mmcsplat's pixel centre (u, v) lies in nerfstudio's (and COLMAP's) pixel coordinates.
+PIXEL_CENTRE = 0.5
+_MODELS = ("OPENCV", "PINHOLE")
+_INTRINSICS = ("fl_x", "fl_y", "cx", "cy", "w", "h")
+_DISTORTION = ("k1", "k2", "k3", "k4", "p1", "p2")
+_DECIMALS = 9  # times, poses and intrinsics equal to this many decimals are the same
+
+
+@attrs.frozen
+class PosedImage:
+    """One image of a camera: its file, its mask file (if any) and where it was listed (for errors)."""
+
+    path: Path
+    mask: Path | None
+    listed: str
+
+
+class PosedImageRecording(Recording):
+    """Posed images placed at frame indices, decoded on demand: ``images[camera][t]`` is camera's image at
+    frame index ``t`` (absent where missing); ``times`` are the frame indices' seconds."""
+
+    def __init__(self, source: Path, cameras: Sequence[Camera], images: Mapping[str, Mapping[int, PosedImage]], times: np.ndarray,
+                 fps: float, heldout: Sequence[str] = (), provenance: Mapping[str, Any] | None = None) -> None:
+        self.source = source
+        self.cameras = list(cameras)
+        self.heldout = tuple(heldout)
+        self.num_frames = len(times)
+        self.fps = float(fps)
+        self.has_masks = any(image.mask is not None for by_index in images.values() for image in by_index.values())
+        self._times = np.asarray(times, dtype=np.float64)
+        self._images = {name: dict(by_index) for name, by_index in images.items()}
+        self._cameras = {camera.name: camera for camera in self.cameras}
+        self._provenance = dict(provenance or {})
+
+    def _camera_images(self, camera: str) -> dict[int, PosedImage]:
+        try:
+            return self._images[camera]
+        except KeyError:
+            raise KeyError(f"source {self.source} has no camera {camera!r}") from None
+
+    def present(self, camera: str) -> np.ndarray:
+        """True at the frame indices where ``camera`` has an image."""
+        present = np.zeros(self.num_frames, dtype=bool)
+        present[list(self._camera_images(camera))] = True
+        return present
+
+    def frame_times(self) -> np.ndarray:
+        """The seconds of each frame index."""
+        return self._times.copy()
+
+    def frames(self, camera: str, indices: range) -> Iterator[RecordedFrame]:
+        """Decode ``camera``'s images (and masks) at ``indices``; their size is checked against the camera's."""
+        by_index = self._camera_images(camera)
+        expected = (self._cameras[camera].height, self._cameras[camera].width)
+        for t in indices:
+            image = by_index.get(t)
+            if image is None:
+                continue
+            rgb, _ = read_image(image.path)
+            mask = read_mask(image.mask) if image.mask is not None else None
+            for what, array, file in (("image", rgb, image.path), ("mask", mask, image.mask)):
+                if array is not None and array.shape[:2] != expected:
+                    raise InputError(f"{what} {file} is {array.shape[1]}×{array.shape[0]}, but {image.listed} gives camera "
+                                     f"{camera!r} {expected[1]}×{expected[0]}")
+            yield RecordedFrame(t=t, rgb=rgb, mask=mask)
+
+    def describe(self) -> dict[str, Any]:
+        """The source and the conventions applied (see the reader's module)."""
+        return {"source": str(self.source), **self._provenance}
+
+
+@attrs.frozen
+class _Frame:
+    """One parsed entry of ``frames``."""
+
+    index: int
+    image: PosedImage
+    camera: str | None
+    time: float | None
+    K: np.ndarray
+    size: tuple[int, int]
+    distortion: np.ndarray
+    c2w: np.ndarray
+
+    @property
+    def where(self) -> str:
+        return self.image.listed
+
+    def key(self) -> tuple[float, ...]:
+        """What makes two frames one camera: pose, intrinsics, size and distortion, rounded."""
+        values = np.concatenate([self.c2w[:3].ravel(), self.K.ravel(), self.size, self.distortion])
+        return tuple(np.round(values, _DECIMALS).tolist())
+
+
+@attrs.frozen
+class NerfstudioReader(Reader):
+    """Reads nerfstudio's ``transforms.json``; ``fps`` is the frame rate when the frames carry no time."""
+
+    fps: float = parameter(30.0, doc="the frame rate when frames carry no time or timestamp, frames per second",
+                           converter=float, validator=finite_positive)
+
+    def detect(self, source: Path) -> bool:
+        """A folder with a ``transforms.json`` and no ``transforms_train.json`` (that is the dnerf layout)."""
+        source = Path(source)
+        return (source / "transforms.json").is_file() and not (source / "transforms_train.json").is_file()
+
+    def open(self, source: Path, calibration: Path | None = None, units: str = "m") -> PosedImageRecording:
+        """Parse ``transforms.json`` and check that every image and mask exists. ``units`` is the unit of
+        the poses' translations; a separate calibration cannot apply to per-frame poses and is refused."""
+        source = Path(source)
+        if calibration is not None:
+            raise InputError(f"nerfstudio source {source}: the poses come from transforms.json; --calibration is not supported")
+        scale = metres_per_unit(units)
+        path = source / "transforms.json"
+        document = read_json(path, ("frames",))
+        entries = document["frames"]
+        if not isinstance(entries, list) or not entries:
+            raise InputError(f"{path}: 'frames' must be a non-empty list")
+        applied = _applied_transform(path, document.get("applied_transform"))
+        frames = [_parse_frame(path, source, document, index, entry) for index, entry in enumerate(entries)]
+        require_files([frame.image.path for frame in frames], f"image listed in {path}:")
+        with_masks = [frame for frame in frames if frame.image.mask is not None]
+        if with_masks and len(with_masks) != len(frames):
+            lacking = next(frame for frame in frames if frame.image.mask is None)
+            raise InputError(f"{lacking.where}: no 'mask_path', but other frames have masks (give every frame one, or none)")
+        require_files([frame.image.mask for frame in with_masks], f"mask listed in {path}:")
+        groups = _group_cameras(path, frames)
+        cameras = [_camera(name, group[0], scale) for name, group in groups.items()]
+        images, times, fps = _place_frames(path, groups, self.fps)
+        heldout = _heldout(path, document, groups)
+        provenance = {
+            "format": "nerfstudio",
+            "principal_point": "cx, cy minus 0.5: nerfstudio's pixel centres are at +0.5, mmcsplat's at integers",
+            "axes": "transform_matrix camera-to-world with OpenGL camera axes; y and z flipped to OpenCV's",
+            "time": "time or timestamp keys as seconds" if any(frame.time is not None for frame in frames)
+                    else f"none in the file: image k of each camera is frame k at {fps:g} fps",
+            "applied_transform": None if applied is None else applied.tolist(),
+            "applied_transform_use": "recorded only: the poses in the file already include it",
+        }
+        return PosedImageRecording(source, cameras, images, times, fps, heldout, provenance)
+
+
+def _number(where: str, key: str, value: Any) -> float:
+    """``value`` as a finite float, or an error naming ``key``."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+        raise InputError(f"{where}: {key!r} must be a finite number, got {value!r}")
+    return float(value)
+
+
+def _applied_transform(path: Path, value: Any) -> np.ndarray | None:
+    """The top-level ``applied_transform`` as a finite 3×4 matrix (4×4 accepted), or None when absent."""
+    if value is None:
+        return None
+    try:
+        matrix = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{path}: 'applied_transform' must be a 3×4 matrix of numbers") from None
+    if matrix.shape not in ((3, 4), (4, 4)) or not np.all(np.isfinite(matrix)):
+        raise InputError(f"{path}: 'applied_transform' must be a finite 3×4 matrix, got shape {matrix.shape}")
+    return matrix[:3]
+
+
+def _pose(where: str, value: Any) -> np.ndarray:
+    """A rigid 4×4 camera-to-world matrix (a 3×4 one is completed)."""
+    try:
+        matrix = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{where}: 'transform_matrix' must be a 4×4 matrix of numbers") from None
+    if matrix.shape not in ((4, 4), (3, 4)) or not np.all(np.isfinite(matrix)):
+        raise InputError(f"{where}: 'transform_matrix' must be a finite 4×4 matrix, got shape {matrix.shape}")
+    rotation = matrix[:3, :3]
+    if not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-5) or np.linalg.det(rotation) < 0:
+        raise InputError(f"{where}: 'transform_matrix' is not a rigid transform (its 3×3 part is not a rotation)")
+    return np.vstack([matrix[:3], [0.0, 0.0, 0.0, 1.0]])
+
+
+def _file(source: Path, where: str, key: str, value: Any) -> Path:
+    """The file a ``file_path`` or ``mask_path`` names, relative to the folder."""
+    if not isinstance(value, str) or not value:
+        raise InputError(f"{where}: {key!r} must be a non-empty string, got {value!r}")
+    return source / value
+
+
+def _parse_frame(path: Path, source: Path, document: Mapping[str, Any], index: int, entry: Any) -> _Frame:
+    """One entry of ``frames``, its intrinsics completed from the top level."""
+    where = f"{path}: frames[{index}]"
+    if not isinstance(entry, dict):
+        raise InputError(f"{where}: expected an object with file_path and transform_matrix")
+    missing = [key for key in ("file_path", "transform_matrix") if key not in entry]
+    if missing:
+        raise InputError(f"{where}: missing key(s) {', '.join(repr(key) for key in missing)}")
+    merged = {key: entry.get(key, document.get(key)) for key in (*_INTRINSICS, *_DISTORTION, "camera_model")}
+    model = merged["camera_model"] if merged["camera_model"] is not None else "OPENCV"
+    if model not in _MODELS:
+        raise InputError(f"{where}: camera_model {model!r} is not supported (only {' and '.join(_MODELS)}; "
+                         "undistort fisheye or panoramic images first)")
+    absent = [key for key in _INTRINSICS if merged[key] is None]
+    if absent:
+        raise InputError(f"{where}: missing intrinsics {', '.join(repr(key) for key in absent)} (neither the frame nor the file's top level gives them)")
+    fx, fy, cx, cy = (_number(where, key, merged[key]) for key in _INTRINSICS[:4])
+    if fx <= 0 or fy <= 0:
+        raise InputError(f"{where}: focal lengths fl_x, fl_y must be > 0, got {fx:g}, {fy:g}")
+    size = tuple(_number(where, key, merged[key]) for key in ("w", "h"))
+    if any(value <= 0 or not value.is_integer() for value in size):
+        raise InputError(f"{where}: 'w' and 'h' must be positive whole numbers, got {merged['w']!r}, {merged['h']!r}")
+    coefficients = {key: _number(where, key, merged[key]) if merged[key] is not None else 0.0 for key in _DISTORTION}
+    if coefficients["k4"] != 0:
+        raise InputError(f"{where}: k4 = {coefficients['k4']:g} is not supported (OpenCV's pinhole distortion has k1 k2 p1 p2 k3 only)")
+    distortion = [coefficients[key] for key in ("k1", "k2", "p1", "p2", "k3")]
+    if distortion[4] == 0:
+        distortion = distortion[:4]
+    if not any(distortion):
+        distortion = []
+    K = np.array([[fx, 0.0, cx - PIXEL_CENTRE], [0.0, fy, cy - PIXEL_CENTRE], [0.0, 0.0, 1.0]])
+    mask = _file(source, where, "mask_path", entry["mask_path"]) if entry.get("mask_path") is not None else None
+    image = PosedImage(_file(source, where, "file_path", entry["file_path"]), mask, where)
+    return _Frame(index, image, _camera_name(where, entry.get("camera")), _time(where, entry), K, (int(size[0]), int(size[1])),
+                  np.array(distortion, dtype=np.float64), _pose(where, entry["transform_matrix"]))
+
+
+def _camera_name(where: str, value: Any) -> str | None:
+    """A frame's ``camera`` key as a name (None when absent)."""
+    if value is None:
+        return None
+    if isinstance(value, int) and not isinstance(value, bool):
+        return f"cam_{value:03d}"
+    if isinstance(value, str) and value:
+        return value
+    raise InputError(f"{where}: 'camera' must be a non-empty string or a whole number, got {value!r}")
+
+
+def _time(where: str, entry: Mapping[str, Any]) -> float | None:
+    """A frame's ``time``, else its ``timestamp``, else None."""
+    for key in ("time", "timestamp"):
+        if entry.get(key) is not None:
+            return _number(where, key, entry[key])
+    return None
+
+
+def _group_cameras(path: Path, frames: list[_Frame]) -> dict[str, list[_Frame]]:
+    """The frames of each camera, by camera name, in order of first appearance."""
+    named = [frame.camera is not None for frame in frames]
+    if any(named) and not all(named):
+        lacking = frames[named.index(False)]
+        raise InputError(f"{lacking.where}: no 'camera' key, but other frames name their camera (give every frame one, or none)")
+    groups: dict[Any, list[_Frame]] = {}
+    for frame in frames:
+        groups.setdefault(frame.camera if frame.camera is not None else frame.key(), []).append(frame)
+    for group in groups.values():
+        for frame in group[1:]:
+            if frame.key() != group[0].key():
+                raise InputError(f"{frame.where}: camera {frame.camera!r} has a different pose or intrinsics than in frames[{group[0].index}]; "
+                                 "mmcsplat needs fixed cameras")
+    if all(named):
+        return {name: group for name, group in groups.items()}
+    stems = [group[0].image.path.stem for group in groups.values()]
+    if all(len(group) == 1 for group in groups.values()) and len(set(stems)) == len(stems):
+        return dict(zip(stems, groups.values()))
+    return {f"cam_{number:03d}": group for number, group in enumerate(groups.values())}
+
+
+def _camera(name: str, frame: _Frame, scale: float) -> Camera:
+    """The OpenCV camera of a frame, its translation in metres."""
+    c2w_cv = frame.c2w @ GL_TO_CV
+    R = c2w_cv[:3, :3].T
+    try:
+        return Camera(name=name, width=frame.size[0], height=frame.size[1], K=frame.K, R=R, t=-R @ (c2w_cv[:3, 3] * scale),
+                      distortion=frame.distortion)
+    except ValueError as error:
+        raise InputError(f"{frame.where}: {error}") from error
+
+
+def _place_frames(path: Path, groups: dict[str, list[_Frame]], fps: float) -> tuple[dict[str, dict[int, PosedImage]], np.ndarray, float]:
+    """Each camera's images by frame index, the seconds of the frame indices and the frame rate."""
+    frames = [frame for group in groups.values() for frame in group]
+    timed = [frame.time is not None for frame in frames]
+    if any(timed) and not all(timed):
+        lacking = frames[timed.index(False)]
+        raise InputError(f"{lacking.where}: no 'time' or 'timestamp', but other frames have one (give every frame one, or none)")
+    if all(timed):
+        times = np.unique(np.round([frame.time for frame in frames], _DECIMALS))
+        indices = {name: [int(np.searchsorted(times, round(frame.time, _DECIMALS))) for frame in group] for name, group in groups.items()}
+        fps = 1.0 / float(np.median(np.diff(times))) if len(times) > 1 else fps
+    else:
+        counts = {name: len(group) for name, group in groups.items()}
+        if len(set(counts.values())) != 1:
+            detail = ", ".join(f"{name}: {count}" for name, count in counts.items())
+            raise InputError(f"{path}: cameras have different numbers of images ({detail}) and the frames carry no 'time': "
+                             "add a time to every frame to say which images are simultaneous")
+        groups = {name: sorted(group, key=lambda frame: natural_key(str(frame.image.path))) for name, group in groups.items()}
+        indices = {name: list(range(len(group))) for name, group in groups.items()}
+        times = np.arange(next(iter(counts.values())), dtype=np.float64) / fps
+    images: dict[str, dict[int, PosedImage]] = {}
+    for name, group in groups.items():
+        by_index = images[name] = {}
+        for t, frame in zip(indices[name], group):
+            if t in by_index:
+                raise InputError(f"{frame.where}: camera {name!r} already has an image at time {times[t]:g} ({by_index[t].listed})")
+            by_index[t] = frame.image
+    return images, times, fps
+
+
+def _heldout(path: Path, document: Mapping[str, Any], groups: dict[str, list[_Frame]]) -> list[str]:
+    """The cameras whose images are all listed in ``val_filenames`` or ``test_filenames``."""
+    listed: set[str] = set()
+    for key in ("val_filenames", "test_filenames"):
+        names = document.get(key, [])
+        if not isinstance(names, list) or not all(isinstance(name, str) for name in names):
+            raise InputError(f"{path}: {key!r} must be a list of file paths")
+        listed |= {os.path.normpath(path.parent / name) for name in names}
+    heldout = []
+    for name, group in groups.items():
+        flags = [os.path.normpath(frame.image.path) in listed for frame in group]
+        if all(flags):
+            heldout.append(name)
+        elif any(flags):
+            raise InputError(f"{path}: camera {name!r} has images both held out (val/test_filenames) and not; hold out whole cameras")
+    return heldout
