@@ -68,6 +68,22 @@ def mmcsplat_segmenters() -> list[Registration]:
                      unavailable=needs_modules("onnxruntime")),
         Registration("background", f"{segmenters}.background:BackgroundSegmenter",
                      "OpenCV background subtraction over each camera's sequence (MOG2, KNN or median)"),
+        Registration("keypoints", f"{segmenters}.keypoints:KeypointSegmenter",
+                     "the filled skeleton of 2D keypoints (OpenPose JSON), optionally refined against the clean plate"),
         Registration("precomputed", f"{segmenters}.precomputed:PrecomputedSegmenter",
                      "the masks the session already holds (d3dgs, D-NeRF, synthetic ground truth)"),
+    ]
+
+
+@hookimpl
+def mmcsplat_landmarks() -> list[Registration]:
+    return [
+        Registration("trc", "mmcsplat.plugins.landmarks.files:TrcLandmarks",
+                     "a TRC file of marker trajectories (OpenSim, Pose2Sim's triangulated joints; Y-up axes by default)"),
+        Registration("csv", "mmcsplat.plugins.landmarks.files:CsvLandmarks",
+                     "a CSV file of name,x,y,z (one frame) or frame,time,name,x,y,z rows"),
+        Registration("synthetic", "mmcsplat.plugins.landmarks.synthetic:SyntheticJoints",
+                     "the joints of a synthetic capture (its ground_truth.zarr)"),
+        Registration("openpose", "mmcsplat.plugins.landmarks.openpose:OpenPoseKeypoints",
+                     "OpenPose JSON keypoints per camera (as Pose2Sim writes them), triangulated in the session's cameras"),
     ]

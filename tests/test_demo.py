@@ -15,8 +15,8 @@ from mmcsplat.jobs.demo import TRACK_ITERATIONS, DemoPaths, tracking_choice
 
 TINY = ["--num-frames", "3", "--width", "64", "--height", "48", "--track-iterations", "2", "--no-progress",
         "--set", "fit.iterations=10"]  # fmt: skip
-STEPS = ("synthesize", "ingest + segment", "first-frame fit", "track (iterative)", "evaluate",
-         "render trajectories", "render novel view", "report")  # fmt: skip
+STEPS = ("synthesize", "ingest + segment", "first-frame fit", "track (iterative)", "evaluate", "landmarks",
+         "render trajectories", "render landmarks", "render novel view", "report")  # fmt: skip
 
 
 def ran(output: str) -> dict[str, bool]:
@@ -38,12 +38,12 @@ def test_demo_writes_every_output_and_names_it(demo):
     assert ran(output) == dict.fromkeys(STEPS, True)
     paths = DemoPaths.under(out.resolve())
     outputs = [paths.capture / "calibration.toml", paths.capture / "ground_truth.zarr", paths.session, paths.run / "run.json",
-               paths.tracks, paths.track_info, paths.metrics, paths.trajectories_video, paths.trajectories_strip, paths.novel,
-               paths.report]  # fmt: skip
+               paths.tracks, paths.track_info, paths.metrics, paths.landmarks_csv, paths.landmarks_info, paths.landmarks_trc,
+               paths.trajectories_video, paths.trajectories_strip, paths.landmarks_video, paths.novel, paths.report]  # fmt: skip
     assert [path for path in outputs if not path.exists()] == []
     summary = output[output.index("mmcsplat demo finished"):]
-    for path in (paths.capture, paths.session, paths.run, paths.tracks, paths.metrics, paths.trajectories_video,
-                 paths.trajectories_strip, paths.novel, paths.report):  # fmt: skip
+    for path in (paths.capture, paths.session, paths.run, paths.tracks, paths.metrics, paths.landmarks_csv, paths.landmarks_trc,
+                 paths.trajectories_video, paths.trajectories_strip, paths.landmarks_video, paths.novel, paths.report):  # fmt: skip
         assert f" {path}\n" in summary + "\n", path
     assert "iterative, 2 iterations per frame" in summary
     metrics = json.loads(paths.metrics.read_text())
@@ -53,6 +53,10 @@ def test_demo_writes_every_output_and_names_it(demo):
     for name in STEPS:
         assert f"    {name} " in summary
     assert json.loads(paths.track_info.read_text())["params"]["iterations"] == 2
+    landmarks = json.loads(paths.landmarks_info.read_text())
+    assert landmarks["source"] == "synthetic" and len(landmarks["names"]) == 14
+    moving = landmarks["accuracy_3d"]["moving_median_mm"]
+    assert f"median error {'n/a' if moving is None else f'{moving:.1f} mm'}" in summary
 
 
 def test_rerun_skips_done_steps_and_redoes_stale_ones(demo, capsys):

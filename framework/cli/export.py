@@ -13,6 +13,10 @@ or be empty; the folder is written under a temporary name and renamed into place
 DIR/transforms.json (OPENCV intrinsics per camera, camera-to-world in OpenGL axes, train/val split as the
 run's) and DIR/images/CAMERA.png; the cameras.json of --inria is the reference trainer's view of the rig.
 
+--trc FILE, --csv FILE, --c3d FILE write the run's carried landmarks (RUN/landmarks.csv of `mmcsplat
+landmarks`): TRC as Pose2Sim writes it (Y-up axes, metres; OpenSim reads it), CSV one row per frame and
+landmark, C3D in millimetres through ezc3d.
+
 A run with tracks exports every tracked frame; without tracks, its first-frame fit (run frame 0).
 """
 
@@ -33,6 +37,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="write the reference 3DGS trainer's model folder here (cfg_args, cameras.json, point_cloud/iteration_N/point_cloud.ply)")
     parser.add_argument("--transforms", type=Path, metavar="DIR",
                         help="write the rig and the fitted frame's images as a nerfstudio dataset folder (transforms.json, images/, masks/)")
+    parser.add_argument("--trc", type=Path, metavar="FILE", help="the run's landmarks as a TRC file (OpenSim, Pose2Sim)")
+    parser.add_argument("--csv", type=Path, metavar="FILE", help="the run's landmarks as CSV: frame, time, name, x, y, z, spread_mm, confidence")
+    parser.add_argument("--c3d", type=Path, metavar="FILE", help="the run's landmarks as a C3D file (millimetres)")
     parser.add_argument("--frame", type=int, metavar="K",
                         help="the run frame --inria writes (0 to frames − 1; default 0, the first)")
     add_progress(parser)
@@ -42,8 +49,9 @@ def run(args: argparse.Namespace) -> int:
     from mmcsplat.cli.main import CommandError
     from mmcsplat.outputs.ply import FULL_SH_DEGREE, export_ply
 
-    if args.ply is None and args.inria is None and args.transforms is None:
-        raise CommandError("choose at least one output: --ply DIR, --inria DIR or --transforms DIR")
+    landmark_files = {"trc": args.trc, "csv": args.csv, "c3d": args.c3d}
+    if args.ply is None and args.inria is None and args.transforms is None and not any(landmark_files.values()):
+        raise CommandError("choose at least one output: --ply DIR, --inria DIR, --transforms DIR, --trc FILE, --csv FILE or --c3d FILE")
     if args.full_sh and args.ply is None:
         raise CommandError("--full-sh sets the layout of --ply files (--inria always writes the full layout)")
     if args.frame is not None and args.inria is None:
@@ -59,6 +67,11 @@ def run(args: argparse.Namespace) -> int:
 
         path = export_transforms(args.run, args.transforms)
         print(f"{path}: nerfstudio dataset of the fitted frame")
+    if any(landmark_files.values()):
+        from mmcsplat.outputs.landmark_files import export_landmarks
+
+        for path in export_landmarks(args.run, **landmark_files):
+            print(f"{path}: the run's landmarks")
     if args.ply is not None:
         paths = export_ply(args.run, args.ply, progress=not args.no_progress, sh_degree=FULL_SH_DEGREE if args.full_sh else 0)
         print(f"{args.ply}: {len(paths)} PLY file(s), {paths[0].name} … {paths[-1].name}")

@@ -23,6 +23,7 @@ COMMANDS = {
     "segment": "segment",
     "fit": "fit",
     "track": "track",
+    "landmarks": "landmarks",
     "evaluate": "evaluate",
     "compare": "compare",
     "stability": "stability",

@@ -57,6 +57,7 @@ def add_logging(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--log-file", metavar="PATH", help="append the command's full log to this file (fits and tracks also log to RUN/log.txt)")
 
 
-def add_settings(parser: argparse.ArgumentParser, help: str, dest: str = "overrides") -> None:
-    """``--set KEY=VALUE`` (repeatable; the value read as TOML when it can be)."""
-    parser.add_argument("--set", dest=dest, action="append", default=[], metavar="KEY=VALUE", help=help)
+def add_settings(parser: argparse.ArgumentParser, help: str, dest: str = "overrides", flag: str = "--set") -> None:
+    """``--set KEY=VALUE`` (repeatable; the value read as TOML when it can be); a command that configures
+    two plugins names the second one's ``--NAME-set``."""
+    parser.add_argument(flag, dest=dest, action="append", default=[], metavar="KEY=VALUE", help=help)

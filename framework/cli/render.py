@@ -4,7 +4,8 @@
 and intrinsics); path frame j shows the Gaussians of frame j mod T, so the motion loops while the camera
 goes round. --trajectories: 2 % of the foreground Gaussians with trails over their last 10 frames over
 the rendered image of --camera (default: the held-out camera), as mp4 and a PNG strip of 5 frames.
---depth: expected depth in --camera, colour-mapped over one range for the whole sequence. A run without
+--depth: expected depth in --camera, colour-mapped over one range for the whole sequence. --landmarks: the
+landmarks of `mmcsplat landmarks` with their trails on --camera's real images, cropped to the subject. A run without
 tracks renders its first-frame fit. Videos are H.264 (yuv420p) mp4, playable in browsers.
 """
 
@@ -21,7 +22,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--novel", action="store_true", help="novel-view camera path → OUT/novel.mp4")
     parser.add_argument("--trajectories", action="store_true", help="tracking figure → OUT/trajectories_CAMERA.mp4 and .png")
     parser.add_argument("--depth", action="store_true", help="expected depth → OUT/depth_CAMERA.mp4")
-    parser.add_argument("--camera", help="camera of --trajectories and --depth (default: the run's held-out camera)")
+    parser.add_argument("--landmarks", action="store_true", help="RUN/landmarks.csv on the camera's images → OUT/landmarks_CAMERA.mp4")
+    parser.add_argument("--camera", help="camera of --trajectories, --depth and --landmarks (default: the run's held-out camera)")
     parser.add_argument("--frames-per-segment", type=int, metavar="N",
                         help="--novel path frames from one ring camera to the next (default: enough to show every frame, ≥ 15)")
     parser.add_argument("--scale", type=float, default=1.0, help="output image scale, e.g. 0.5 for half size (default 1)")
@@ -35,12 +37,12 @@ def run(args: argparse.Namespace) -> int:
     from mmcsplat.outputs.renders import RunRenderer, render_depth, render_novel, render_trajectories
     from mmcsplat.pipeline.run_frames import RunStates
 
-    if not (args.novel or args.trajectories or args.depth):
-        raise CommandError("choose at least one output: --novel, --trajectories or --depth")
+    if not (args.novel or args.trajectories or args.depth or args.landmarks):
+        raise CommandError("choose at least one output: --novel, --trajectories, --depth or --landmarks")
     if args.frames_per_segment is not None and args.frames_per_segment < 1:
         raise CommandError(f"--frames-per-segment must be ≥ 1, got {args.frames_per_segment}")
     states = RunStates(args.run)
-    if args.trajectories or args.depth:
+    if args.trajectories or args.depth or args.landmarks:
         states.camera(args.camera)  # an unknown camera fails before anything is rendered
     out = args.out or args.run / "renders"
     out.mkdir(parents=True, exist_ok=True)
@@ -56,6 +58,10 @@ def run(args: argparse.Namespace) -> int:
         path, (near, far) = render_depth(renderer, out, args.camera)
         print(f"depth range {near:.3f}–{far:.3f} m")
         written.append(path)
+    if args.landmarks:
+        from mmcsplat.outputs.landmark_video import render_landmarks
+
+        written.append(render_landmarks(args.run, out, args.camera, progress=not args.no_progress))
     for path in written:
         print(path)
     return 0

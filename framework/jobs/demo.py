@@ -1,8 +1,10 @@
 """``mmcsplat demo``: the main job on the built-in synthetic infant capture, end to end, in one folder.
 
 Synthesize the capture, ingest and segment it, fit the first frame, track the sequence, evaluate on the
-held-out camera (tracking errors against the capture's ground truth), render the tracking figure and a
-novel-view path, and write the HTML report — each step with the functions its own command calls.
+held-out camera (tracking errors against the capture's ground truth), carry the infant's joints through
+the tracks as landmarks (scored against the true joints; exported as CSV and TRC), render the tracking
+figure, the landmark overlay and a novel-view path, and write the HTML report — each step with the
+functions its own command calls.
 
 A rerun resumes: a step is skipped when its outputs exist and are newer than what they are made from.
 Every output appears atomically, so a half-done step never reads as done. ``OUT/demo.json`` records
@@ -59,9 +61,13 @@ class DemoPaths:
     tracks: Path
     track_info: Path
     metrics: Path
+    landmarks_csv: Path
+    landmarks_info: Path
+    landmarks_trc: Path
     renders: Path
     trajectories_video: Path
     trajectories_strip: Path
+    landmarks_video: Path
     novel: Path
     report: Path
 
@@ -70,6 +76,7 @@ class DemoPaths:
         """The paths in ``out``: the run is OUT/first-frame, its renders and report where the commands put them."""
         from mmcsplat.outputs.report import RENDERS_DIR, REPORT_FILE
         from mmcsplat.pipeline.evaluate import METRICS_FILE
+        from mmcsplat.pipeline.landmarks import LANDMARKS_CSV, LANDMARKS_INFO
         from mmcsplat.pipeline.track import TRACK_INFO
         from mmcsplat.storage.tracks import TRACKS_DIR
 
@@ -77,7 +84,8 @@ class DemoPaths:
         renders = run / RENDERS_DIR
         trajectories = renders / f"trajectories_{SYNTHETIC_HELDOUT[0]}"
         return cls(out, out / "capture", out / "session.zarr", run, run / TRACKS_DIR, run / TRACK_INFO, run / METRICS_FILE,
-                   renders, trajectories.with_suffix(".mp4"), trajectories.with_suffix(".png"), renders / "novel.mp4",
+                   run / LANDMARKS_CSV, run / LANDMARKS_INFO, run / "landmarks.trc", renders, trajectories.with_suffix(".mp4"),
+                   trajectories.with_suffix(".png"), renders / f"landmarks_{SYNTHETIC_HELDOUT[0]}.mp4", renders / "novel.mp4",
                    run / REPORT_FILE)
 
 
@@ -98,6 +106,7 @@ class DemoResult:
     method: str
     iterations: int | None
     metrics: dict[str, Any]
+    landmarks: dict[str, Any]
     steps: tuple[StepTime, ...]
 
 
@@ -143,11 +152,14 @@ def run_demo(out: Path, settings: DemoSettings = DemoSettings(), progress: bool 
              log: Callable[[str], None] = print) -> DemoResult:
     """Run every step of the demo into ``out`` (created), skipping those already done; ``log`` gets one
     line per step."""
+    from mmcsplat.outputs.landmark_files import export_landmarks
+    from mmcsplat.outputs.landmark_video import render_landmarks
     from mmcsplat.outputs.renders import RunRenderer, render_novel, render_trajectories
     from mmcsplat.outputs.report import write_report
     from mmcsplat.pipeline.evaluate import evaluate
     from mmcsplat.pipeline.fit import FirstFrameFit
     from mmcsplat.pipeline.ingest import ingest
+    from mmcsplat.pipeline.landmarks import track_landmarks
     from mmcsplat.pipeline.run_frames import RunStates
     from mmcsplat.pipeline.segment import segment_session
     from mmcsplat.pipeline.track import track_run
@@ -191,14 +203,24 @@ def run_demo(out: Path, settings: DemoSettings = DemoSettings(), progress: bool 
     step(f"track ({method})", fresh([paths.tracks, paths.track_info], [fitted]),
          lambda: track_run(run, dynamics=method, overrides=track_overrides, backend=settings.backend, progress=progress, overwrite=True))
     step("evaluate", fresh([paths.metrics], [paths.track_info]), lambda: evaluate(run, backend=settings.backend))
+
+    def landmarks() -> None:
+        track_landmarks(run, "synthetic")
+        export_landmarks(run, trc=paths.landmarks_trc)
+
+    step("landmarks", fresh([paths.landmarks_csv, paths.landmarks_info, paths.landmarks_trc], [paths.track_info]), landmarks)
     paths.renders.mkdir(exist_ok=True)
     step("render trajectories", fresh([paths.trajectories_video, paths.trajectories_strip], [paths.track_info]),
          lambda: render_trajectories(renderer(), paths.renders, SYNTHETIC_HELDOUT[0]))
+    step("render landmarks", fresh([paths.landmarks_video], [paths.landmarks_csv]),
+         lambda: render_landmarks(run, paths.renders, SYNTHETIC_HELDOUT[0], progress=progress))
     step("render novel view", fresh([paths.novel], [paths.track_info]), lambda: render_novel(renderer(), paths.renders))
-    step("report", fresh([paths.report], [paths.metrics, paths.trajectories_video, paths.trajectories_strip, paths.novel]),
+    step("report", fresh([paths.report], [paths.metrics, paths.landmarks_info, paths.trajectories_video, paths.trajectories_strip,
+                                          paths.landmarks_video, paths.novel]),
          lambda: write_report(run, paths.report, backend=settings.backend))
     iterations = json.loads(paths.track_info.read_text())["params"].get("iterations")
-    return DemoResult(paths, method, iterations, json.loads(paths.metrics.read_text()), tuple(steps))
+    return DemoResult(paths, method, iterations, json.loads(paths.metrics.read_text()), json.loads(paths.landmarks_info.read_text()),
+                      tuple(steps))
 
 
 def _number(value: float | None, unit: str, digits: int = 2) -> str:
@@ -208,6 +230,7 @@ def _number(value: float | None, unit: str, digits: int = 2) -> str:
 def summary(result: DemoResult) -> str:
     """The closing text of ``mmcsplat demo``: every output path, the headline metrics, each step's time."""
     paths, metrics = result.paths, result.metrics
+    accuracy = result.landmarks.get("accuracy_3d") or {}
     per_frame = [value for value in metrics.get("per_frame_val_masked_psnr") or [] if value is not None]
     tracked = f"{result.method}, {result.iterations} iterations per frame" if result.method == "iterative" else result.method
     rows: Sequence[tuple[str, Path]] = [
@@ -216,8 +239,11 @@ def summary(result: DemoResult) -> str:
         ("first-frame fit", paths.run),
         (f"tracks ({tracked})", paths.tracks),
         ("metrics", paths.metrics),
+        ("landmarks (the infant's joints, carried)", paths.landmarks_csv),
+        ("landmarks for OpenSim / Pose2Sim", paths.landmarks_trc),
         ("tracking figure, video", paths.trajectories_video),
         ("tracking figure, strip of frames", paths.trajectories_strip),
+        ("landmarks on the held-out camera", paths.landmarks_video),
         ("novel view", paths.novel),
         ("report", paths.report),
     ]
@@ -232,6 +258,8 @@ def summary(result: DemoResult) -> str:
         f"  tracking error (3D): median {_number(metrics.get('tracking_median_mm'), 'mm')}, "
         f"90th percentile {_number(metrics.get('tracking_p90_mm'), 'mm')} "
         f"(median {_number(metrics.get('tracking_still_median_mm'), 'mm')} if nothing moved); drift: {'yes' if metrics.get('drift') else 'no'}",
+        f"  landmarks (joints) where they moved > 1 cm: median error {_number(accuracy.get('moving_median_mm'), 'mm', 1)}, "
+        f"against {_number(accuracy.get('still_moving_median_mm'), 'mm', 1)} if held still; over all frames {_number(accuracy.get('median_mm'), 'mm', 1)}",
         "  steps:",
     ]
     width = max(len(step.name) for step in result.steps)

@@ -123,13 +123,14 @@ def project_visible(camera: Camera, points: np.ndarray) -> tuple[np.ndarray, np.
     return camera.project(points), depth > NEAR_PLANE
 
 
-def draw_trails(image: np.ndarray, trails: np.ndarray, valid: np.ndarray, colors: np.ndarray) -> np.ndarray:
+def draw_trails(image: np.ndarray, trails: np.ndarray, valid: np.ndarray, colors: np.ndarray, thickness: int | None = None) -> np.ndarray:
     """``image`` with one polyline per Gaussian through its pixel positions ``trails`` [L, n, 2] (oldest
-    first; positions not ``valid`` [L, n] break the trail off) and a dot at the newest one."""
+    first; positions not ``valid`` [L, n] break the trail off) and a dot at the newest one; lines
+    ``thickness`` pixels wide (default: in proportion to the image)."""
     import cv2
 
     image = np.ascontiguousarray(image).copy()
-    thickness = max(1, round(min(image.shape[:2]) / 300))
+    thickness = thickness or max(1, round(min(image.shape[:2]) / 300))
     # cv2's shift=4 sub-pixel coordinates; clipped so centres near the camera plane do not overflow int32
     fixed = np.round(np.clip(trails, -1e5, 1e5) * 16).astype(np.int32)
     for i, color in enumerate(colors.tolist()):

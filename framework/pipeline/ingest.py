@@ -242,6 +242,9 @@ def ingest(
             "frames": [indices.start, indices.stop, indices.step],
             "scale": scale,
             "undistortion": "cv2.getOptimalNewCameraMatrix(alpha=0) + remap",
+            # The cameras as recorded (distorted, in the decoded images' pixels): what maps a pixel of the
+            # source videos — a 2D keypoint detected in them — into the stored images.
+            "source_cameras": [by_name[camera].to_dict() for camera in selected],
             "plates": str(plates_folder.resolve()) if plate_images else None,
         }
         with SessionWriter(

@@ -69,3 +69,9 @@ def mmcsplat_readers() -> list[Registration]:
 @hookspec
 def mmcsplat_metrics() -> list[Registration]:
     """Metrics; each factory returns a :class:`~mmcsplat.plugin_api.interfaces.Metric`."""
+
+
+@hookspec
+def mmcsplat_landmarks() -> list[Registration]:
+    """Landmark sources (named 3D points: files, triangulated keypoints, ground truth); each factory
+    returns a :class:`~mmcsplat.plugin_api.interfaces.LandmarkSource`."""

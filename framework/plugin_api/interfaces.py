@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any
 import attrs
 import numpy as np
 
+from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.curves import TrainingCurve
 
@@ -268,3 +269,67 @@ class Metric(ABC):
     @abstractmethod
     def __call__(self, prediction: np.ndarray, target: np.ndarray, mask: np.ndarray | None = None) -> float:
         """Compare two [H, W, 3] float images in [0, 1], optionally only inside ``mask`` [H, W] bool."""
+
+
+# --------------------------------------------------------------------------------------------- landmarks
+
+
+def _positions(value: Any) -> np.ndarray:
+    array = np.asarray(value, dtype=np.float64)
+    array.setflags(write=False)
+    return array
+
+
+@attrs.frozen(eq=False)
+class Landmarks:
+    """Named 3D points over session frames: ``positions[k, j]`` is landmark ``names[j]`` at session frame
+    ``frames[k]``, world metres (the session's calibration frame), NaN where the source has none."""
+
+    names: tuple[str, ...] = attrs.field(converter=tuple)
+    frames: np.ndarray = attrs.field(converter=lambda value: np.asarray(value, dtype=np.int64))
+    positions: np.ndarray = attrs.field(converter=_positions)
+    source: str = ""
+
+    def __attrs_post_init__(self) -> None:
+        expected = (len(self.frames), len(self.names), 3)
+        if self.positions.shape != expected:
+            raise InputError(f"landmarks from {self.source or '?'}: positions must be [frames, landmarks, 3] = {list(expected)}, "
+                             f"got {list(self.positions.shape)}")
+        if len(set(self.names)) != len(self.names):
+            raise InputError(f"landmarks from {self.source or '?'}: duplicate names {sorted({n for n in self.names if self.names.count(n) > 1})}")
+
+    def at(self, frame: int) -> np.ndarray:
+        """[L, 3] positions at session ``frame`` (an error naming the source when it has no such frame)."""
+        where = np.flatnonzero(self.frames == frame)
+        if not len(where):
+            raise InputError(f"landmarks from {self.source or '?'} have no session frame {frame} (they cover {self.frames.min()}–{self.frames.max()})")
+        return self.positions[where[0]]
+
+
+@attrs.frozen(eq=False)
+class KeypointObservations:
+    """2D detections of landmarks in one camera: ``pixels[k, j]`` (u, v) of landmark ``names[j]`` at session
+    frame ``frames[k]`` in the session's (undistorted) image of the camera, ``confidence[k, j]`` in [0, 1]
+    (0 where nothing was detected)."""
+
+    camera: str
+    names: tuple[str, ...] = attrs.field(converter=tuple)
+    frames: np.ndarray = attrs.field(converter=lambda value: np.asarray(value, dtype=np.int64))
+    pixels: np.ndarray = attrs.field(converter=_positions)
+    confidence: np.ndarray = attrs.field(converter=_positions)
+
+
+class LandmarkSource(ABC):
+    """Where named landmarks come from: a file of 3D points (TRC, CSV), 2D keypoints triangulated in the
+    session's cameras, a synthetic capture's joints. The landmarks at the fitted frame are bound to the
+    Gaussians there and carried through the tracks; at other frames they are the reference the carried
+    ones are compared with."""
+
+    @abstractmethod
+    def read(self, session: SessionReader, frames: Sequence[int]) -> Landmarks:
+        """The landmarks at session ``frames`` (NaN where the source has none); errors name the file."""
+
+    def observations(self, session: SessionReader, frames: Sequence[int]) -> list[KeypointObservations]:
+        """The 2D detections behind the landmarks, per camera, for the 2D error of carried landmarks;
+        a source of 3D points has none (the default)."""
+        return []

@@ -35,6 +35,7 @@ KINDS: tuple[Kind, ...] = (
     Kind("dynamics", "mmcsplat_dynamics", "Dynamics"),
     Kind("reader", "mmcsplat_readers", "Reader"),
     Kind("metric", "mmcsplat_metrics", "Metric"),
+    Kind("landmarks", "mmcsplat_landmarks", "LandmarkSource"),
 )
 
 #: The kinds' names, in the order listings show them.

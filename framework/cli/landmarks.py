@@ -1,0 +1,54 @@
+"""Carry named landmarks (joints, keypoints) through a run: RUN/landmarks.csv and RUN/landmarks.json.
+
+The landmarks of --source at the run's fitted frame are bound to the subject's Gaussians there (the 8
+nearest within 10 cm, anchored in each one's local frame) and carried through every tracked frame (a run
+without tracks gives the fitted frame alone). Sources (`mmcsplat plugins landmarks`): trc and csv files of
+3D points, openpose keypoints triangulated in the session's cameras, the synthetic capture's joints.
+Where the source knows the landmarks at later frames too, the carried ones are scored against them (3D,
+mm); --keypoints scores them against 2D detections in every camera (px). `mmcsplat export RUN --trc/--csv
+/--c3d` writes them for OpenSim, Pose2Sim and motion-lab tools; `mmcsplat report RUN` plots them.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from mmcsplat.cli.options import add_settings, settings_table
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("run", type=Path, help="run directory of `mmcsplat fit` (with RUN/tracks.zarr after `mmcsplat track`)")
+    parser.add_argument("--source", required=True, metavar="NAME", help="the landmark source: trc, csv, openpose, synthetic or a plugin's name")
+    add_settings(parser, "a parameter of the source (`mmcsplat plugins --show landmarks:NAME`), e.g. path=joints.trc")
+    parser.add_argument("--keypoints", metavar="NAME", help="a keypoint source (openpose) whose 2D detections score the carried landmarks per camera")
+    add_settings(parser, "a parameter of the --keypoints source, e.g. folder=pose_2d", dest="keypoint_overrides", flag="--keypoints-set")
+    parser.add_argument("--anchors", type=int, default=8, metavar="K", help="Gaussians carrying each landmark (default 8)")
+    parser.add_argument("--max-distance", type=float, default=0.1, metavar="M",
+                        help="metres within which a Gaussian may carry a landmark (default 0.1); farther landmarks are left out, not invented")
+
+
+def run(args: argparse.Namespace) -> int:
+    from mmcsplat.cli.main import CommandError
+    from mmcsplat.pipeline.landmarks import LANDMARKS_CSV, track_landmarks
+
+    if args.anchors < 1 or not args.max_distance > 0:
+        raise CommandError(f"--anchors must be ≥ 1 and --max-distance > 0, got {args.anchors} and {args.max_distance}")
+    if args.keypoint_overrides and not args.keypoints:
+        raise CommandError("--keypoints-set … needs --keypoints NAME")
+    result = track_landmarks(args.run, args.source, settings_table(args.overrides), keypoints=args.keypoints,
+                             keypoint_params=settings_table(args.keypoint_overrides), anchors=args.anchors, max_distance=args.max_distance)
+    info = result.info
+    bound = len(info["names"]) - len(info["unbound"])
+    print(f"{args.run / LANDMARKS_CSV}: {bound} landmarks over {info['frames'][1] - info['frames'][0]} frames"
+          + (f"; left out (no subject Gaussian within {args.max_distance * 100:.0f} cm): {', '.join(info['unbound'])}" if info["unbound"] else ""))
+    accuracy = info.get("accuracy_3d")
+    if accuracy and accuracy["median_mm"] is not None:
+        moving = (f"; where they moved > 1 cm: {accuracy['moving_median_mm']:.1f} mm against {accuracy['still_moving_median_mm']:.1f} mm held still"
+                  if accuracy["moving_median_mm"] is not None else "")
+        print(f"3D error against {args.source}: median {accuracy['median_mm']:.1f} mm, 90th percentile {accuracy['p90_mm']:.1f} mm{moving}")
+    for camera, scores in info.get("accuracy_2d", {}).items():
+        if scores["carried_median_px"] is not None:
+            print(f"2D error in {camera}{' (held out)' if scores['heldout'] else ''}: carried {scores['carried_median_px']:.1f} px, "
+                  f"the source's own landmarks {scores['reference_median_px']:.1f} px (median over {scores['detections']} detections)")
+    return 0

@@ -1,0 +1,143 @@
+"""``mmcsplat landmarks RUN``: named landmarks carried through a run — ``RUN/landmarks.csv`` and
+``RUN/landmarks.json``.
+
+The landmarks of a source (a ``landmarks`` plugin: TRC or CSV file, triangulated 2D keypoints, a synthetic
+capture's joints) at the run's fitted frame are bound to the subject's Gaussians there and carried through
+its frames (:mod:`mmcsplat.analysis.landmark_binding`). Where the source also knows the landmarks at later
+frames, the carried ones are scored against them (3D, mm); where a keypoint source gives 2D detections,
+the carried landmarks are projected into each camera and scored against them (px), beside the detector's
+own disagreement with the source's 3D landmarks.
+"""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+from typing import Any
+
+import attrs
+import numpy as np
+
+from mmcsplat.analysis.landmark_binding import ANCHORS, MAX_DISTANCE, bind_landmarks, carry, confidence, landmark_accuracy
+from mmcsplat.configuration.registry import Registry, default_registry
+from mmcsplat.pipeline.run_frames import RunStates
+from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.plugin_api.interfaces import KeypointObservations, Landmarks, LandmarkSource
+from mmcsplat.scene.camera import Camera
+from mmcsplat.storage.atomic import write_json_atomic
+from mmcsplat.storage.landmark_files import write_landmark_csv
+from mmcsplat.storage.locking import run_lock
+from mmcsplat.storage.run_log import run_log
+from mmcsplat.storage.session import SessionReader
+
+LANDMARKS_CSV = "landmarks.csv"
+LANDMARKS_INFO = "landmarks.json"
+MIN_KEYPOINT_CONFIDENCE = 0.3  # detections below it are not scored (OpenPose's own cut-off for a visible keypoint)
+SUBJECT_OPACITY = 0.1  # Gaussians fainter than this carry no landmark: they are too easily floaters
+
+
+def subject_gaussians(params: dict[str, Any], foreground: np.ndarray) -> np.ndarray:
+    """Indices of the Gaussians that may carry landmarks: the subject's (``foreground``; every Gaussian
+    when none is) that are not nearly transparent."""
+    import torch
+
+    opaque = torch.sigmoid(params["opacity_logits"].detach()).numpy() >= SUBJECT_OPACITY
+    candidates = foreground if len(foreground) else np.arange(len(opaque))
+    return candidates[opaque[candidates]]
+
+
+def pixel_errors(camera: Camera, carried: np.ndarray, reference: np.ndarray, observed: KeypointObservations) -> dict[str, Any]:
+    """Median 2D distances (px) in ``camera`` of the carried landmarks and of the reference landmarks to the
+    confident detections ``observed`` (both [T, L, 3], the observations' frames and names)."""
+    result: dict[str, Any] = {}
+    confident = observed.confidence >= MIN_KEYPOINT_CONFIDENCE
+    for key, points in (("carried_median_px", carried), ("reference_median_px", reference)):
+        known = confident & np.all(np.isfinite(points), axis=-1)
+        pixels = camera.project(np.where(np.isfinite(points), points, 0.0).reshape(-1, 3)).reshape(*points.shape[:2], 2)
+        distance = np.linalg.norm(pixels - observed.pixels, axis=-1)[known]
+        result[key] = float(np.median(distance)) if distance.size else None
+        result[key.replace("median", "p90")] = float(np.percentile(distance, 90)) if distance.size else None
+    result["detections"] = int(confident.sum())
+    return result
+
+
+@attrs.frozen
+class LandmarkRun:
+    """What :func:`track_landmarks` wrote: the carried landmarks and the record of ``landmarks.json``."""
+
+    landmarks: Landmarks
+    spread: np.ndarray
+    info: dict[str, Any]
+
+
+def track_landmarks(run: str | Path, source: str, params: dict[str, Any] | None = None, *, keypoints: str | None = None,
+                    keypoint_params: dict[str, Any] | None = None, anchors: int = ANCHORS, max_distance: float = MAX_DISTANCE,
+                    registry: Registry | None = None) -> LandmarkRun:
+    """Bind the landmarks of the ``landmarks`` plugin ``source`` (built with ``params``) at ``run``'s fitted
+    frame, carry them through its frames, score them, and write RUN/landmarks.csv and RUN/landmarks.json.
+    ``keypoints`` names a second source whose 2D detections score the carried landmarks per camera."""
+    run = Path(run)
+    registry = registry or default_registry()
+    states = RunStates(run)
+    session = states.session
+    frames = np.arange(states.first_frame, states.first_frame + states.num_frames)
+    plugin: LandmarkSource = registry.create("landmarks", source, **(params or {}))
+    reference = plugin.read(session, frames)
+    if not np.array_equal(reference.frames, frames):
+        raise InputError(f"landmarks {source!r} returned frames {reference.frames[:3].tolist()}… for the run's {frames[:3].tolist()}…")
+    first = states.params(0)
+    candidates = subject_gaussians(first, states.foreground())
+    binding = bind_landmarks(reference.names, reference.positions[0], first["means"].detach().numpy().astype(np.float64),
+                             first["quats"].detach().numpy().astype(np.float64), candidates, anchors, max_distance)
+    if not binding.bound.any():
+        nearest = np.nanmin(np.where(np.isfinite(binding.distances), binding.distances, np.nan)) if np.isfinite(binding.distances).any() else None
+        raise InputError(f"{run}: no landmark of {reference.source or source} lies within {max_distance * 100:.0f} cm of the subject's Gaussians at "
+                         f"frame {states.first_frame}" + (f" (nearest {nearest:.2f} m)" if nearest is not None else " (none is known there)")
+                         + ": check the file's units and axes, or raise max_distance")
+    with run_lock(run), run_log(run) as log:
+        carried = np.empty((len(frames), len(reference.names), 3))
+        spread = np.empty((len(frames), len(reference.names)))
+        for k in range(len(frames)):
+            params_k = states.params(k)
+            carried[k], spread[k] = carry(binding, params_k["means"].detach().numpy().astype(np.float64),
+                                          params_k["quats"].detach().numpy().astype(np.float64))
+        times = session.frame_times[frames]
+        write_landmark_csv(run / LANDMARKS_CSV, reference.names, frames, times, carried,
+                           extra={"spread_mm": spread * 1000, "confidence": confidence(spread)})
+        info: dict[str, Any] = {
+            "source": source, "params": {key: str(value) if isinstance(value, Path) else value for key, value in (params or {}).items()},
+            "described": reference.source, "names": list(reference.names), "frames": [int(frames[0]), int(frames[-1]) + 1],
+            "anchors": anchors, "max_distance_m": max_distance, "unbound": binding.unbound,
+            "nearest_gaussian_mm": {name: None if not np.isfinite(d) else round(float(d) * 1000, 2) for name, d in zip(binding.names, binding.distances, strict=True)},
+            "spread_median_mm": float(np.nanmedian(spread) * 1000) if np.isfinite(spread).any() else None,
+        }
+        if len(frames) > 1 and np.isfinite(reference.positions[1:]).any():
+            info["accuracy_3d"] = attrs.asdict(landmark_accuracy(reference.names, carried, reference.positions))
+        if keypoints is not None:
+            info["accuracy_2d"] = _accuracy_2d(registry, keypoints, keypoint_params, session, set(states.info.heldout_cameras), frames,
+                                               reference, carried)
+        write_json_atomic(run / LANDMARKS_INFO, info)
+        log.info("landmarks from %s: %d bound, %s unbound; %d frames", source, int(binding.bound.sum()), binding.unbound or "none", len(frames))
+        if binding.unbound:
+            warnings.warn(f"landmarks {', '.join(binding.unbound)}: no subject Gaussian within {max_distance * 100:.0f} cm at frame "
+                          f"{states.first_frame} — left out (NaN), not invented", stacklevel=2)
+    return LandmarkRun(Landmarks(reference.names, frames, carried, source=f"carried by {run}"), spread, info)
+
+
+def _accuracy_2d(registry: Registry, name: str, params: dict[str, Any] | None, session: SessionReader, heldout: set[str],
+                 frames: np.ndarray, reference: Landmarks, carried: np.ndarray) -> dict[str, Any]:
+    """Per camera, the 2D errors of the carried and reference landmarks against the detections of ``name``."""
+    detector: LandmarkSource = registry.create("landmarks", name, **(params or {}))
+    result = {}
+    for observed in detector.observations(session, frames):
+        if not np.array_equal(observed.frames, frames):
+            raise InputError(f"keypoints {name!r} of camera {observed.camera!r} cover other frames than the run's")
+        shared = [n for n in observed.names if n in reference.names]
+        mine = [reference.names.index(n) for n in shared]
+        theirs = [observed.names.index(n) for n in shared]
+        subset = attrs.evolve(observed, names=shared, pixels=observed.pixels[:, theirs], confidence=observed.confidence[:, theirs])
+        result[observed.camera] = {"heldout": observed.camera in heldout,
+                                   **pixel_errors(session.camera(observed.camera), carried[:, mine], reference.positions[:, mine], subset)}
+    if not result:
+        raise InputError(f"landmarks {name!r} gives no 2D detections to score against (--keypoints needs a keypoint source, e.g. openpose)")
+    return result

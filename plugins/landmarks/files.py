@@ -1,0 +1,67 @@
+"""Landmarks from files of 3D points: ``trc`` (OpenSim / Pose2Sim marker trajectories) and ``csv``
+(``frame,time,name,x,y,z`` rows, or ``name,x,y,z`` for one frame), read by
+:mod:`mmcsplat.storage.landmark_files`.
+
+A TRC file's rows are the capture's frames in order (row 1 = capture frame 0, as Pose2Sim writes them for
+a video's frames); session frames map to them through the session's capture frame numbers, so an
+ingest of ``--frames 10:50:2`` still meets the right rows. A CSV's ``frame`` column holds capture frame
+numbers the same way; the one-frame form applies to the run's fitted frame, whichever it is.
+"""
+
+from __future__ import annotations
+
+import csv
+from collections.abc import Sequence
+from pathlib import Path
+
+import attrs
+import numpy as np
+
+from mmcsplat.plugin_api.interfaces import Landmarks, LandmarkSource
+from mmcsplat.plugin_api.parameters import one_of, parameter
+from mmcsplat.storage.calibration import metres_per_unit
+from mmcsplat.storage.landmark_files import CSV_SHORT_COLUMNS, TRC_CONVENTIONS, read_landmark_csv, read_trc
+from mmcsplat.storage.session import SessionReader
+
+
+def _rows_at(table_frames: np.ndarray, positions: np.ndarray, wanted: np.ndarray) -> np.ndarray:
+    """[len(wanted), L, 3] rows of ``positions`` whose frame numbers are ``wanted`` (NaN where none is)."""
+    result = np.full((len(wanted), positions.shape[1], 3), np.nan)
+    index = {int(frame): k for k, frame in enumerate(table_frames)}
+    for k, frame in enumerate(wanted):
+        if int(frame) in index:
+            result[k] = positions[index[int(frame)]]
+    return result
+
+
+@attrs.frozen
+class TrcLandmarks(LandmarkSource):
+    """Marker trajectories of a TRC file (units from its header)."""
+
+    path: str = parameter(doc="the .trc file", kw_only=True)
+    convention: str = parameter("pose2sim", doc="axes: pose2sim (Y-up: a point is (Z, X, Y) in the calibration's frame) or none (as written)",
+                                validator=one_of(*TRC_CONVENTIONS))
+
+    def read(self, session: SessionReader, frames: Sequence[int]) -> Landmarks:
+        data = read_trc(self.path, self.convention)
+        positions = _rows_at(np.arange(len(data.times)), data.positions, session.capture_frames(frames))
+        return Landmarks(data.names, frames, positions, source=f"TRC {Path(self.path)}")
+
+
+@attrs.frozen
+class CsvLandmarks(LandmarkSource):
+    """Landmarks of a CSV file: one frame (``name,x,y,z``) or many (``frame,time,name,x,y,z``)."""
+
+    path: str = parameter(doc="the .csv file", kw_only=True)
+    units: str = parameter("m", doc="unit of x, y, z: m or mm", validator=one_of("m", "mm"))
+
+    def read(self, session: SessionReader, frames: Sequence[int]) -> Landmarks:
+        names, table_frames, _, positions, _ = read_landmark_csv(self.path)
+        positions = positions * metres_per_unit(self.units)
+        with open(self.path, encoding="utf-8-sig") as handle:
+            one_frame = tuple(next(csv.reader(handle), []))[: len(CSV_SHORT_COLUMNS)] == CSV_SHORT_COLUMNS
+        if one_frame:  # no frame column: the landmarks of the fitted frame (the first asked for)
+            at = np.full((len(frames), len(names), 3), np.nan)
+            at[0] = positions[0]
+            return Landmarks(names, frames, at, source=f"CSV {Path(self.path)} (one frame)")
+        return Landmarks(names, frames, _rows_at(table_frames, positions, session.capture_frames(frames)), source=f"CSV {Path(self.path)}")

@@ -1,0 +1,49 @@
+"""The joints of a capture written by ``mmcsplat synth``: its ``ground_truth.zarr`` (docs/synthetic.md)
+holds ``joints`` [T, J, 3] in world metres with their ``joint_names``, at the capture's frames."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import attrs
+import numpy as np
+
+from mmcsplat.plugin_api.errors import InputError, MissingFileError
+from mmcsplat.plugin_api.interfaces import Landmarks, LandmarkSource
+from mmcsplat.plugin_api.parameters import parameter
+from mmcsplat.storage.session import SessionReader
+
+GROUND_TRUTH = "ground_truth.zarr"
+
+
+@attrs.frozen
+class SyntheticJoints(LandmarkSource):
+    """The synthetic infant's 14 joints (waist, neck, shoulders, elbows, wrists, hips, knees, ankles)."""
+
+    path: str | None = parameter(None, doc="the capture's ground_truth.zarr (default: beside the session's source capture)")
+
+    def _path(self, session: SessionReader) -> Path:
+        if self.path is not None:
+            return Path(self.path)
+        if not session.source:
+            raise InputError(f"session {session.url} records no source capture: give the ground truth with path=…/ground_truth.zarr")
+        return Path(session.source) / GROUND_TRUTH
+
+    def read(self, session: SessionReader, frames: Sequence[int]) -> Landmarks:
+        """The joints at session ``frames`` (through the capture's frame numbers: ingest may have subsampled)."""
+        import zarr
+
+        path = self._path(session)
+        if not path.exists():
+            raise MissingFileError(f"synthetic joints: {path} does not exist (a synthetic capture's ground truth)")
+        try:
+            joints = zarr.open_group(str(path), mode="r")["joints"]
+            names = tuple(joints.attrs["joint_names"])
+        except Exception as error:
+            raise InputError(f"{path}: not a synthetic ground truth with joints ({error})") from error
+        capture = session.capture_frames(frames)
+        if len(capture) and capture.max() >= joints.shape[0]:
+            raise InputError(f"{path}: {joints.shape[0]} frames of joints, the session needs capture frame {int(capture.max())}")
+        positions = np.asarray(joints.oindex[capture.tolist()], dtype=np.float64)
+        return Landmarks(names, frames, positions, source=f"synthetic joints {path}")

@@ -1,0 +1,117 @@
+"""``keypoints``: subject masks from 2D keypoints (OpenPose JSON, as Pose2Sim users already have), for
+captures with no clean plate and no segmentation model.
+
+The skeleton of each frame's detections is drawn filled: the torso as the polygon of shoulders and
+hips, each limb as a thick segment, the head as a disk — widths in proportion to the subject's torso
+length in that camera (median over the frames), so near and far views get alike masks. This coarse
+silhouette is already a mask (``refine = "none"``). With a clean plate (recorded, or estimated by
+``mmcsplat plates`` with these masks excluding the subject), ``refine = "plate"`` keeps the pixels that
+differ from the plate within the silhouette grown by ``margin``: the body's true outline, and never a
+bystander or a moving object away from the subject, which plate differences alone would take.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping
+from typing import Any
+
+import attrs
+import cv2
+import numpy as np
+
+from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.plugin_api.interfaces import KeypointObservations
+from mmcsplat.plugin_api.parameters import above, at_least, one_of, parameter
+from mmcsplat.plugin_api.registration import PluginBuilder
+from mmcsplat.plugins.segmenters.postprocess import PostProcessedSegmenter, dilate, open_close, present_frames
+from mmcsplat.storage.session import SessionReader
+
+#: Limbs drawn as thick segments, by keypoint name (pairs naming a keypoint the model lacks are skipped).
+LIMBS = (("LShoulder", "LElbow"), ("LElbow", "LWrist"), ("RShoulder", "RElbow"), ("RElbow", "RWrist"),
+         ("LHip", "LKnee"), ("LKnee", "LAnkle"), ("RHip", "RKnee"), ("RKnee", "RAnkle"),
+         ("LAnkle", "LHeel"), ("LAnkle", "LBigToe"), ("LHeel", "LBigToe"), ("RAnkle", "RHeel"), ("RAnkle", "RBigToe"), ("RHeel", "RBigToe"),
+         ("Neck", "Head"), ("Neck", "Nose"))
+TORSO = ("LShoulder", "RShoulder", "RHip", "LHip")
+HEAD = ("Head", "Nose")
+#: Widths as shares of the torso length (neck to mid-hip): an adult's thigh is about a third of it.
+LIMB_WIDTH = 0.3
+HEAD_RADIUS = 0.3
+
+
+def torso_length(observed: KeypointObservations) -> float | None:
+    """Median pixel distance from the neck (mid-shoulders) to the mid-hips over the frames that show both."""
+    index = {name: j for j, name in enumerate(observed.names)}
+    if not all(name in index for name in TORSO):
+        return None
+    points, seen = observed.pixels, observed.confidence > 0
+    top = (points[:, index["LShoulder"]] + points[:, index["RShoulder"]]) / 2
+    bottom = (points[:, index["LHip"]] + points[:, index["RHip"]]) / 2
+    visible = seen[:, [index[name] for name in TORSO]].all(axis=1)
+    return float(np.median(np.linalg.norm(top - bottom, axis=-1)[visible])) if visible.any() else None
+
+
+def skeleton_mask(pixels: np.ndarray, seen: np.ndarray, names: tuple[str, ...], shape: tuple[int, int], scale: float) -> np.ndarray:
+    """[H, W] bool: the filled skeleton of one frame's keypoints ``pixels`` [K, 2] (``seen`` [K] bool)."""
+    index = {name: j for j, name in enumerate(names)}
+    canvas = np.zeros(shape, dtype=np.uint8)
+    fixed = np.round(pixels * 16).astype(np.int64).clip(-(2**27), 2**27).astype(np.int32)  # cv2's shift=4 sub-pixel points
+
+    def usable(name: str) -> bool:
+        return name in index and bool(seen[index[name]])
+
+    if all(usable(name) for name in TORSO):
+        cv2.fillPoly(canvas, [fixed[[index[name] for name in TORSO]]], 1, cv2.LINE_AA, shift=4)
+    width = max(1, round(LIMB_WIDTH * scale))
+    for a, b in LIMBS:
+        if usable(a) and usable(b):
+            cv2.line(canvas, tuple(fixed[index[a]]), tuple(fixed[index[b]]), 1, width, cv2.LINE_AA, shift=4)
+    for name in HEAD:
+        if usable(name):
+            cv2.circle(canvas, tuple(fixed[index[name]]), round(HEAD_RADIUS * scale * 16), 1, -1, cv2.LINE_AA, shift=4)
+            break
+    return canvas.astype(bool)
+
+
+@attrs.frozen
+class KeypointSegmenter(PostProcessedSegmenter):
+    """Masks from the skeleton of 2D keypoints, optionally refined against the camera's clean plate."""
+
+    source: str | Mapping[str, Any] = parameter(
+        "openpose", doc='the landmarks plugin giving the 2D keypoints: its name, or a table of name and parameters ({ name = "openpose", folder = "pose_2d" })')
+    refine: str = parameter("none", doc="none: the skeleton is the mask; plate: what differs from the clean plate inside it", validator=one_of("none", "plate"))
+    margin: float = parameter(0.3, doc="plate: the skeleton grown by this share of the torso length bounds the mask", validator=at_least(0))
+    threshold: float = parameter(20.0, doc="plate: grey levels of difference from the plate that count as subject", validator=above(0))
+    registry: PluginBuilder = attrs.field(kw_only=True, repr=False)
+
+    def _observations(self, session: SessionReader, camera: str) -> KeypointObservations:
+        options = {"name": self.source} if isinstance(self.source, str) else dict(self.source)
+        name = options.pop("name", None)
+        if not isinstance(name, str):
+            raise InputError(f"segmenter 'keypoints': source must be a landmarks plugin's name or a table with a 'name', got {self.source!r}")
+        plugin = self.registry.create("landmarks", name, **options)
+        found = [o for o in plugin.observations(session, range(session.num_frames)) if o.camera == camera]
+        if not found:
+            raise InputError(f"segmenter 'keypoints': the {name} source has no keypoints for camera {camera!r}")
+        return found[0]
+
+    def raw(self, session: SessionReader, camera: str) -> Iterator[tuple[int, np.ndarray, np.ndarray | None]]:
+        observed = self._observations(session, camera)
+        scale = torso_length(observed)
+        if scale is None:
+            raise InputError(f"segmenter 'keypoints': camera {camera!r} never shows shoulders and hips together; its masks cannot be sized")
+        stored = session.camera(camera)
+        plate = session.plate(camera) if self.refine == "plate" else None
+        if self.refine == "plate" and plate is None:
+            raise InputError(f"{session.url}: camera {camera!r} has no clean plate for refine = \"plate\": estimate one with "
+                             f"`mmcsplat plates {session.url}` after segmenting with refine = \"none\"")
+        for t in present_frames(session, camera):
+            where = np.flatnonzero(observed.frames == t)
+            if not len(where):
+                yield int(t), np.zeros((stored.height, stored.width), dtype=bool), None
+                continue
+            k = where[0]
+            mask = skeleton_mask(observed.pixels[k], observed.confidence[k] > 0, observed.names, (stored.height, stored.width), scale)
+            if plate is not None:
+                difference = np.abs(session.frame(int(t), camera).rgb.astype(np.int16) - plate.astype(np.int16)).max(axis=-1)
+                mask = open_close(difference > self.threshold, 1, 2) & dilate(mask, round(self.margin * scale))
+            yield int(t), mask, None

@@ -1,0 +1,107 @@
+"""mmcsplat landmarks: joints read from a file are bound to the subject's Gaussians, carried through a run's
+tracks (here a known rigid motion, so the answer is exact), scored against the file's later frames, left
+out when nothing is near them, exported to TRC / CSV / C3D, drawn on a camera and shown in the report."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+from fitting_scene import write_fitted_run, write_session
+from scipy.spatial.transform import Rotation
+
+from mmcsplat.cli import main
+from mmcsplat.pipeline.fit import load_fitted
+from mmcsplat.storage.landmark_files import read_c3d, read_landmark_csv, read_trc, write_landmark_csv
+from mmcsplat.storage.session import SessionReader
+from mmcsplat.storage.tracks import TrackWriter
+
+FRAMES = 5
+NAMES = ("LWrist", "RWrist", "LAnkle", "RAnkle", "far")
+
+
+def motion(t: int) -> tuple[Rotation, np.ndarray]:
+    """Frame t's rigid motion of the whole subject: 0.15 rad per frame about z, 1 cm per frame along x."""
+    return Rotation.from_euler("z", 0.15 * t), np.array([0.01 * t, 0.0, 0.0])
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    """(a run whose tracks move the subject rigidly, the landmarks file, the true landmarks [T, L, 3])."""
+    root = tmp_path_factory.mktemp("landmarks")
+    session = write_session(root / "session.zarr", frames=FRAMES)
+    run = write_fitted_run(root / "run", session)
+    _, params, _, _ = load_fitted(run)
+    means, quats = params["means"].double().numpy(), params["quats"].double().numpy()
+    with TrackWriter(run, num_frames=FRAMES, static={k: params[k] for k in ("log_scales", "opacity_logits", "color_logits", "seg_logits")},
+                     method="rigid", attrs={"first_frame": 0}) as writer:
+        for t in range(FRAMES):
+            rotation, shift = motion(t)
+            turned = (rotation * Rotation.from_quat(quats, scalar_first=True)).as_quat(scalar_first=True)
+            writer.write_frame(t, means=torch.as_tensor(rotation.apply(means) + shift, dtype=torch.float32),
+                               quats=torch.as_tensor(turned, dtype=torch.float32))
+    start = np.array([[0.10, 0.03, 0.0], [-0.10, 0.02, 0.01], [0.05, -0.04, 0.02], [-0.06, -0.03, 0.0], [2.0, 2.0, 2.0]])
+    truth = np.stack([motion(t)[0].apply(start) + motion(t)[1] for t in range(FRAMES)])
+    times = SessionReader(session).frame_times
+    path = root / "joints.csv"
+    write_landmark_csv(path, NAMES, np.arange(FRAMES), times, truth)
+    return run, path, truth
+
+
+def test_landmarks_follow_the_tracks_and_are_scored(scene, capsys):
+    run, path, truth = scene
+    with pytest.warns(UserWarning, match="landmarks far: no subject Gaussian within 10 cm"):
+        assert main(["landmarks", str(run), "--source", "csv", "--set", f"path={path}"]) == 0
+    assert "4 landmarks over 5 frames; left out (no subject Gaussian within 10 cm): far" in capsys.readouterr().out
+    names, frames, times, positions, extra = read_landmark_csv(run / "landmarks.csv")
+    assert names == NAMES and frames.tolist() == list(range(FRAMES))
+    np.testing.assert_allclose(positions[:, :4], truth[:, :4], atol=2e-6)  # float32 tracks
+    assert np.isnan(positions[:, 4]).all()
+    assert np.nanmax(extra["spread_mm"]) < 0.01 and np.nanmin(extra["confidence"]) > 0.99  # rigid: the anchors agree
+    info = json.loads((run / "landmarks.json").read_text())
+    accuracy = info["accuracy_3d"]
+    assert accuracy["median_mm"] < 0.01 and accuracy["pairs"] == 4 * (FRAMES - 1)
+    assert accuracy["still_moving_median_mm"] > 10 and info["unbound"] == ["far"]
+
+
+def test_exports_read_back(scene, tmp_path):
+    run, path, truth = scene
+    assert main(["landmarks", str(run), "--source", "csv", "--set", f"path={path}"]) == 0
+    files = {suffix: tmp_path / f"joints.{suffix}" for suffix in ("trc", "csv", "c3d")}
+    assert main(["export", str(run), *(f"--{suffix}={file}" for suffix, file in files.items())]) == 0
+    trc = read_trc(files["trc"])
+    assert trc.names == NAMES and trc.rate == SessionReader(load_fitted(run)[0].session).fps
+    np.testing.assert_allclose(trc.positions[:, :4], truth[:, :4], atol=2e-6)
+    names, positions, _ = read_c3d(files["c3d"])
+    np.testing.assert_allclose(positions[:, :4], truth[:, :4], atol=1e-5)  # float32 millimetres
+    assert np.isnan(positions[:, 4]).all()
+    assert read_landmark_csv(files["csv"])[0] == NAMES
+
+
+def test_no_landmark_near_the_subject_is_an_error(scene, tmp_path, capsys):
+    run, _, _ = scene
+    far = tmp_path / "far.csv"
+    far.write_text("name,x,y,z\nhead,5,5,5\n")
+    assert main(["landmarks", str(run), "--source", "csv", "--set", f"path={far}"]) == 2
+    assert "no landmark of CSV" in capsys.readouterr().err
+    mm = tmp_path / "mm.csv"
+    mm.write_text("name,x,y,z\nwrist,100,30,0\n")  # millimetres read as metres, then told
+    assert main(["landmarks", str(run), "--source", "csv", "--set", f"path={mm}"]) == 2
+    assert main(["landmarks", str(run), "--source", "csv", "--set", f"path={mm}", "--set", "units=mm"]) == 0
+
+
+def test_the_overlay_video_and_the_report_show_them(scene):
+    import imageio.v3 as iio
+
+    run, path, _ = scene
+    assert main(["landmarks", str(run), "--source", "csv", "--set", f"path={path}"]) == 0
+    assert main(["render", str(run), "--landmarks", "--no-progress"]) == 0
+    video = run / "renders" / "landmarks_cam_0.mp4"
+    frames = iio.imread(video)
+    assert frames.shape[0] == FRAMES and min(frames.shape[1:3]) >= 480
+    assert main(["report", str(run)]) == 0
+    page = (run / "report.html").read_text()
+    assert "<h2>Movement</h2>" in page and "Where the hands and feet went" in page and "Left and right" in page
+    assert "3D error where the landmark moved" in page and "landmarks_cam_0.mp4" in page
