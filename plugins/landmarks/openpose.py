@@ -1,7 +1,8 @@
 """2D keypoints in OpenPose's JSON, as OpenPose and Pose2Sim write them, triangulated in the session's cameras.
 
-Layout: one folder per camera under ``folder`` (``pose_2d/cam01/…``, matched to the session's cameras by
-name like videos: ``cam01`` ↔ ``cam_01`` ↔ ``int_cam01_img``, or by ``camera_map``), each holding one JSON
+Layout: one folder per camera under ``folder`` (``pose_2d/cam01/…``, or OpenPose's ``cam01_json``, matched
+to the session's cameras by name like videos: ``cam01`` ↔ ``cam_01`` ↔ ``int_cam01_img``, or by
+``camera_map``), each holding one JSON
 file per frame whose last number is the capture's frame number (``cam01.0042.json``, ``…_000000000042_
 keypoints.json``). Each file lists ``people``, each with ``pose_keypoints_2d`` = [x, y, confidence] × K
 in the source video's pixels; the ``model`` names the K keypoints (BODY_25B, the model Pose2Sim's demo
@@ -112,8 +113,10 @@ class OpenPoseKeypoints(LandmarkSource):
             raise MissingFileError(f"openpose keypoints: folder {folder} does not exist")
         names = MODELS[self.model]
         cameras = [session.camera(name) for name in session.camera_names]
-        folders = match_cameras(cameras, [path for path in folder.iterdir() if path.is_dir()], "keypoint folder", folder,
-                                self.camera_map)
+        # OpenPose and older Pose2Sim name a camera's folder CAMERA_json: the suffix is not part of the name.
+        by_label = {folder / re.sub(r"_json$", "", path.name): path for path in folder.iterdir() if path.is_dir()}
+        matched = match_cameras(cameras, list(by_label), "keypoint folder", folder, self.camera_map)
+        folders = {name: by_label[label] for name, label in matched.items()}
         recorded = {data["name"]: Camera.from_dict(data) for data in session.provenance.get("source_cameras", [])}
         capture = session.capture_frames(frames)
         result = []
