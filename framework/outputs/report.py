@@ -95,8 +95,11 @@ def run_report(run: Path, backend: str | None = None, registry: Registry | None 
     states = RunStates(run)
     renderer = RunRenderer(states, backend=backend, registry=registry, progress=False)
     metrics = json.loads((run / METRICS_FILE).read_text()) if (run / METRICS_FILE).is_file() else None
+    from mmcsplat.outputs.report_landmarks import landmarks_section
+
+    videos = [(path.read_bytes(), path.name) for path in sorted((Path(run) / RENDERS_DIR).glob("landmarks_*.mp4"))]
     sections = [run_summary(states), views_section(renderer, backend or states.info.renderer), metrics_section(run, metrics),
-                curves_section(run), renders_section(run, states)]
+                landmarks_section(run, videos), curves_section(run), renders_section(run, states)]
     return page(f"Run {Path(run).resolve()}", sections)
 
 
