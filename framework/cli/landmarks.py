@@ -49,6 +49,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"3D error against {args.source}: median {accuracy['median_mm']:.1f} mm, 90th percentile {accuracy['p90_mm']:.1f} mm{moving}")
     for camera, scores in info.get("accuracy_2d", {}).items():
         if scores["carried_median_px"] is not None:
-            print(f"2D error in {camera}{' (held out)' if scores['heldout'] else ''}: carried {scores['carried_median_px']:.1f} px, "
-                  f"the source's own landmarks {scores['reference_median_px']:.1f} px (median over {scores['detections']} detections)")
+            print(f"2D error in {camera}{' (held out)' if scores['heldout'] else ''}: carried {scores['carried_median_source_px']:.1f} px, "
+                  f"the source's own landmarks {scores['reference_median_source_px']:.1f} px (median over {scores['detections']} detections, "
+                  f"pixels of the recorded video)")
     return 0

@@ -46,17 +46,22 @@ def subject_gaussians(params: dict[str, Any], foreground: np.ndarray) -> np.ndar
     return candidates[opaque[candidates]]
 
 
-def pixel_errors(camera: Camera, carried: np.ndarray, reference: np.ndarray, observed: KeypointObservations) -> dict[str, Any]:
-    """Median 2D distances (px) in ``camera`` of the carried landmarks and of the reference landmarks to the
-    confident detections ``observed`` (both [T, L, 3], the observations' frames and names)."""
-    result: dict[str, Any] = {}
+def pixel_errors(camera: Camera, carried: np.ndarray, reference: np.ndarray, observed: KeypointObservations,
+                 source_scale: float = 1.0) -> dict[str, Any]:
+    """Median and 90th-percentile 2D distances (px of the stored images) in ``camera`` of the carried
+    landmarks and of the reference landmarks to the confident detections ``observed`` (both [T, L, 3], the
+    observations' frames and names); ``*_source_px`` the same in the recorded video's pixels
+    (``source_scale`` of them per stored pixel), which detectors' figures are quoted in."""
+    result: dict[str, Any] = {"source_scale": source_scale}
     confident = observed.confidence >= MIN_KEYPOINT_CONFIDENCE
     for key, points in (("carried_median_px", carried), ("reference_median_px", reference)):
         known = confident & np.all(np.isfinite(points), axis=-1)
         pixels = camera.project(np.where(np.isfinite(points), points, 0.0).reshape(-1, 3)).reshape(*points.shape[:2], 2)
         distance = np.linalg.norm(pixels - observed.pixels, axis=-1)[known]
-        result[key] = float(np.median(distance)) if distance.size else None
-        result[key.replace("median", "p90")] = float(np.percentile(distance, 90)) if distance.size else None
+        for name, value in ((key, np.median(distance) if distance.size else None),
+                            (key.replace("median", "p90"), np.percentile(distance, 90) if distance.size else None)):
+            result[name] = None if value is None else float(value)
+            result[name.replace("_px", "_source_px")] = None if value is None else float(value) * source_scale
     result["detections"] = int(confident.sum())
     return result
 
@@ -128,6 +133,7 @@ def _accuracy_2d(registry: Registry, name: str, params: dict[str, Any] | None, s
                  frames: np.ndarray, reference: Landmarks, carried: np.ndarray) -> dict[str, Any]:
     """Per camera, the 2D errors of the carried and reference landmarks against the detections of ``name``."""
     detector: LandmarkSource = registry.create("landmarks", name, **(params or {}))
+    recorded_focal = {data["name"]: float(data["K"][0][0]) for data in session.provenance.get("source_cameras", [])}
     result = {}
     for observed in detector.observations(session, frames):
         if not np.array_equal(observed.frames, frames):
@@ -136,8 +142,11 @@ def _accuracy_2d(registry: Registry, name: str, params: dict[str, Any] | None, s
         mine = [reference.names.index(n) for n in shared]
         theirs = [observed.names.index(n) for n in shared]
         subset = attrs.evolve(observed, names=shared, pixels=observed.pixels[:, theirs], confidence=observed.confidence[:, theirs])
+        stored = session.camera(observed.camera)
+        recorded = recorded_focal.get(observed.camera)
         result[observed.camera] = {"heldout": observed.camera in heldout,
-                                   **pixel_errors(session.camera(observed.camera), carried[:, mine], reference.positions[:, mine], subset)}
+                                   **pixel_errors(stored, carried[:, mine], reference.positions[:, mine], subset,
+                                                  recorded / float(stored.K[0, 0]) if recorded else 1.0)}
     if not result:
         raise InputError(f"landmarks {name!r} gives no 2D detections to score against (--keypoints needs a keypoint source, e.g. openpose)")
     return result
