@@ -62,6 +62,9 @@ class CellOutcome:
     track_wall_s_per_frame: float | None = None
     tracking_median_mm: float | None = None
     tracking_p90_mm: float | None = None
+    landmark_median_mm: float | None = None
+    landmark_moving_median_mm: float | None = None
+    landmark_still_moving_median_mm: float | None = None
     per_frame_val_masked_psnr: list[float | None] | None = None
     tracking_per_frame_median_mm: list[float] | None = None
     resumed_at: int | None = None
@@ -107,6 +110,7 @@ def _run(spec: CellSpec, cell_dir: Path) -> dict[str, Any]:
     info, resumed_at = _fit(spec, cell_dir)
     track = _track(cell_dir) if spec.has_dynamics else {}
     metrics = evaluate_run(cell_dir, ground_truth=Path(spec.ground_truth) if spec.ground_truth else None)
+    landmarks = _landmarks(spec, cell_dir) if spec.has_dynamics else {}
     wall = info.wall_s
     return {
         **{key: metrics.get(key) for key in ("val_masked_psnr", "val_psnr", "val_ssim", "train_masked_psnr", "val_interior_masked_psnr", "train_psnr",
@@ -122,7 +126,22 @@ def _run(spec: CellSpec, cell_dir: Path) -> dict[str, Any]:
         "track_wall_s": track.get("wall_s"),
         "track_wall_s_per_frame": track.get("wall_s_per_frame"),
         "resumed_at": resumed_at,
+        **landmarks,
     }
+
+
+def _landmarks(spec: CellSpec, cell_dir: Path) -> dict[str, float | None]:
+    """The error of the synthetic capture's joints carried by the cell's tracks (docs/landmarks.md); none
+    for a session whose ground truth has no joints (or no ground truth): the cell's other results stand."""
+    from mmcsplat.pipeline.landmarks import track_landmarks
+    from mmcsplat.plugin_api.errors import InputError, MissingFileError
+
+    try:
+        accuracy = track_landmarks(cell_dir, "synthetic", {"path": spec.ground_truth} if spec.ground_truth else {}).info.get("accuracy_3d") or {}
+    except (InputError, MissingFileError):
+        return {}
+    return {"landmark_median_mm": accuracy.get("median_mm"), "landmark_moving_median_mm": accuracy.get("moving_median_mm"),
+            "landmark_still_moving_median_mm": accuracy.get("still_moving_median_mm")}
 
 
 def _fit(spec: CellSpec, cell_dir: Path) -> tuple[RunInfo, int | None]:
