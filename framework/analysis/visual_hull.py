@@ -97,3 +97,13 @@ def consistent_mask(camera: Camera, mask: np.ndarray, others: Sequence[View], ce
         met = rays_meet_hull(camera, np.stack([xs, ys], axis=1), grown, center, radius, tolerance=len(others), min_share=min_share)
         kept[ys[met], xs[met]] = True
     return kept
+
+
+def projected_hull_mask(camera: Camera, others: Sequence[View], center: np.ndarray, radius: float) -> np.ndarray:
+    """[H, W] bool: the pixels of ``camera`` whose ray meets the visual hull of the ``others`` views' masks
+    (dilated by :data:`FLOATER_MARGIN_PX`) — the subject's silhouette as the other cameras place it, a mask
+    for a camera that has none of its own."""
+    ys, xs = np.mgrid[0 : camera.height, 0 : camera.width]
+    grown = [(view, dilated(view_mask, FLOATER_MARGIN_PX)) for view, view_mask in others]
+    met = rays_meet_hull(camera, np.stack([xs.ravel(), ys.ravel()], axis=1), grown, center, radius)
+    return met.reshape(camera.height, camera.width)

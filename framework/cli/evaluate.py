@@ -27,6 +27,8 @@ def run(args: argparse.Namespace) -> int:
     from mmcsplat.pipeline.evaluate import evaluate
 
     metrics = evaluate(args.run, backend=args.backend, ground_truth=args.ground_truth)
+    for warning in metrics.get("warnings", []):
+        print(f"mmcsplat evaluate: warning: {args.run}: {warning}", file=sys.stderr)
     if metrics.get("tracking_error"):
         print(f"mmcsplat evaluate: warning: {args.run}: tracking errors not measured: {metrics['tracking_error']}", file=sys.stderr)
     if args.json:

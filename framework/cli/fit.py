@@ -6,6 +6,7 @@ With --folds, one fit per held-out camera (leave-one-camera-out) into RUN/<camer
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from mmcsplat.cli.options import add_names, add_progress, add_settings
@@ -24,6 +25,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from mmcsplat.configuration.config import load_config
+    from mmcsplat.pipeline.evaluate import fit_signals
     from mmcsplat.pipeline.fit import FirstFrameFit
     from mmcsplat.storage.session import SessionReader
 
@@ -36,4 +38,6 @@ def run(args: argparse.Namespace) -> int:
         resumed = f", resumed from iteration {info.resumed_from}" if info.resumed_from is not None else ""
         print(f"{out}: {info.iterations} iterations{resumed}, {info.num_gaussians} Gaussians, {info.wall_s:.1f} s "
               f"(held out: {', '.join(info.heldout_cameras) or 'none'})")
+        for warning in fit_signals(out):  # a fit that "completed" on a cloud of floaters says so
+            print(f"mmcsplat fit: warning: {out}: {warning}", file=sys.stderr)
     return 0

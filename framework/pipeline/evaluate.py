@@ -12,7 +12,7 @@ import torch
 from mmcsplat.analysis.drift import detect_drift
 from mmcsplat.analysis.rendered_views import render_over
 from mmcsplat.analysis.trajectory_error import evaluate_tracks
-from mmcsplat.analysis.visual_hull import FLOATER_MARGIN_PX, dilated, eroded, floater_share, mask_agreement
+from mmcsplat.analysis.visual_hull import FLOATER_MARGIN_PX, dilated, eroded, floater_share, mask_agreement, projected_hull_mask
 from mmcsplat.configuration.registry import Registry, default_registry
 from mmcsplat.pipeline.fit import fitted_background, load_fitted
 from mmcsplat.plugin_api.errors import MissingFileError
@@ -26,6 +26,12 @@ from mmcsplat.training.backdrop import camera_backdrop
 from mmcsplat.training.supersampling import run_renderer
 
 METRICS_FILE = "metrics.json"
+#: Above this share of the opacity outside the masks' visual hull, a fit is mostly floaters (the reference
+#: study's failure mode; the demo's fits hold 2–5 %).
+FLOATER_WARNING = 0.3
+#: Below this share of its mask on the other cameras' hull, a camera's calibration or mask is suspect
+#: (docs/outputs.md: the synthetic capture's cameras score 0.95–1).
+AGREEMENT_WARNING = 0.6
 
 
 def _mean(values: list[float]) -> float | None:
@@ -65,6 +71,26 @@ def _mask_agreement(views: list[tuple[Camera, np.ndarray]], center: np.ndarray, 
     return scores
 
 
+def failure_signals(floaters: float | None, agreement: dict[str, float]) -> list[str]:
+    """One warning per failure signal above its threshold: floaters, cameras off the others' hull."""
+    warnings = []
+    if floaters is not None and floaters > FLOATER_WARNING:
+        warnings.append(f"{floaters:.0%} of the opacity lies outside the subject's visual hull (floaters): the start or pruning region may "
+                        "not fit the subject, or too few cameras constrain it — see docs/fit.md")
+    for name, score in sorted(agreement.items()):
+        if score < AGREEMENT_WARNING:
+            warnings.append(f"camera {name!r}: only {score:.0%} of its mask lies on the other cameras' visual hull — its calibration "
+                            "(units, a duplicated pose) or its masks are suspect")
+    return warnings
+
+
+def fit_signals(run: Path) -> list[str]:
+    """:func:`failure_signals` of a fitted run, from its Gaussians and the session's masks (no rendering)."""
+    info, params, _, _ = load_fitted(run)
+    views = _mask_views(SessionReader(info.session), info.frame)
+    return failure_signals(_floater_share(views, params), _mask_agreement(views, np.asarray(info.scene_center), info.scene_scale))
+
+
 def evaluate_run(run: Path, registry: Registry | None = None, backend: str | None = None, ground_truth: Path | None = None) -> dict[str, Any]:
     """Score one run directory and write its metrics.json; returns the metrics. A run with tracks
     (``mmcsplat track``) also gets the tracking metrics of :mod:`mmcsplat.analysis.trajectory_error` (against
@@ -95,14 +121,24 @@ def evaluate_run(run: Path, registry: Registry | None = None, backend: str | Non
         prediction = rgb.clamp(0, 1).double().numpy()
         target = data.rgb.astype(np.float64) / 255.0
         camera_scores = {"psnr": psnr(prediction, target), "ssim": ssim(prediction, target)}
-        if data.mask is not None and data.mask.any():
-            camera_scores["masked_psnr"] = psnr(prediction, target, data.mask)
-            interior = eroded(data.mask, 1)
+        mask, mask_source = data.mask, "session"
+        if mask is None and split == "val":  # no mask of its own: where the training cameras' hull projects
+            others = [(camera, view_mask) for camera, view_mask in views if camera.name in info.train_cameras]
+            if len(others) >= 2:
+                mask = projected_hull_mask(session.camera(name), others, np.asarray(info.scene_center), info.scene_scale)
+                mask_source = "hull of the training cameras' masks"
+        if mask is not None and mask.any():
+            camera_scores["masked_psnr"] = psnr(prediction, target, mask)
+            camera_scores["mask"] = mask_source
+            interior = eroded(mask, 1)
             if interior.any():
                 camera_scores["interior_masked_psnr"] = psnr(prediction, target, interior)
         per_camera[name] = {"split": split, **camera_scores}
         for key, value in camera_scores.items():
-            scores[split].setdefault(key, []).append(value)
+            if key != "mask":
+                scores[split].setdefault(key, []).append(value)
+    floaters = _floater_share(views, params)
+    agreement = _mask_agreement(views, np.asarray(info.scene_center), info.scene_scale)
     metrics = {
         "val_masked_psnr": _mean(scores["val"].get("masked_psnr", [])),
         "val_psnr": _mean(scores["val"].get("psnr", [])),
@@ -112,8 +148,9 @@ def evaluate_run(run: Path, registry: Registry | None = None, backend: str | Non
         "train_interior_masked_psnr": _mean(scores["train"].get("interior_masked_psnr", [])),
         "train_psnr": _mean(scores["train"].get("psnr", [])),
         "num_gaussians": int(params["means"].shape[0]),
-        "floater_share": _floater_share(views, params),
-        "mask_agreement": _mask_agreement(views, np.asarray(info.scene_center), info.scene_scale),
+        "floater_share": floaters,
+        "mask_agreement": agreement,
+        "warnings": failure_signals(floaters, agreement),
         "iterations": info.iterations,
         "wall_s": info.wall_s,
         "status": info.status,
