@@ -93,7 +93,8 @@ class ImageSequenceReader(Reader):
 
     def detect(self, source: Path) -> bool:
         source = Path(source)
-        return source.is_dir() and any(source.glob("*.toml")) and bool(camera_folders(source))
+        calibrated = any(source.glob("*.toml")) or any((source / "calibration").glob("*.toml"))
+        return source.is_dir() and calibrated and bool(camera_folders(source))
 
     def open(self, source: Path, calibration: Path | None = None, units: str = "m") -> Recording:
         source = Path(source)

@@ -26,23 +26,31 @@ MAX_ANISOTROPY = 0.05
 GROUND_TRUTH = "ground_truth.zarr"
 
 
+#: Where a rig's calibration is looked for, in order, under the source folder: the file, or the single
+#: ``*.toml`` of the folder. ``calibration/`` is where Pose2Sim (``Calib_*.toml``) and anipose
+#: (``calibration.toml``) projects keep it.
+CALIBRATION_FOLDERS = (".", "calibration")
+
+
 def find_calibration(source: Path, calibration: Path | None) -> Path:
-    """``calibration`` when given, else ``source/calibration.toml``, else the single ``*.toml`` in ``source``."""
+    """``calibration`` when given, else ``calibration.toml`` or the single ``*.toml`` of ``source``, else of
+    ``source/calibration/``."""
     if calibration is not None:
         calibration = Path(calibration)
         if not calibration.is_file():
             raise MissingFileError(f"calibration file {calibration} does not exist")
         return calibration
-    default = source / "calibration.toml"
-    if default.is_file():
-        return default
-    candidates = sorted(source.glob("*.toml"))
-    if len(candidates) == 1:
-        return candidates[0]
-    if not candidates:
-        raise MissingFileError(f"{source}: no calibration.toml (or other *.toml) found; pass --calibration")
-    names = ", ".join(path.name for path in candidates)
-    raise InputError(f"{source}: several calibration files ({names}); choose one with --calibration")
+    for folder in (source / name for name in CALIBRATION_FOLDERS):
+        default = folder / "calibration.toml"
+        if default.is_file():
+            return default
+        candidates = sorted(folder.glob("*.toml"))
+        if len(candidates) == 1:
+            return candidates[0]
+        if candidates:
+            names = ", ".join(path.name for path in candidates)
+            raise InputError(f"{folder}: several calibration files ({names}); choose one with --calibration")
+    raise MissingFileError(f"{source}: no calibration.toml (or other single *.toml) in it or in its calibration/ folder; pass --calibration")
 
 
 #: The ``camera_map`` parameter of the readers that match files to calibrated cameras.

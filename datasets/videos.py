@@ -30,14 +30,29 @@ VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv")
 DEFAULT_FPS = 30.0
 
 
+#: The folders tried for videos, in order (module docstring).
+VIDEO_FOLDERS = ("videos", "videos-raw", ".")
+
+
+def _videos_in(folder: Path) -> list[Path]:
+    return sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in VIDEO_SUFFIXES) if folder.is_dir() else []
+
+
 def video_files(source: Path) -> list[Path]:
-    """The videos of ``source``: those in ``source/videos`` if any, else those directly in ``source``."""
-    for folder in (source / "videos", source):
-        if folder.is_dir():
-            found = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in VIDEO_SUFFIXES)
-            if found:
-                return found
+    """The videos of ``source`` in the first layout that has any (module docstring). Per-camera folders are
+    returned as the folders themselves (:func:`camera_video` finds the video inside)."""
+    for folder in (source / name for name in VIDEO_FOLDERS):
+        found = _videos_in(folder)
+        if found:
+            return found
+    if source.is_dir():
+        return sorted(folder for folder in source.iterdir() if folder.is_dir() and len(_videos_in(folder)) == 1)
     return []
+
+
+def camera_video(path: Path) -> Path:
+    """The video of a matched entry of :func:`video_files`: the file, or the one video in a camera's folder."""
+    return _videos_in(path)[0] if path.is_dir() else path
 
 
 @attrs.frozen
@@ -107,7 +122,8 @@ class VideoReader(Reader):
             raise NotAFolderError(f"videos source {source} is not a folder")
         calibration = find_calibration(source, calibration)
         calibrated = read_calibration(calibration, units)
-        paths = match_cameras(calibrated, video_files(source), "video", source, self.camera_map)
+        matched = match_cameras(calibrated, video_files(source), "video", source, self.camera_map)
+        paths = {name: camera_video(path) for name, path in matched.items()}
         infos = {camera.name: probe(paths[camera.name]) for camera in calibrated}
         if self.verify:
             for camera in calibrated:

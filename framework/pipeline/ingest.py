@@ -64,9 +64,9 @@ def detect_format(source: Path, registry: Registry | None = None) -> str:
         return matches[0]
     if matches:
         raise InputError(f"{source}: several formats match ({', '.join(matches)}); choose one with --format")
-    tried = ", ".join(registry.names("reader")) or "none registered"
+    layouts = "; ".join(f"{name}: {registry.get('reader', name).registration.summary}" for name in registry.names("reader")) or "no reader is registered"
     broken = f"; readers that failed: {'; '.join(failures)}" if failures else ""
-    raise InputError(f"{source}: no reader recognises this folder (tried {tried}){broken}; is it empty or the wrong path?")
+    raise InputError(f"{source}: no reader recognises this folder — the layouts known are {layouts}{broken}; is it empty or the wrong path?")
 
 
 @attrs.frozen(eq=False)
