@@ -337,3 +337,22 @@ def test_depth_maps_are_copied_from_the_sessions_read_only_frames(scene):
     supervisor = initializer("depth-supervised")
     supervisor.extra_loss(0, render, camera, scene)
     assert not np.shares_memory(supervisor._maps[camera.name].numpy(), scene.session.frame(scene.frame, camera.name).depth)
+
+
+# ------------------------------------------------------------------------------------------- regions
+
+
+@pytest.mark.parametrize(("name", "params", "message"), [
+    ("random", {"half_size": 0.05}, r"initializer 'random': only \d+% of the subject's visual hull \(from the masks\) lies inside the start cube"),
+    ("visual-hull", {"half_size": 0.05}, r"it reaches 0\.\d\d m: set --set initializer\.visual-hull\.half_size=0\.\d"),
+    ("masked", {"radius": 0.05}, r"inside the pruning sphere of radius 0\.05 m .* set --set initializer\.masked\.radius=0\.\d"),
+])
+def test_a_region_too_small_for_the_subject_is_refused_before_fitting_saying_what_to_set(scene, name, params, message):
+    def use(plugin):
+        if name == "masked":
+            return plugin.prune_mask(0, points_at(np.array([scene.center])), scene)
+        return plugin.initial_gaussians(scene, seeded(0))
+
+    with pytest.raises(InputError, match=message):
+        use(initializer(name, **params))
+    use(initializer(name))  # the defaults hold the test scene's subject

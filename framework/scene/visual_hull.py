@@ -52,3 +52,18 @@ def pixel_rays(camera: Camera, pixels: np.ndarray, depths: np.ndarray) -> np.nda
     directions = np.concatenate([normalized, np.ones((len(normalized), 1))], axis=1)
     local = directions[:, None, :] * np.asarray(depths, dtype=np.float64)[None, :, None]
     return (local - camera.t) @ camera.R  # R^T (x - t): camera to world
+
+
+#: Cells per side of the grid :func:`hull_cells` carves: 5–15 cm cells over a rig, enough to place a subject.
+HULL_GRID = 48
+
+
+def hull_cells(views: Sequence[View], center: np.ndarray, search: float, grid: int = HULL_GRID) -> np.ndarray:
+    """[K, 3] centres of the cells of a ``grid``³ lattice over the cube of half side ``search`` about
+    ``center`` that every view sees on its mask — the visual hull, to a cell (where only some views see,
+    their cones meet far from the subject, so those cells are left out: an under-estimate where the
+    subject leaves a view's frame)."""
+    axis = np.linspace(-search, search, grid)
+    points = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), axis=-1).reshape(-1, 3) + np.asarray(center, dtype=np.float64)
+    _, inside = mask_votes(points, views)
+    return points[inside == len(views)]
