@@ -1,11 +1,15 @@
-"""The real Pose2Sim demo (../shared/data/pose2sim_demo: 4 cameras, no plates, no masks) end to end at a
-small scale — ingest, skeleton masks from its 2D keypoints, plates estimated with the subject masked out,
-masks refined against them, a short fit and track, then its triangulated joints carried and scored in
-3D and against the keypoints in every camera. docs/results.md has the full-length figures."""
+"""The real Pose2Sim demo (../shared/data/pose2sim_demo: 4 cameras, no plates, no masks) end to end with
+the one command, at a small scale: ingest, skeleton masks from its 2D keypoints, plates estimated with
+the subject masked out, masks refined against them, a fit whose start region is sized from the masks, a
+short track, its triangulated joints carried and scored in 3D and against the keypoints in every camera,
+the renders and the report; a rerun redoes nothing. docs/results.md has the full-length figures."""
 
 from __future__ import annotations
 
 import json
+import re
+from contextlib import redirect_stdout
+from io import StringIO
 from pathlib import Path
 
 import numpy as np
@@ -16,45 +20,24 @@ from mmcsplat.storage.landmark_files import read_landmark_csv
 from mmcsplat.storage.session import SessionReader
 
 POSE2SIM = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "pose2sim_demo"
-KEYPOINTS = f'source={{name="openpose", folder="{POSE2SIM / "pose_2d"}"}}'
-FIT = """[fit]
-iterations = 60
-checkpoint_every = 60
-lambda_seg = 0.3
-background = "plate"
-
-[renderer]
-name = "torch-cpu"
-
-[[initializer]]
-name = "visual-hull"
-num_points = 3000
-half_size = 1.25
-
-[[initializer]]
-name = "masked"
-radius = 2.0
-"""
 
 
 @pytest.mark.skipif(not POSE2SIM.is_dir(), reason=f"shared real data not found at {POSE2SIM}")
-def test_pose2sim_demo_end_to_end_small(tmp_path):
-    session = tmp_path / "p2s.zarr"
-    assert main(["ingest", str(POSE2SIM), str(session), "--calibration", str(POSE2SIM / "Calib_qualisys.toml"), "--frames", "0:4",
-                 "--scale", "0.125", "--holdout", "cam_04", "--no-progress"]) == 0
-    assert main(["segment", str(session), "--segmenter", "keypoints", "--set", KEYPOINTS, "--no-progress"]) == 0
-    assert main(["plates", str(session), "--no-progress"]) == 0
-    assert main(["segment", str(session), "--segmenter", "keypoints", "--set", KEYPOINTS, "--set", "refine=plate", "--no-progress"]) == 0
-    reader = SessionReader(session)
+def test_pose2sim_demo_runs_with_one_command(tmp_path):
+    out = tmp_path / "out"
+    command = ["run", str(POSE2SIM), "--out", str(out), "--calibration", str(POSE2SIM / "Calib_qualisys.toml"), "--frames", "0:4",
+               "--scale", "0.125", "--holdout", "cam_04", "--set", "fit.iterations=60", "--track-iterations", "5", "--no-progress"]
+    with redirect_stdout(StringIO()) as printed:
+        assert main(command) == 0
+    assert "mmcsplat run finished" in printed.getvalue() and "joints: median 3D error" in printed.getvalue()
+    reader = SessionReader(out / "session.zarr")
     coverage = [reader.frame(0, name).mask.mean() for name in reader.camera_names]
     assert all(0.02 < share < 0.2 for share in coverage), coverage  # a standing adult in a portrait view
     assert all(reader.plate_source(name)["kind"] == "estimated" for name in reader.camera_names)
-    (tmp_path / "fit.toml").write_text(FIT)
-    run = tmp_path / "run"
-    assert main(["fit", str(session), "--config", str(tmp_path / "fit.toml"), "--out", str(run), "--no-progress"]) == 0
-    assert main(["track", str(run), "--dynamics", "iterative", "--set", "dynamics.iterations=5", "--no-progress"]) == 0
-    assert main(["landmarks", str(run), "--source", "trc", "--set", f"path={POSE2SIM / 'joints_3d.trc'}",
-                 "--keypoints", "openpose", "--keypoints-set", f"folder={POSE2SIM / 'pose_2d'}"]) == 0
+    run = out / "run"
+    # The start cube was sized from the masks' hull: the configuration's 0.75 m holds too little of an adult.
+    visual_hull = json.loads((run / "run.json").read_text())["config_values"]["initializer"][0]
+    assert visual_hull["name"] == "visual-hull" and visual_hull["half_size"] > 0.75
     names, frames, _, positions, _ = read_landmark_csv(run / "landmarks.csv")
     assert len(names) == 21 and frames.tolist() == [0, 1, 2, 3]
     info = json.loads((run / "landmarks.json").read_text())
@@ -64,3 +47,8 @@ def test_pose2sim_demo_end_to_end_small(tmp_path):
     # The recorded video is 8× the stored images here: errors are quoted in its pixels too.
     assert scores["cam_04"]["source_scale"] == pytest.approx(8.0, rel=0.01)
     assert all(np.isfinite(s["carried_median_source_px"]) and s["reference_median_source_px"] < 40 for s in scores.values())
+    assert (run / "renders" / "landmarks_cam_04.mp4").exists() and "<h2>Movement</h2>" in (run / "report.html").read_text()
+    with redirect_stdout(StringIO()) as again:
+        assert main(command) == 0
+    steps = re.findall(r"^\[run\] .*", again.getvalue(), flags=re.M)
+    assert len(steps) > 5 and all("already done" in line for line in steps)

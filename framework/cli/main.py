@@ -17,6 +17,7 @@ from mmcsplat.plugin_api.errors import MmcsplatError
 #: Sub-command name → module in mmcsplat.cli defining ``add_arguments(parser)`` and ``run(args) -> int``.
 COMMANDS = {
     "demo": "demo",
+    "run": "run",
     "synth": "synth",
     "ingest": "ingest",
     "plates": "plates",

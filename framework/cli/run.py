@@ -1,0 +1,46 @@
+"""Run your own capture end to end: ingest, masks, plates, fit, track, evaluate, landmarks, renders, report.
+
+For a rig's own folder (a Pose2Sim project, an anipose session, videos beside a calibration): ingests it at
+--scale, makes subject masks from its 2D keypoints (pose_2d/ or --keypoints; else a background median),
+estimates clean plates with the subject masked out and refines the masks against them, fits the first
+frame with the start region sized from the masks' visual hull, tracks the sequence, evaluates on the
+held-out cameras, carries the joints of a TRC file (the capture's single *.trc, or --joints) and scores
+them against it and the keypoints, renders the tracking figure and the landmark overlay, and writes the
+report. Steps already done in OUT are reused, so a rerun resumes; docs/real-data.md walks through it.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from mmcsplat.cli.options import add_frames, add_names, add_progress, add_settings
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from mmcsplat.jobs.capture import DEFAULT_CONFIG
+
+    parser.add_argument("capture", type=Path, help="the capture folder (videos or images and a calibration)")
+    parser.add_argument("--out", required=True, type=Path, help="output directory (created; reused steps are skipped)")
+    parser.add_argument("--calibration", help="calibration .toml (default: the capture's own, see docs/ingest.md)")
+    parser.add_argument("--units", choices=("m", "mm"), default="m", help="length unit of the calibration's translations (default m)")
+    parser.add_argument("--scale", type=float, default=0.25, help="resize factor of the stored images (default 0.25)")
+    add_frames(parser, "the frame indices to use (default: all)")
+    add_names(parser, "--holdout", "cameras kept for evaluation (default: the capture format's, else none)")
+    parser.add_argument("--keypoints", help="folder of OpenPose JSON per camera (default: CAPTURE/pose_2d when it exists)")
+    parser.add_argument("--joints", help="TRC file of joints to carry as landmarks (default: the capture's single *.trc)")
+    parser.add_argument("--config", default=DEFAULT_CONFIG, help=f"configuration to fit with (default: {DEFAULT_CONFIG})")
+    add_settings(parser, "override a configuration value (repeatable)")
+    parser.add_argument("--track-iterations", type=int, default=50, metavar="N", help="iterations per frame of the iterative method (default 50)")
+    add_progress(parser)
+
+
+def run(args: argparse.Namespace) -> int:
+    from mmcsplat.jobs.capture import CaptureSettings, run_capture, summary
+
+    frames = (args.frames.start, args.frames.stop, args.frames.step) if args.frames else (None, None, None)
+    settings = CaptureSettings(calibration=args.calibration, units=args.units, scale=args.scale, frames=frames, holdout=args.holdout or (),
+                               keypoints=args.keypoints, joints=args.joints, config=args.config, overrides=args.overrides,
+                               track_iterations=args.track_iterations)
+    print(summary(run_capture(args.capture, args.out, settings, progress=not args.no_progress)))
+    return 0
