@@ -11,14 +11,13 @@ from __future__ import annotations
 
 import io
 import json
-import shlex
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from mmcsplat.configuration.registry import Registry
-from mmcsplat.outputs.report_html import esc, image, markdown_html, page, table, video
+from mmcsplat.outputs.report_html import command, esc, image, markdown_html, page, table, video
 from mmcsplat.outputs.video import encode_png
 from mmcsplat.pipeline.evaluate import METRICS_FILE
 from mmcsplat.pipeline.fit import CHECKPOINT
@@ -101,11 +100,6 @@ def run_report(run: Path, backend: str | None = None, registry: Registry | None 
     sections = [run_summary(states), views_section(renderer, backend or states.info.renderer), metrics_section(run, metrics),
                 landmarks_section(run, videos), curves_section(run), renders_section(run, states)]
     return page(f"Run {Path(run).resolve()}", sections)
-
-
-def command(*words: object) -> str:
-    """A shell command line, each word quoted as needed, as escaped ``<code>``."""
-    return f"<code>{esc(shlex.join(str(word) for word in words))}</code>"
 
 
 def run_summary(states: RunStates) -> str:

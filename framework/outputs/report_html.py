@@ -7,6 +7,7 @@ from __future__ import annotations
 import base64
 import html
 import re
+import shlex
 from collections.abc import Callable, Sequence
 
 STYLE = """
@@ -26,6 +27,11 @@ code { background: #f3f3f3; padding: 0 0.2em; }
 def esc(text: object) -> str:
     """``text`` as HTML text (quotes escaped too: safe in attributes)."""
     return html.escape(str(text), quote=True)
+
+
+def command(*words: object) -> str:
+    """A shell command line, each word quoted as needed, as escaped ``<code>``."""
+    return f"<code>{esc(shlex.join(str(word) for word in words))}</code>"
 
 
 def data_uri(payload: bytes, mime: str) -> str:

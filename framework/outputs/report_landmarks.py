@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from mmcsplat.analysis.movement import MEASURE_DESCRIPTIONS, limb_landmarks, movement_summary, speed, speed_spectrum
-from mmcsplat.outputs.report_html import esc, image, table
+from mmcsplat.outputs.report_html import command, esc, image, table, video
 from mmcsplat.pipeline.landmarks import LANDMARKS_CSV, LANDMARKS_INFO
 from mmcsplat.storage.landmark_files import read_landmark_csv
 
@@ -109,9 +109,6 @@ def accuracy_rows(info: dict[str, Any]) -> list[tuple[str, str]]:
 
 def landmarks_section(run: Path, videos: list[tuple[bytes, str]]) -> str:
     """The section's HTML; ``videos`` are the landmark overlay videos found in RUN/renders (payload, name)."""
-    from mmcsplat.outputs.report import command
-    from mmcsplat.outputs.report_html import video
-
     path = Path(run) / LANDMARKS_CSV
     if not path.is_file():
         return (f"<h2>Movement</h2><p class=\"note\">No landmarks yet: {command('mmcsplat', 'landmarks', run, '--source', 'NAME')} "
