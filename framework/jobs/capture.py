@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import json
 import os
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -28,7 +27,7 @@ from typing import Any
 import attrs
 import numpy as np
 
-from mmcsplat.jobs.demo import StepTime, fresh
+from mmcsplat.jobs.demo import StepTime, fresh, run_step
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.storage.atomic import write_json_atomic
 
@@ -127,11 +126,7 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     steps: list[StepTime] = []
 
     def step(name: str, done: bool, action: Callable[[], object]) -> None:
-        began = time.perf_counter()
-        if not done:
-            action()
-        steps.append(StepTime(name, time.perf_counter() - began, done))
-        log(f"[run] {name} {'already done' if done else 'done'} ({steps[-1].seconds:.1f} s)")
+        steps.append(run_step("run", name, done, action, log))
 
     def prepare() -> None:
         # Into a hidden sibling renamed into place: a session half segmented is not a session.

@@ -110,6 +110,16 @@ class DemoResult:
     steps: tuple[StepTime, ...]
 
 
+def run_step(job: str, name: str, done: bool, action: Callable[[], object], log: Callable[[str], None]) -> StepTime:
+    """Run ``action`` unless the step is ``done``; log ``[job] name done (… s)`` and return its time."""
+    began = time.perf_counter()
+    if not done:
+        action()
+    timed = StepTime(name, time.perf_counter() - began, done)
+    log(f"[{job}] {name} {'already done' if done else 'done'} ({timed.seconds:.1f} s)")
+    return timed
+
+
 def tracking_choice(config: Config, iterations: int | None) -> tuple[str, list[str]]:
     """(dynamics method, tracking overrides): the method the configuration's [dynamics] table names, else
     ``iterative``; for ``iterative``, ``iterations`` per frame when given, else the table's, else
@@ -179,11 +189,7 @@ def run_demo(out: Path, settings: DemoSettings = DemoSettings(), progress: bool 
     steps: list[StepTime] = []
 
     def step(name: str, done: bool, action: Callable[[], object]) -> None:
-        began = time.perf_counter()
-        if not done:
-            action()
-        steps.append(StepTime(name, time.perf_counter() - began, done))
-        log(f"[demo] {name} {'already done' if done else 'done'} ({steps[-1].seconds:.1f} s)")
+        steps.append(run_step("demo", name, done, action, log))
 
     def ingest_and_segment() -> None:
         # Both into a hidden sibling renamed into place: an interrupted segmentation is not a session.
