@@ -86,4 +86,6 @@ def mmcsplat_landmarks() -> list[Registration]:
                      "the joints of a synthetic capture (its ground_truth.zarr)"),
         Registration("openpose", "mmcsplat.plugins.landmarks.openpose:OpenPoseKeypoints",
                      "OpenPose JSON keypoints per camera (as Pose2Sim writes them), triangulated in the session's cameras"),
+        Registration("deeplabcut", "mmcsplat.plugins.landmarks.deeplabcut:DeepLabCutKeypoints",
+                     "DeepLabCut CSV keypoints per camera (anipose's pose-2d), triangulated in the session's cameras"),
     ]

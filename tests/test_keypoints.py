@@ -103,3 +103,27 @@ def test_pose2sim_keypoints_triangulate_near_its_joints(tmp_path):
     # others differ by 3–7 cm, as Pose2Sim filters its joints and triangulates with outlier rejection.
     assert np.median([np.median(e) for e in errors.values()]) < 0.02
     assert sum(np.median(e) < 0.02 for e in errors.values()) >= 12
+
+
+def test_deeplabcut_csv_keypoints_triangulate_too(scene, tmp_path):
+    session, _ = scene
+    reader = SessionReader(session)
+    parts = list(FIGURE)
+    for camera in reader.cameras:
+        header = [["scorer", *(["DLC_resnet50"] * 3 * len(parts))], ["bodyparts", *(p for p in parts for _ in range(3))],
+                  ["coords", *(["x", "y", "likelihood"] * len(parts))]]
+        rows = []
+        for t in range(FRAMES):
+            joints = figure_at(t)[[MODELS["BODY_25B"].index(p) for p in parts]]
+            pixels = camera.project(joints)
+            rows.append([t, *(value for (x, y) in pixels for value in (x, y, 0.95))])
+        rows[1][4:7] = ["", "", ""]  # the Head undetected at frame 1 in every camera
+        (tmp_path / f"trial-{camera.name}.csv").write_text("\n".join(",".join(map(str, row)) for row in header + rows))
+    landmarks = default_registry().create("landmarks", "deeplabcut", folder=str(tmp_path)).read(reader, range(FRAMES))
+    assert landmarks.names == tuple(parts)
+    expected = np.stack([figure_at(t)[[MODELS["BODY_25B"].index(p) for p in parts]] for t in range(FRAMES)])
+    expected[1, 1] = np.nan
+    np.testing.assert_allclose(landmarks.positions, expected, atol=1e-6)
+    (tmp_path / "trial-cam_0.csv").write_text("scorer,x\nbodyparts,nose\n")
+    with pytest.raises(Exception, match="not a DeepLabCut CSV"):
+        default_registry().create("landmarks", "deeplabcut", folder=str(tmp_path)).read(reader, range(FRAMES))

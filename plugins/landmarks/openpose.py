@@ -2,8 +2,7 @@
 
 Layout: one folder per camera under ``folder`` (``pose_2d/cam01/…``, or OpenPose's ``cam01_json``, matched
 to the session's cameras by name like videos: ``cam01`` ↔ ``cam_01`` ↔ ``int_cam01_img``, or by
-``camera_map``), each holding one JSON
-file per frame whose last number is the capture's frame number (``cam01.0042.json``, ``…_000000000042_
+``camera_map``), each holding one JSON file per frame whose last number is the capture's frame number (``cam01.0042.json``, ``…_000000000042_
 keypoints.json``). Each file lists ``people``, each with ``pose_keypoints_2d`` = [x, y, confidence] × K
 in the source video's pixels; the ``model`` names the K keypoints (BODY_25B, the model Pose2Sim's demo
 uses, or BODY_25). A frame missing a file or a person has no detections (confidence 0).
@@ -11,14 +10,7 @@ uses, or BODY_25). A frame missing a file or a person has no detections (confide
 Several people: the person whose keypoints are, on average, the most confident is taken in each frame
 (the subject in a clinical recording; a false detection or a bystander usually scores lower).
 
-Pixels: a keypoint at (x, y) of the source video is mapped into the session's stored image through the
-camera as recorded (its distortion and decoded size, kept in the session's provenance by ingest) and the
-stored, undistorted camera: ``cv2.undistortPoints`` with the stored K as the new projection.
-
-Triangulation: for each frame and keypoint, the linear (DLT) solution over the cameras whose detection
-has confidence ≥ ``min_confidence``, each row weighted by its confidence; at least two cameras are
-needed, else the landmark is unknown (NaN) at that frame. This is what Pose2Sim's triangulation does in
-its simplest form, without its outlier rejection.
+The detections are mapped into the stored images and triangulated by :mod:`.triangulation`.
 """
 
 from __future__ import annotations
@@ -32,11 +24,12 @@ import attrs
 import numpy as np
 
 from mmcsplat.plugin_api.errors import InputError, MissingFileError
-from mmcsplat.plugin_api.interfaces import KeypointObservations, Landmarks, LandmarkSource
+from mmcsplat.plugin_api.interfaces import KeypointObservations
 from mmcsplat.plugin_api.parameters import between, one_of, parameter
-from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.camera_names import match_cameras, natural_key
 from mmcsplat.storage.session import SessionReader
+
+from .triangulation import TriangulatedKeypoints, recorded_cameras, to_session_pixels
 
 #: Keypoint names by index, per model (OpenPose's documented orders).
 MODELS = {
@@ -68,43 +61,18 @@ def read_people(path: Path, count: int) -> np.ndarray:
     return np.stack(rows).reshape(len(rows), count, 3) if rows else np.zeros((0, count, 3))
 
 
-def to_session_pixels(points: np.ndarray, recorded: Camera, stored: Camera) -> np.ndarray:
-    """[..., 2] pixels of the recorded (distorted) camera → the stored (undistorted) camera's pixels."""
-    import cv2
-
-    flat = np.ascontiguousarray(points.reshape(-1, 1, 2), dtype=np.float64)
-    mapped = cv2.undistortPoints(flat, np.asarray(recorded.K), np.asarray(recorded.distortion), P=np.asarray(stored.K))
-    return mapped.reshape(points.shape)
-
-
-def triangulate(cameras: Sequence[Camera], pixels: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """[L, 3] points from ``pixels`` [C, L, 2] in ``cameras`` weighted by ``weights`` [C, L] (0: unused);
-    NaN where fewer than two cameras have a weight."""
-    projections = np.stack([np.asarray(c.K) @ np.hstack([np.asarray(c.R), np.asarray(c.t)[:, None]]) for c in cameras])  # [C, 3, 4]
-    points = np.full((pixels.shape[1], 3), np.nan)
-    for j in range(pixels.shape[1]):
-        used = np.flatnonzero(weights[:, j] > 0)
-        if len(used) < 2:
-            continue
-        rows = []
-        for c in used:
-            u, v = pixels[c, j]
-            P = projections[c]
-            rows += [weights[c, j] * (u * P[2] - P[0]), weights[c, j] * (v * P[2] - P[1])]
-        _, _, vt = np.linalg.svd(np.asarray(rows))
-        homogeneous = vt[-1]
-        points[j] = homogeneous[:3] / homogeneous[3]
-    return points
-
-
 @attrs.frozen
-class OpenPoseKeypoints(LandmarkSource):
+class OpenPoseKeypoints(TriangulatedKeypoints):
     """OpenPose JSON keypoints per camera, triangulated (module docstring)."""
 
     folder: str = parameter(doc="the folder of per-camera keypoint folders (Pose2Sim: pose_2d)", kw_only=True)
     model: str = parameter("BODY_25B", doc="the keypoint model, which names the keypoints", validator=one_of(*MODELS))
     min_confidence: float = parameter(0.3, doc="detections below this confidence are not used", validator=between(0, 1))
     camera_map: dict | None = parameter(None, doc="session camera name → its keypoint folder's name, where the names differ")
+
+    @property
+    def described(self) -> str:
+        return f"OpenPose keypoints {self.folder} ({self.model})"
 
     def observations(self, session: SessionReader, frames: Sequence[int]) -> list[KeypointObservations]:
         """The most confident person's keypoints in every camera with a folder, in the stored images' pixels."""
@@ -117,7 +85,7 @@ class OpenPoseKeypoints(LandmarkSource):
         by_label = {folder / re.sub(r"_json$", "", path.name): path for path in folder.iterdir() if path.is_dir()}
         matched = match_cameras(cameras, list(by_label), "keypoint folder", folder, self.camera_map)
         folders = {name: by_label[label] for name, label in matched.items()}
-        recorded = {data["name"]: Camera.from_dict(data) for data in session.provenance.get("source_cameras", [])}
+        recorded = recorded_cameras(session)
         capture = session.capture_frames(frames)
         result = []
         for camera in cameras:
@@ -139,12 +107,3 @@ class OpenPoseKeypoints(LandmarkSource):
             confidence[confidence < self.min_confidence] = 0.0
             result.append(KeypointObservations(camera.name, names, frames, pixels, confidence))
         return result
-
-    def read(self, session: SessionReader, frames: Sequence[int]) -> Landmarks:
-        """The keypoints triangulated at every session frame (NaN where fewer than two cameras saw one)."""
-        observed = self.observations(session, frames)
-        cameras = [session.camera(o.camera) for o in observed]
-        pixels = np.stack([o.pixels for o in observed])  # [C, T, L, 2]
-        weights = np.stack([o.confidence for o in observed])
-        positions = np.stack([triangulate(cameras, pixels[:, k], weights[:, k]) for k in range(len(frames))])
-        return Landmarks(MODELS[self.model], frames, positions, source=f"OpenPose keypoints {self.folder} ({self.model}), triangulated")

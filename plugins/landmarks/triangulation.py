@@ -1,0 +1,79 @@
+"""Landmarks from 2D keypoints detected in several calibrated cameras: the detections are mapped into the
+session's stored (undistorted, rescaled) images and triangulated — what the ``openpose`` and
+``deeplabcut`` sources share.
+
+Pixels: a keypoint at (x, y) of the source video is mapped into the stored image through the camera as
+recorded (its distortion and decoded size, kept in the session's provenance by ingest) and the stored,
+undistorted camera: ``cv2.undistortPoints`` with the stored K as the new projection.
+
+Triangulation: for each frame and keypoint, the linear (DLT) solution over the cameras whose detection
+has a confidence above the source's threshold, each row weighted by its confidence; at least two cameras
+are needed, else the landmark is unknown (NaN) at that frame — Pose2Sim's and anipose's triangulation in
+its simplest form, without their outlier rejection.
+"""
+
+from __future__ import annotations
+
+from abc import abstractmethod
+from collections.abc import Sequence
+
+import numpy as np
+
+from mmcsplat.plugin_api.interfaces import Landmarks, LandmarkSource
+from mmcsplat.scene.camera import Camera
+from mmcsplat.storage.session import SessionReader
+
+
+def recorded_cameras(session: SessionReader) -> dict[str, Camera]:
+    """The cameras as recorded (before undistortion and rescaling), from the session's provenance; empty
+    for a session ingested before mmcsplat kept them (its keypoints are then taken as stored pixels)."""
+    return {data["name"]: Camera.from_dict(data) for data in session.provenance.get("source_cameras", [])}
+
+
+def to_session_pixels(points: np.ndarray, recorded: Camera, stored: Camera) -> np.ndarray:
+    """[..., 2] pixels of the recorded (distorted) camera → the stored (undistorted) camera's pixels."""
+    import cv2
+
+    flat = np.ascontiguousarray(points.reshape(-1, 1, 2), dtype=np.float64)
+    mapped = cv2.undistortPoints(flat, np.asarray(recorded.K), np.asarray(recorded.distortion), P=np.asarray(stored.K))
+    return mapped.reshape(points.shape)
+
+
+def triangulate(cameras: Sequence[Camera], pixels: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """[L, 3] points from ``pixels`` [C, L, 2] in ``cameras`` weighted by ``weights`` [C, L] (0: unused);
+    NaN where fewer than two cameras have a weight."""
+    projections = np.stack([np.asarray(c.K) @ np.hstack([np.asarray(c.R), np.asarray(c.t)[:, None]]) for c in cameras])  # [C, 3, 4]
+    points = np.full((pixels.shape[1], 3), np.nan)
+    for j in range(pixels.shape[1]):
+        used = np.flatnonzero(weights[:, j] > 0)
+        if len(used) < 2:
+            continue
+        rows = []
+        for c in used:
+            u, v = pixels[c, j]
+            P = projections[c]
+            rows += [weights[c, j] * (u * P[2] - P[0]), weights[c, j] * (v * P[2] - P[1])]
+        _, _, vt = np.linalg.svd(np.asarray(rows))
+        homogeneous = vt[-1]
+        points[j] = homogeneous[:3] / homogeneous[3]
+    return points
+
+
+class TriangulatedKeypoints(LandmarkSource):
+    """A keypoint source: :meth:`observations` per camera (its subclass reads the files); the landmarks
+    are their triangulation."""
+
+    @property
+    @abstractmethod
+    def described(self) -> str:
+        """What the keypoints are, for the landmarks' ``source``."""
+
+    def read(self, session: SessionReader, frames: Sequence[int]) -> Landmarks:
+        """The keypoints triangulated at every session frame (NaN where fewer than two cameras saw one)."""
+        observed = self.observations(session, frames)
+        names = observed[0].names
+        cameras = [session.camera(o.camera) for o in observed]
+        pixels = np.stack([o.pixels for o in observed])  # [C, T, L, 2]
+        weights = np.stack([o.confidence for o in observed])
+        positions = np.stack([triangulate(cameras, pixels[:, k], weights[:, k]) for k in range(len(frames))])
+        return Landmarks(names, frames, positions, source=f"{self.described}, triangulated")
