@@ -105,6 +105,26 @@ def test_a_browser_draws_the_scene(viewer, tmp_path):
     assert len(np.unique(centre[drawn], axis=0)) > 50, "the drawing has too few colours to be splats and images"
 
 
+def test_landmarks_are_shown_with_their_trails(run, tmp_path):
+    import shutil
+
+    from mmcsplat.storage.landmark_files import write_landmark_csv
+
+    shutil.copytree(run.parent, tmp_path / "project")  # the run keeps its session beside it (a relative path)
+    copy = tmp_path / "project" / run.name
+    positions = np.stack([expected_means(copy, t)[:2] for t in range(FRAMES)]).astype(np.float64)  # two Gaussians as landmarks
+    positions[1, 1] = np.nan  # one unknown at frame 1
+    write_landmark_csv(copy / "landmarks.csv", ("LWrist", "RWrist"), np.arange(FRAMES), np.arange(FRAMES) / 30.0, positions)
+    viewer = RunViewer(copy, port=free_port())
+    try:
+        viewer.show(FRAMES - 1)
+        np.testing.assert_allclose(viewer.handles["landmarks"].points, positions[-1], atol=1e-5)
+        # Frames 0→1 and 1→2 of RWrist are broken by its unknown frame 1: 2 × 3 steps, less those 2.
+        assert viewer.handles["landmark trails"].points.shape == (2 * (FRAMES - 1) - 2, 2, 3)
+    finally:
+        viewer.server.stop()
+
+
 def test_the_command_serves_until_ctrl_c(run):
     port = free_port()
     command = [sys.executable, "-m", "mmcsplat.cli.main", "view", str(run), "--port", str(port)]

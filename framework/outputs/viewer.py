@@ -9,6 +9,8 @@ step with the Python objects over a websocket; what is written here is only what
 - every session camera as a frustum with its image at the run's first frame (the held-out ones in orange);
 - trails of the tracking figure's Gaussians (2 % of the subject's, the same choice as
   ``mmcsplat render --trajectories``) over their last 10 frames;
+- the landmarks of ``RUN/landmarks.csv`` (``mmcsplat landmarks``), when there are some, as larger points
+  with their own trails, in the colours of the landmark overlay video;
 - a "view from" list of the cameras that moves the browser's camera to one (the held-out one when a
   client connects).
 """
@@ -24,15 +26,18 @@ import numpy as np
 import torch
 
 from mmcsplat.outputs.renders import TRAIL_FRAMES, trajectory_colors, trajectory_gaussians
+from mmcsplat.pipeline.landmarks import LANDMARKS_CSV
 from mmcsplat.pipeline.run_frames import RunStates
 from mmcsplat.scene.camera import Camera
 from mmcsplat.scene.quaternions import quat_to_rotmat
+from mmcsplat.storage.landmark_files import read_landmark_csv
 
 #: Longest side, in pixels, of the image drawn in a camera's frustum.
 FRUSTUM_IMAGE_SIZE = 160
 HELDOUT_COLOUR = (255, 140, 0)
 TRAIN_COLOUR = (60, 60, 60)
 POINT_SIZE = 0.004  # metres
+LANDMARK_SIZE = 0.02  # metres: a landmark stands out among the Gaussians
 
 
 def splat_arrays(params: dict[str, torch.Tensor]) -> dict[str, np.ndarray]:
@@ -80,6 +85,7 @@ class RunViewer:
         self.cameras = [session.camera(name) for name in session.camera_names]
         self.heldout = set(self.states.info.heldout_cameras)
         self.trail_indices = trajectory_gaussians(self.states)
+        self.landmarks = self._landmarks()
         self._trail_cache: dict[int, np.ndarray] = {}
         with contextlib.redirect_stdout(io.StringIO()):  # viser prints a boxed banner; the command prints one line instead
             self.server = viser.ViserServer(host=host, port=port, label=f"mmcsplat {Path(run).name}", verbose=False)
@@ -90,6 +96,14 @@ class RunViewer:
         self.server.on_client_connect(lambda client: self._move(client, self.view_from.value))
         self.look_from(self.view_from.value)
         self.show(0)
+
+    def _landmarks(self) -> np.ndarray | None:
+        """[T, L, 3] positions of the run's landmarks, or ``None`` without ``RUN/landmarks.csv``."""
+        path = self.states.run / LANDMARKS_CSV
+        if not path.is_file():
+            return None
+        _, _, _, positions, _ = read_landmark_csv(path)
+        return positions
 
     @property
     def url(self) -> str:
@@ -167,6 +181,26 @@ class RunViewer:
                                                              thickness=2.0, thickness_units="screen")
         elif "trails" in self.handles:
             self.handles.pop("trails").remove()
+        if self.landmarks is not None:
+            self._show_landmarks(k, start)
+
+    def _show_landmarks(self, k: int, start: int) -> None:
+        """The landmarks at run frame ``k`` as points, and their paths since frame ``start``."""
+        colours = trajectory_colors(np.arange(self.landmarks.shape[1]))
+        known = np.all(np.isfinite(self.landmarks[k]), axis=1)
+        scene = self.server.scene
+        self.handles["landmarks"] = scene.add_point_cloud("/landmarks", self.landmarks[k][known], colours[known],
+                                                          point_size=LANDMARK_SIZE, point_shape="circle")
+        path = self.landmarks[start : k + 1]
+        steps = np.stack([path[:-1], path[1:]], axis=2)  # [n-1, L, 2, 3]
+        valid = np.all(np.isfinite(steps), axis=(2, 3))
+        if self.trails.value and valid.any():
+            segments = steps[valid]
+            self.handles["landmark trails"] = scene.add_line_segments(
+                "/landmark_trails", segments, np.repeat(np.broadcast_to(colours, valid.shape + (3,))[valid][:, None], 2, axis=1),
+                thickness=4.0, thickness_units="screen")
+        elif "landmark trails" in self.handles:
+            self.handles.pop("landmark trails").remove()
 
     def step(self) -> None:
         """Advance the frame slider by one, looping (what the play box does each 1 / fps seconds)."""
