@@ -190,7 +190,7 @@ class RunViewer:
         known = np.all(np.isfinite(self.landmarks[k]), axis=1)
         scene = self.server.scene
         self.handles["landmarks"] = scene.add_point_cloud("/landmarks", self.landmarks[k][known], colours[known],
-                                                          point_size=LANDMARK_SIZE, point_shape="circle")
+                                                          point_size=LANDMARK_SIZE, point_shape="circle", precision="float32")
         path = self.landmarks[start : k + 1]
         steps = np.stack([path[:-1], path[1:]], axis=2)  # [n-1, L, 2, 3]
         valid = np.all(np.isfinite(steps), axis=(2, 3))
