@@ -158,4 +158,4 @@ def test_clear_errors(runs, tmp_path, capsys):
     assert "unknown camera 'cam_9'" in capsys.readouterr().err
     assert not (tmp_path / "novel.mp4").exists(), "rendered before checking the camera"
     assert main(["render", str(runs[0])]) == 2
-    assert "--novel, --trajectories or --depth" in capsys.readouterr().err
+    assert "--novel, --trajectories, --depth or --landmarks" in capsys.readouterr().err

@@ -217,9 +217,10 @@ def test_a_dynamics_cell_tracks_and_charts_frame_by_frame(tmp_path):
     write_session(tmp_path / "moving.zarr", frames=3)
     write_ground_truth(tmp_path / "truth.zarr", frames=3)
     write_config(tmp_path / "fit.toml", iterations=2, checkpoint_every=2)
-    # Initial points dense around the subject: some sit within the tracking evaluation's follow radius.
+    # Initial points in a cube that holds the subject's hull (the region check), dense enough that some sit within the
+    # tracking evaluation's follow radius.
     study = load_study(write_study(tmp_path, 'folds = ["cam_0"]\n' + variant(
-        "iterative", 'set = { "initializer.random" = { num_points = 400, half_size = 0.15 } }\ndynamics = { name = "iterative", iterations = 1, neighbours = 4 }'),
+        "iterative", 'set = { "initializer.random" = { num_points = 8000, half_size = 0.45 } }\ndynamics = { name = "iterative", iterations = 1, neighbours = 4 }'),
         session='path = "moving.zarr"\nground_truth = "truth.zarr"'))
     result = run_study(study, tmp_path / "out", workers=0, progress=False)
     outcome = result.rows[0].outcome
