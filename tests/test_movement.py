@@ -1,5 +1,5 @@
-"""Movement measures on trajectories whose answers are known: constant velocity, a sinusoid, gaps, and the
-left/right pairing of the naming styles in use."""
+"""Movement measures on trajectories whose answers are known analytically: constant velocity, a sinusoid,
+gaps, still and jittering points, and the left/right pairing of the naming styles in use."""
 
 from __future__ import annotations
 
@@ -8,56 +8,177 @@ import json
 import numpy as np
 import pytest
 
-from mmcsplat.analysis.movement import MEASURE_DESCRIPTIONS, limb_landmarks, limb_pairs, movement_summary, path_length, speed, speed_spectrum
+from mmcsplat.analysis.movement import (
+    LANDMARK_MEASURES,
+    MEASURE_DESCRIPTIONS,
+    landmark_side,
+    limb_landmarks,
+    limb_pairs,
+    limb_symmetry,
+    mean_speed,
+    movement_summary,
+    path_length,
+    peak_speed,
+    range_of_motion,
+    range_of_motion_axes,
+    smooth_positions,
+    spectrum_summary,
+    speed,
+    speed_spectrum,
+)
 
 RATE = 30.0
-TIMES = np.arange(90) / RATE
+TIMES = np.arange(90) / RATE  # 3 s at 30 fps
+POSE2SIM = ("RHip", "RKnee", "RAnkle", "RBigToe", "RSmallToe", "RHeel", "LHip", "LKnee", "LAnkle", "LBigToe", "LSmallToe", "LHeel",
+            "Neck", "Head", "Nose", "RShoulder", "RElbow", "RWrist", "LShoulder", "LElbow", "LWrist")
+SYNTHETIC = ("waist", "neck", *(f"{joint}_{side}" for side in ("left", "right") for joint in ("shoulder", "elbow", "wrist", "hip", "knee", "ankle")))
+
+
+def _swing(frequency: float, amplitude: float, axis: int = 0, phase: float = 0.0, times: np.ndarray = TIMES) -> np.ndarray:
+    """[T, 3] a point swinging along one axis."""
+    track = np.zeros((len(times), 3))
+    track[:, axis] = amplitude * np.sin(2 * np.pi * frequency * times + phase)
+    return track
 
 
 def test_constant_velocity():
-    positions = np.zeros((len(TIMES), 1, 3))
-    positions[:, 0, 0] = 0.2 * TIMES  # 20 cm/s along x
-    np.testing.assert_allclose(speed(TIMES, positions), 0.2)
-    assert path_length(positions)[0] == pytest.approx(0.2 * TIMES[-1])
-    summary = movement_summary(("hand",), TIMES, positions)["landmarks"]["hand"]
-    assert summary["mean_speed_m_s"] == pytest.approx(0.2) and summary["range_of_motion_m"] == pytest.approx(0.9 * 0.2 * TIMES[-1], rel=0.05)
+    velocity = np.array([0.12, -0.16, 0.0])  # 20 cm/s
+    positions = (TIMES[:, None] * velocity)[:, None]
+    duration = TIMES[-1] - TIMES[0]
+    np.testing.assert_allclose(speed(TIMES, positions), 0.2)  # the ends too (one-sided there)
+    assert path_length(positions)[0] == pytest.approx(0.2 * duration)
+    np.testing.assert_allclose(range_of_motion_axes(positions)[0], 0.9 * np.abs(velocity) * duration, atol=1e-12)  # 5th–95th percentile
+    assert range_of_motion(positions)[0] == pytest.approx(0.9 * 0.16 * duration)
+    summary = movement_summary(("hand",), TIMES, positions)
+    hand = summary["landmarks"]["hand"]
+    assert hand["mean_speed_m_s"] == pytest.approx(0.2) and hand["peak_speed_m_s"] == pytest.approx(0.2)
+    assert hand["path_length_m"] == pytest.approx(0.2 * duration) and hand["range_of_motion_m"] == pytest.approx(0.9 * 0.16 * duration)
+    assert hand["dominant_frequency_hz"] is None  # a constant speed has no rhythm
+    assert summary["duration_s"] == pytest.approx(duration) and summary["frame_rate_hz"] == pytest.approx(RATE) and summary["frames"] == 90
 
 
 def test_a_sinusoid_has_its_frequency_range_and_peak_speed():
     frequency, amplitude = 1.5, 0.04
-    positions = np.zeros((len(TIMES), 1, 3))
-    positions[:, 0, 2] = amplitude * np.sin(2 * np.pi * frequency * TIMES)
-    summary = movement_summary(("foot",), TIMES, positions)["landmarks"]["foot"]
+    positions = _swing(frequency, amplitude, axis=2)[:, None]
+    summary = movement_summary(("foot",), TIMES, positions)
+    foot = summary["landmarks"]["foot"]
+    frequencies, power = speed_spectrum(TIMES, positions[:, 0])
+    step = frequencies[1] - frequencies[0]
+    assert step == pytest.approx(RATE / len(TIMES)) and summary["frequency_resolution_hz"] == pytest.approx(step, abs=1e-6)
+    assert frequencies[0] >= 0.1 and frequencies[-1] == pytest.approx(RATE / 2)
     # Speed is |velocity|: it peaks twice per swing, so its spectrum's peak is at twice the swing's frequency.
-    frequencies, _ = speed_spectrum(TIMES, positions[:, 0])
-    assert summary["dominant_frequency_hz"] == pytest.approx(2 * frequency, abs=frequencies[1] - frequencies[0])
-    assert summary["peak_speed_m_s"] == pytest.approx(2 * np.pi * frequency * amplitude, rel=0.05)
-    assert summary["range_of_motion_m"] == pytest.approx(2 * amplitude * np.sin(np.pi * 0.45), rel=0.05)  # 5th–95th percentile
+    assert foot["dominant_frequency_hz"] == pytest.approx(2 * frequency, abs=step)
+    assert spectrum_summary(frequencies, power)[0] == pytest.approx(foot["dominant_frequency_hz"])
+    assert 2 * frequency <= foot["spectral_centroid_hz"] < RATE / 2  # the harmonics of |cos| pull the centroid above the peak
+    assert foot["peak_speed_m_s"] == pytest.approx(2 * np.pi * frequency * amplitude, rel=0.03)  # central differences: sinc(ωh) ≈ 0.984
+    assert foot["mean_speed_m_s"] == pytest.approx(4 * frequency * amplitude, rel=0.03)  # 2πfA · mean |cos| = 2πfA · 2/π
+    assert foot["path_length_m"] == pytest.approx(4 * amplitude * frequency * TIMES[-1], rel=0.03)
+    # 5th–95th percentile of a continuous swing: 2A·sin(0.45π) ≈ 1.98 A; 20 samples a swing land within a few % of it.
+    assert foot["range_of_motion_m"] == pytest.approx(2 * amplitude * np.sin(0.45 * np.pi), rel=0.03) and foot["range_of_motion_m"] < 2 * amplitude
+    assert foot["range_of_motion_xyz_m"][:2] == [0.0, 0.0]
+
+
+def test_a_short_recording_resolves_only_coarse_frequencies():
+    times = np.arange(30) / RATE
+    frequencies, _ = speed_spectrum(times, _swing(2.0, 0.03, times=times))
+    assert frequencies[1] - frequencies[0] == pytest.approx(1.0)
+    assert speed_spectrum(times[:7], _swing(2.0, 0.03, times=times[:7]))[0].size == 0  # too few frames for a spectrum
+    assert spectrum_summary(np.zeros(0), np.zeros(0)) == (None, None)
 
 
 def test_gaps_are_skipped_and_an_unknown_landmark_has_no_measures():
-    positions = np.zeros((len(TIMES), 2, 3))
+    positions = np.zeros((len(TIMES), 3, 3))
     positions[:, 0, 0] = 0.1 * TIMES
     positions[40:45, 0] = np.nan
     positions[:, 1] = np.nan
-    summary = movement_summary(("wrist_left", "wrist_right"), TIMES, positions)
+    positions[:, 2] = _swing(1.0, 0.02)
+    positions[::10, 2] = np.nan
+    speeds = speed(TIMES, positions)
+    assert np.isnan(speeds[40:45, 0]).all() and np.isfinite(np.delete(speeds[:, 0], range(40, 45))).all()
+    np.testing.assert_allclose(np.delete(speeds[:, 0], range(40, 45)), 0.1)  # one-sided beside the gap
+    assert path_length(positions)[0] == pytest.approx(0.1 * (39 + 44) / RATE)  # the steps into and out of the gap are left out
+    assert np.isnan(mean_speed(speeds)[1]) and np.isnan(peak_speed(speeds)[1]) and np.isnan(path_length(positions)[1])
+    assert np.isnan(range_of_motion(positions)[1])
+    names = ("wrist_left", "wrist_right", "knee_left")
+    summary = movement_summary(names, TIMES, positions)
     assert summary["landmarks"]["wrist_left"]["mean_speed_m_s"] == pytest.approx(0.1)
-    assert summary["landmarks"]["wrist_right"] == dict.fromkeys(MEASURE_DESCRIPTIONS)
-    assert summary["pairs"] == [{"left": "wrist_left", "right": "wrist_right", "speed_correlation": None, "path_length_ratio": None}]
-    json.dumps(summary)  # JSON-ready: no NaN, no numpy types
+    assert summary["landmarks"]["wrist_right"] == {**dict.fromkeys(LANDMARK_MEASURES), "range_of_motion_xyz_m": None}
+    assert all(value is not None for value in summary["landmarks"]["knee_left"].values())  # a swing seen 9 frames in 10
+    assert summary["landmarks"]["wrist_left"]["dominant_frequency_hz"] is None  # a steady glide has no rhythm
+    assert summary["landmarks"]["knee_left"]["dominant_frequency_hz"] == pytest.approx(2.0, abs=RATE / 81)
+    assert summary["pairs"] == [{"left": "wrist_left", "right": "wrist_right", "part": "wrist", "speed_correlation": None, "path_length_ratio": None}]
+    json.dumps(summary, allow_nan=False)  # JSON-ready: no NaN, no numpy types
 
 
-def test_left_and_right_pair_up_and_mirrored_limbs_correlate():
+@pytest.mark.parametrize(("name", "side"), [
+    ("LWrist", ("left", "wrist")), ("RBigToe", ("right", "bigtoe")), ("left_wrist", ("left", "wrist")), ("Left Wrist", ("left", "wrist")),
+    ("RIGHT-ANKLE", ("right", "ankle")), ("LeftWrist", ("left", "wrist")), ("wrist_left", ("left", "wrist")), ("knee right", ("right", "knee")),
+    ("big toe.R", ("right", "bigtoe")), ("l_hip", ("left", "hip")), ("wristRight", ("right", "wrist")),
+    ("Neck", None), ("waist", None), ("Lower back", None), ("Nose", None), ("left", None),
+])
+def test_sides_of_names(name, side):
+    assert landmark_side(name) == side
+
+
+def test_left_and_right_pair_up_in_every_naming_style():
     assert limb_pairs(("LWrist", "RWrist", "Neck")) == [("LWrist", "RWrist")]
-    assert limb_pairs(("left_ankle", "right_ankle")) == [("left_ankle", "right_ankle")]
+    assert limb_pairs(("left_ankle", "right_ankle", "left_knee")) == [("left_ankle", "right_ankle")]
+    assert limb_pairs(("Left Wrist", "right wrist")) == [("Left Wrist", "right wrist")]
     assert limb_pairs(("wrist left", "wrist right", "knee left")) == [("wrist left", "wrist right")]
-    assert limb_landmarks(("LWrist", "RWrist", "LHeel", "LAnkle", "RBigToe")) == {
-        "left hand": "LWrist", "right hand": "RWrist", "left foot": "LAnkle", "right foot": "RBigToe"}
-    assert limb_landmarks(("wrist_left", "ankle_right", "knee_left")) == {"left hand": "wrist_left", "right foot": "ankle_right"}
+    assert [left for left, _ in limb_pairs(POSE2SIM)] == ["LHip", "LKnee", "LAnkle", "LBigToe", "LSmallToe", "LHeel", "LShoulder", "LElbow", "LWrist"]
+    assert len(limb_pairs(SYNTHETIC)) == 6 and ("ankle_left", "ankle_right") in limb_pairs(SYNTHETIC)
+
+
+def test_the_hands_and_feet():
+    assert limb_landmarks(POSE2SIM) == {"left hand": "LWrist", "right hand": "RWrist", "left foot": "LAnkle", "right foot": "RAnkle"}
+    assert limb_landmarks(SYNTHETIC) == {"left hand": "wrist_left", "right hand": "wrist_right", "left foot": "ankle_left", "right foot": "ankle_right"}
+    assert limb_landmarks(("LWrist", "RWrist", "LBigToe", "LHeel", "RBigToe")) == {
+        "left hand": "LWrist", "right hand": "RWrist", "left foot": "LHeel", "right foot": "RBigToe"}
+    assert limb_landmarks(("left wrist", "ankle_right", "knee_left", "Neck")) == {"left hand": "left wrist", "right foot": "ankle_right"}
+    assert limb_landmarks(("Neck", "Nose")) == {}
+
+
+def test_mirrored_limbs_correlate_and_unrelated_ones_do_not():
     rng = np.random.default_rng(0)
-    swing = np.sin(2 * np.pi * 0.7 * TIMES)[:, None] * [0.05, 0, 0]
-    positions = np.stack([swing, swing * [-1, 1, 1], np.cumsum(rng.normal(0, 0.003, (len(TIMES), 3)), axis=0)], axis=1)
-    pairs = movement_summary(("LWrist", "RWrist", "LAnkle"), TIMES, positions)["pairs"]
-    assert pairs[0]["speed_correlation"] == pytest.approx(1.0) and pairs[0]["path_length_ratio"] == pytest.approx(1.0)
-    independent = movement_summary(("LWrist", "RWrist"), TIMES, positions[:, [0, 2]])["pairs"][0]
+    swing = _swing(0.7, 0.05)
+    positions = np.stack([swing, swing * [-1, 1, 1],  # mirrored: the same speed
+                          _swing(0.7, 0.05, phase=np.pi / 2),  # a quarter swing later: fast while the other turns
+                          np.cumsum(rng.normal(0, 0.003, (len(TIMES), 3)), axis=0),  # an independent wander
+                          np.cumsum(rng.normal(0, 0.003, (len(TIMES), 3)), axis=0),
+                          np.zeros((len(TIMES), 3))], axis=1)  # still
+    mirrored = limb_symmetry(("LWrist", "RWrist"), TIMES, positions[:, [0, 1]])[0]
+    assert mirrored["speed_correlation"] == pytest.approx(1.0) and mirrored["path_length_ratio"] == pytest.approx(1.0)
+    shifted = limb_symmetry(("LWrist", "RWrist"), TIMES, positions[:, [0, 2]])[0]
+    assert shifted["speed_correlation"] < -0.5 and shifted["path_length_ratio"] == pytest.approx(1.0, rel=0.05)
+    independent = limb_symmetry(("left ankle", "right ankle"), TIMES, positions[:, [3, 4]])[0]
     assert abs(independent["speed_correlation"]) < 0.5
+    still = limb_symmetry(("wrist_left", "wrist_right"), TIMES, positions[:, [0, 5]])[0]
+    assert still["speed_correlation"] is None and still["path_length_ratio"] is None  # the right did not move: no ratio
+    half = positions[:, [0, 1]] * [0.5, 1, 1]
+    half[:, 1] = positions[:, 1]
+    assert limb_symmetry(("LWrist", "RWrist"), TIMES, half)[0]["path_length_ratio"] == pytest.approx(0.5)
+
+
+def test_smoothing_removes_jitter_but_not_gaps():
+    rng = np.random.default_rng(1)
+    positions = np.zeros((len(TIMES), 1, 3)) + rng.normal(0, 0.002, (len(TIMES), 1, 3))  # a still point seen with 2 mm jitter
+    positions[50:53] = np.nan
+    np.testing.assert_array_equal(smooth_positions(positions), positions)  # off by default
+    smoothed = smooth_positions(positions, 7)
+    assert np.isnan(smoothed[50:53]).all() and np.isfinite(np.delete(smoothed, range(50, 53), axis=0)).all()
+    raw, light = np.nanmean(speed(TIMES, positions)), np.nanmean(speed(TIMES, positions, smoothing_window=7))
+    assert light < 0.5 * raw
+    moving = _swing(1.0, 0.03)[:, None]  # a real swing keeps its speed
+    assert peak_speed(speed(TIMES, moving, smoothing_window=7))[0] == pytest.approx(peak_speed(speed(TIMES, moving))[0], rel=0.02)
+    summary = movement_summary(("p",), TIMES, positions, smoothing_window=7)
+    assert summary["smoothing_window"] == 7 and summary["landmarks"]["p"]["path_length_m"] < path_length(positions)[0]
+
+
+def test_every_summary_key_has_a_plain_sentence():
+    summary = movement_summary(POSE2SIM, TIMES, np.repeat(_swing(1.0, 0.02)[:, None], len(POSE2SIM), axis=1))
+    keys = {key for values in summary["landmarks"].values() for key in values}
+    keys |= {key for pair in summary["pairs"] for key in pair} - {"left", "right", "part"}
+    assert keys <= set(MEASURE_DESCRIPTIONS) and set(LANDMARK_MEASURES) <= keys
+    assert all(sentence.endswith(".") for sentence in MEASURE_DESCRIPTIONS.values())
+    assert len(summary["pairs"]) == 9 and all(pair["speed_correlation"] == pytest.approx(1.0) for pair in summary["pairs"])
+    json.dumps(summary, allow_nan=False)

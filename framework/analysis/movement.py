@@ -1,11 +1,12 @@
 """Measures of movement from landmark trajectories, as a clinician or movement scientist reads them: how
 fast, how far and over what range each body part moved, how alike the left and right sides moved, and
-at which rhythms — the time and frequency description of infant movement that the Computer-based Infant
-Movement Assessment uses.
+at which rhythms — the time and frequency description of spontaneous movement that, for infants, the
+Computer-based Infant Movement Assessment builds on.
 
-Trajectories are ``times`` [T] seconds and ``positions`` [T, L, 3] metres, NaN where a landmark is unknown.
-Every function skips unknown frames rather than inventing them; a landmark without enough known frames
-gets ``None`` for what cannot be measured.
+Trajectories are ``times`` [T] seconds (uniform or nearly), ``positions`` [T, L, 3] metres, NaN where a
+landmark is unknown at a frame, and ``names`` [L]. Every function skips unknown frames rather than
+inventing them; a landmark without enough known frames gets ``None`` for what cannot be measured.
+Everything here is a pure function of its arguments (numpy and scipy only).
 """
 
 from __future__ import annotations
@@ -15,150 +16,328 @@ from typing import Any
 
 import numpy as np
 
-#: One plain sentence per measure of :func:`movement_summary`, for the report.
-MEASURE_DESCRIPTIONS = {
-    "mean_speed_m_s": "average speed over the recording",
-    "peak_speed_m_s": "the speed reached in the fastest 5 % of moments (the 95th percentile)",
-    "path_length_m": "the total distance travelled along the path",
-    "range_of_motion_m": "how far apart the extreme positions are: the largest, over the three axes, of the spread between the 5th and 95th percentile positions",
-    "dominant_frequency_hz": "the rhythm with the most power in the speed, in cycles per second: a limb swinging back and forth f times a second speeds up twice per swing, so its speed peaks at 2f; coarse for short recordings",
-    "spectral_centroid_hz": "the power-weighted mean frequency of the speed: higher for quicker, more fidgety movement",
+#: One plain sentence per measure of :func:`movement_summary` (its per-landmark keys, then its per-pair
+#: keys), for the report to print beside the numbers.
+MEASURE_DESCRIPTIONS: dict[str, str] = {
+    "mean_speed_m_s": "The average speed of the body part over the frames where it was seen.",
+    "peak_speed_m_s": "The speed the body part reached in its fastest 5 % of moments (the 95th percentile), so that one glitch does not set it.",
+    "path_length_m": "The total distance the body part travelled along its path, adding up the steps between consecutive frames where it was seen.",
+    "range_of_motion_m": "How far apart the body part's extreme positions were: along each axis the spread between its 5th and 95th "
+                         "percentile positions, and the largest of the three.",
+    "range_of_motion_xyz_m": "The same spread of the body part's positions along each axis of the calibration separately (x, y, z).",
+    "dominant_frequency_hz": "The rhythm with the most power in the body part's speed, in cycles per second: a limb swinging back and forth "
+                             "f times a second speeds up twice per swing, so its speed peaks at 2f; coarse for short recordings.",
+    "spectral_centroid_hz": "The average frequency of the body part's speed, weighted by power: higher for quicker, more fidgety movement.",
+    "speed_correlation": "How alike the left and right sides moved in time: the correlation of their speeds, 1 when they speed up and "
+                         "slow down together, near 0 when unrelated, negative when one moves while the other rests.",
+    "path_length_ratio": "How far the left side travelled compared with the right: 1 when both travelled as far, above 1 when the left travelled farther.",
 }
-MIN_FRAMES = 4  # known frames below which a speed-based measure is not given
-LOW_FREQUENCY_HZ = 0.1  # the spectrum's lower edge: slower "rhythms" are drift, not movement
+#: The per-landmark keys of :func:`movement_summary`, in the order the report shows them.
+LANDMARK_MEASURES: tuple[str, ...] = ("mean_speed_m_s", "peak_speed_m_s", "path_length_m", "range_of_motion_m",
+                                      "dominant_frequency_hz", "spectral_centroid_hz")
+MIN_FRAMES = 5  # known frames (or frames known on both sides) below which a speed-based measure or a correlation is not given
+MIN_SPECTRUM_FRAMES = 8  # known frames below which no spectrum is given
+LOW_FREQUENCY_HZ = 0.1  # the spectrum's lower edge: slower "rhythms" are drift over the recording, not movement
+MAX_SEGMENT = 256  # Welch's segment length at most (frames): 8.5 s at 30 fps, a 0.12 Hz resolution
+PERCENTILES = (5.0, 95.0)  # the range of motion's spread
+PEAK_PERCENTILE = 95.0  # the peak speed
 
 
-def speed(times: np.ndarray, positions: np.ndarray) -> np.ndarray:
-    """[T, L] speed (m/s) at every frame: central differences inside, one-sided at the ends; NaN where a
-    neighbouring frame is unknown."""
-    times = np.asarray(times, dtype=np.float64)
-    positions = np.asarray(positions, dtype=np.float64)
-    if len(times) < 2:
-        return np.full(positions.shape[:2], np.nan)
-    velocity = np.gradient(positions, times, axis=0)
-    return np.linalg.norm(velocity, axis=-1)
+# --------------------------------------------------------------------------------------------------
+# Per landmark
 
 
-def path_length(positions: np.ndarray) -> np.ndarray:
-    """[L] metres travelled: the sum of the steps between consecutive frames where both are known."""
-    steps = np.linalg.norm(np.diff(np.asarray(positions, dtype=np.float64), axis=0), axis=-1)
-    return np.nansum(steps, axis=0)
+def _known(positions: np.ndarray) -> np.ndarray:
+    """[T, L] True where all three coordinates are known."""
+    return np.all(np.isfinite(positions), axis=-1)
 
 
-def range_of_motion(positions: np.ndarray) -> np.ndarray:
-    """[L] metres: per axis the spread between the 5th and 95th percentile positions (one stray frame does
-    not set it), the largest of the three."""
-    positions = np.asarray(positions, dtype=np.float64)
-    result = np.full(positions.shape[1], np.nan)
+def smooth_positions(positions: np.ndarray, window: int = 0, order: int = 2) -> np.ndarray:
+    """The trajectories smoothed in time by a Savitzky–Golay filter (a moving least-squares polynomial of
+    ``order`` over ``window`` frames), applied to each run of consecutive known frames on its own so that no
+    unknown frame is filled in; runs shorter than the window are left as they are.
+
+    Why smooth: a landmark jittering by a millimetre or two between frames adds tens of mm/s of speed and
+    inflates the path length, though the limb did not move. Savitzky–Golay removes that jitter while keeping
+    the peaks of real movement better than a moving average. ``window`` 0 (the default) or below ``order`` + 2
+    returns the positions unchanged; 5 to 9 frames at 30 fps is a light smoothing, which leaves slow limb
+    movements (a few Hz) almost untouched but flattens the first and last frames' speeds of each run a little
+    less faithfully than its middle (the fitted polynomial is extrapolated there)."""
+    positions = np.array(positions, dtype=np.float64)
+    if window <= order + 1 or positions.shape[0] < window:
+        return positions
+    from scipy.signal import savgol_filter
+
+    window = window if window % 2 else window + 1
+    known = _known(positions)
     for j in range(positions.shape[1]):
-        known = positions[np.all(np.isfinite(positions[:, j]), axis=1), j]
-        if len(known):
-            result[j] = float(np.max(np.percentile(known, 95, axis=0) - np.percentile(known, 5, axis=0)))
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], known[:, j].astype(np.int8), [0]])))
+        for start, stop in zip(edges[::2], edges[1::2], strict=True):
+            if stop - start >= window:
+                positions[start:stop, j] = savgol_filter(positions[start:stop, j], window, order, axis=0)
+    return positions
+
+
+def speed(times: np.ndarray, positions: np.ndarray, smoothing_window: int = 0) -> np.ndarray:
+    """[T, L] speed (m/s) of every landmark at every frame: the distance between the previous and the next
+    frame's positions over the time between them (a central difference); where only one neighbour is known,
+    the step to that neighbour (at the ends, and beside gaps). NaN where the landmark is unknown at the frame
+    or at both its neighbours.
+
+    ``smoothing_window`` > 0 first smooths the positions (:func:`smooth_positions`); the default, 0, measures
+    the positions as they are, so that the speed is not changed by a choice of filter."""
+    times = np.asarray(times, dtype=np.float64)
+    positions = smooth_positions(positions, smoothing_window)
+    result = np.full(positions.shape[:2], np.nan)
+    if len(times) < 2:
+        return result
+    step = np.diff(positions, axis=0) / np.diff(times)[:, None, None]  # [T-1, L, 3]: velocity between frames t and t+1
+    forward = np.full(positions.shape, np.nan)
+    backward = np.full(positions.shape, np.nan)
+    forward[:-1], backward[1:] = step, step
+    central = np.full(positions.shape, np.nan)
+    if len(times) > 2:
+        central[1:-1] = (positions[2:] - positions[:-2]) / (times[2:] - times[:-2])[:, None, None]
+    velocity = central
+    for fallback in (backward, forward):
+        missing = ~np.all(np.isfinite(velocity), axis=-1)
+        velocity = np.where(missing[..., None], fallback, velocity)
+    result = np.linalg.norm(velocity, axis=-1)
+    result[~_known(positions)] = np.nan
     return result
 
 
-def speed_spectrum(times: np.ndarray, track: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(frequencies Hz, power) of one landmark's speed (``track`` [T, 3]) by Welch's method, its mean
-    removed, from 0.1 Hz to the Nyquist frequency; empty arrays when fewer than 8 frames are known. Unknown
-    frames are filled by linear interpolation before the transform."""
+def mean_speed(speeds: np.ndarray) -> np.ndarray:
+    """[L] the average speed (m/s) of each landmark over the frames where it is known (``speeds`` [T, L]
+    from :func:`speed`); NaN for a landmark with fewer than ``MIN_FRAMES`` known."""
+    speeds = np.asarray(speeds, dtype=np.float64)
+    enough = np.isfinite(speeds).sum(axis=0) >= MIN_FRAMES
+    return np.array([np.nanmean(speeds[:, j]) if enough[j] else np.nan for j in range(speeds.shape[1])])
+
+
+def peak_speed(speeds: np.ndarray, percentile: float = PEAK_PERCENTILE) -> np.ndarray:
+    """[L] the peak speed (m/s) of each landmark: the 95th percentile of its known speeds rather than the
+    maximum, so that one glitching frame does not set it. NaN with fewer than ``MIN_FRAMES`` known."""
+    speeds = np.asarray(speeds, dtype=np.float64)
+    enough = np.isfinite(speeds).sum(axis=0) >= MIN_FRAMES
+    return np.array([np.nanpercentile(speeds[:, j], percentile) if enough[j] else np.nan for j in range(speeds.shape[1])])
+
+
+def path_length(positions: np.ndarray) -> np.ndarray:
+    """[L] metres each landmark travelled: the sum of the straight steps between consecutive frames where
+    it is known at both; a step into or out of a gap is left out (the path through the gap is unknown), so
+    a landmark with gaps gets a lower bound. NaN for a landmark with no such step."""
+    positions = np.asarray(positions, dtype=np.float64)
+    if positions.shape[0] < 2:
+        return np.full(positions.shape[1], np.nan)
+    steps = np.linalg.norm(np.diff(positions, axis=0), axis=-1)  # NaN where either end is unknown
+    valid = np.isfinite(steps)
+    return np.where(valid.any(axis=0), np.where(valid, steps, 0.0).sum(axis=0), np.nan)
+
+
+def range_of_motion_axes(positions: np.ndarray, percentiles: tuple[float, float] = PERCENTILES) -> np.ndarray:
+    """[L, 3] metres: for each landmark and each axis of the calibration (x, y, z), the spread between the
+    5th and 95th percentile of its known positions — the extent it covered, leaving out the most extreme
+    10 % of frames so that one stray frame does not set it (a swing of amplitude A gives 2A·sin(0.45π) ≈ 1.98 A).
+    NaN for a landmark never known."""
+    positions = np.asarray(positions, dtype=np.float64)
+    known = _known(positions)
+    result = np.full(positions.shape[1:], np.nan)
+    for j in range(positions.shape[1]):
+        if known[:, j].any():
+            low, high = np.percentile(positions[known[:, j], j], percentiles, axis=0)
+            result[j] = high - low
+    return result
+
+
+def range_of_motion(positions: np.ndarray, percentiles: tuple[float, float] = PERCENTILES) -> np.ndarray:
+    """[L] metres: each landmark's range of motion, the largest over the three axes of its percentile spread
+    (:func:`range_of_motion_axes`). NaN for a landmark never known."""
+    axes = range_of_motion_axes(positions, percentiles)
+    result = np.full(axes.shape[0], np.nan)
+    seen = np.isfinite(axes).all(axis=1)
+    result[seen] = axes[seen].max(axis=1)
+    return result
+
+
+# --------------------------------------------------------------------------------------------------
+# Frequency
+
+
+def frame_rate(times: np.ndarray) -> float:
+    """Frames per second: one over the median time between frames (NaN for fewer than two frames)."""
+    times = np.asarray(times, dtype=np.float64)
+    return float(1.0 / np.median(np.diff(times))) if len(times) > 1 else float("nan")
+
+
+def speed_spectrum(times: np.ndarray, track: np.ndarray, smoothing_window: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(frequencies Hz, power) of one landmark's speed — how much of its speeding up and slowing down happens
+    at each rhythm. ``track`` is [T, 3]. The speed between the first and last known frames is taken, its inner
+    gaps filled by straight lines, its mean removed, and its spectrum estimated by Welch's method (averaging
+    Hann-windowed segments of up to ``MAX_SEGMENT`` frames; a shorter recording is one segment). Frequencies
+    run from 0.1 Hz to the Nyquist frequency (half the frame rate). Empty arrays with fewer than
+    ``MIN_SPECTRUM_FRAMES`` known frames; all-zero power for a constant speed (steady drift or no movement).
+
+    The frequency resolution is the frame rate over the segment length: a 30-frame recording at 30 fps
+    resolves only 1 Hz steps, so its dominant frequency and centroid are coarse; 3 s at 30 fps gives 0.33 Hz."""
     from scipy.signal import welch
 
-    series = speed(times, np.asarray(track, dtype=np.float64)[:, None])[:, 0]
-    known = np.isfinite(series)
-    if known.sum() < 8:
+    times = np.asarray(times, dtype=np.float64)
+    series = speed(times, np.asarray(track, dtype=np.float64)[:, None], smoothing_window)[:, 0]
+    known = np.flatnonzero(np.isfinite(series))
+    if len(known) < MIN_SPECTRUM_FRAMES:
         return np.zeros(0), np.zeros(0)
-    index = np.arange(len(series))
-    series = np.interp(index, index[known], series[known])
-    rate = 1.0 / float(np.median(np.diff(times)))
-    frequencies, power = welch(series - series.mean(), fs=rate, nperseg=min(len(series), 64), detrend=False)
+    index = np.arange(known[0], known[-1] + 1)
+    series = np.interp(index, known, series[known])
+    level = series.mean()
+    series = series - level
+    if np.abs(series).max() <= 1e-9 * abs(level):
+        series[:] = 0.0  # a constant speed, up to rounding: no rhythm
+    frequencies, power = welch(series, fs=frame_rate(times), nperseg=min(len(series), MAX_SEGMENT), detrend=False)
     band = frequencies >= LOW_FREQUENCY_HZ
     return frequencies[band], power[band]
 
 
-def _side(name: str) -> tuple[str, str] | None:
-    """(side "left"/"right", the rest of the name) of ``LWrist``, ``left_wrist``, ``wrist left``, …; None
-    for a name without a side."""
-    lowered = name.lower()
+def spectrum_summary(frequencies: np.ndarray, power: np.ndarray) -> tuple[float | None, float | None]:
+    """(dominant frequency, spectral centroid) in Hz of a spectrum from :func:`speed_spectrum`: the frequency
+    of the most power, and the power-weighted mean frequency. (None, None) for an empty or all-zero spectrum
+    (a landmark that did not move, or too few frames)."""
+    frequencies, power = np.asarray(frequencies, dtype=np.float64), np.asarray(power, dtype=np.float64)
+    if not len(frequencies) or not np.isfinite(power).all() or power.sum() <= 0:
+        return None, None
+    return float(frequencies[np.argmax(power)]), float((frequencies * power).sum() / power.sum())
+
+
+# --------------------------------------------------------------------------------------------------
+# Left and right
+
+_SEPARATORS = r"[\s_\-.]"
+
+
+def landmark_side(name: str) -> tuple[str, str] | None:
+    """(side, part) of a landmark name — side "left" or "right", part the rest lower-cased without spaces,
+    underscores, hyphens or dots — or None for a name without a side. Understands "left_wrist", "Left Wrist",
+    "LeftWrist", "wrist_left", "wrist.L", "l_wrist" and Pose2Sim's/OpenPose's "LWrist", "RBigToe" (a capital
+    L or R directly before a capital letter)."""
+    def part(rest: str) -> str:
+        return re.sub(_SEPARATORS, "", rest).lower()
+
     for side in ("left", "right"):
-        for pattern in (rf"^{side}[\s_\-]*(.+)$", rf"^(.+?)[\s_\-]*{side}$"):
-            match = re.match(pattern, lowered)
-            if match:
-                return side, match.group(1).strip(" _-")
-    match = re.match(r"^([LR])([A-Z].*)$", name)  # Pose2Sim / OpenPose: LWrist, RBigToe
+        letter = side[0]
+        for pattern in (rf"^{side}{_SEPARATORS}*(.+)$", rf"^{letter}{_SEPARATORS}+(.+)$",
+                        rf"^(.+?){_SEPARATORS}+(?:{side}|{letter})$"):
+            match = re.match(pattern, name, flags=re.IGNORECASE)
+            if match and part(match.group(1)):
+                return side, part(match.group(1))
+        match = re.match(rf"^(.+?[a-z]){side.capitalize()}$", name)  # camel case: wristLeft, WristRight
+        if match:
+            return side, part(match.group(1))
+    match = re.match(r"^([LR])([A-Z].*)$", name)
     if match:
-        return ("left" if match.group(1) == "L" else "right"), match.group(2).lower()
+        return ("left" if match.group(1) == "L" else "right"), part(match.group(2))
     return None
 
 
 def limb_pairs(names: tuple[str, ...] | list[str]) -> list[tuple[str, str]]:
-    """(left name, right name) of every landmark that has a counterpart on the other side, in name order."""
+    """(left name, right name) of every landmark that has a counterpart of the same part on the other side
+    (LWrist with RWrist, left_knee with right_knee), in the order the left ones come in ``names``."""
     sides: dict[tuple[str, str], str] = {}
     for name in names:
-        found = _side(name)
-        if found:
+        found = landmark_side(name)
+        if found and found not in sides:
             sides[found] = name
     return [(sides[("left", part)], sides[("right", part)]) for side, part in sides if side == "left" and ("right", part) in sides]
 
 
+def _correlation(a: np.ndarray, b: np.ndarray) -> float | None:
+    both = np.isfinite(a) & np.isfinite(b)
+    if both.sum() < MIN_FRAMES or np.ptp(a[both]) == 0 or np.ptp(b[both]) == 0:
+        return None
+    value = float(np.corrcoef(a[both], b[both])[0, 1])
+    return value if np.isfinite(value) else None
+
+
+def limb_symmetry(names: tuple[str, ...] | list[str], times: np.ndarray, positions: np.ndarray,
+                  smoothing_window: int = 0) -> list[dict[str, Any]]:
+    """How alike the two sides moved, per left/right pair of :func:`limb_pairs`: ``speed_correlation``, the
+    Pearson correlation of the two speeds over the frames where both are known (1: they speed up and slow down
+    together; None with fewer than ``MIN_FRAMES`` such frames or when one side never changes speed), and
+    ``path_length_ratio``, the left's path length over the right's (None when either is unknown or the right
+    did not move). Each entry also names ``left``, ``right`` and the ``part``."""
+    names = list(names)
+    positions = smooth_positions(positions, smoothing_window)
+    speeds = speed(times, positions)
+    lengths = path_length(positions)
+    enough = np.isfinite(speeds).sum(axis=0) >= MIN_FRAMES
+    result = []
+    for left, right in limb_pairs(names):
+        i, j = names.index(left), names.index(right)
+        ratio = lengths[i] / lengths[j] if enough[i] and enough[j] and lengths[j] > 0 else np.nan
+        result.append({"left": left, "right": right, "part": landmark_side(left)[1],
+                       "speed_correlation": _number(_correlation(speeds[:, i], speeds[:, j])), "path_length_ratio": _number(ratio)})
+    return result
+
+
 def limb_landmarks(names: tuple[str, ...] | list[str]) -> dict[str, str]:
-    """The landmark standing for each of "left hand", "right hand", "left foot", "right foot": the wrist
-    for a hand; the ankle for a foot, else the heel, else the big toe. Limbs without one are left out."""
+    """The landmark that stands for each of "left hand", "right hand", "left foot", "right foot", for plotting
+    where the hands and feet went: the wrist for a hand (else a landmark named hand); the ankle for a foot,
+    else the heel, else the big toe (else one named foot or toe). Limbs without one are left out; the keys
+    come in that order."""
+    preferences = {"hand": ("wrist", "hand"), "foot": ("ankle", "heel", "bigtoe", "foot", "toe")}
     chosen: dict[str, tuple[int, str]] = {}
     for name in names:
-        found = _side(name)
+        found = landmark_side(name)
         if not found:
             continue
-        side, part = found[0], re.sub(r"[\s_\-]", "", found[1])
-        for limb, preferences in (("hand", ("wrist",)), ("foot", ("ankle", "heel", "bigtoe"))):
-            if part in preferences:
-                key, rank = f"{side} {limb}", preferences.index(part)
+        side, part = found
+        for limb, parts in preferences.items():
+            if part in parts:
+                key, rank = f"{side} {limb}", parts.index(part)
                 if key not in chosen or rank < chosen[key][0]:
                     chosen[key] = (rank, name)
     order = ("left hand", "right hand", "left foot", "right foot")
     return {key: chosen[key][1] for key in order if key in chosen}
 
 
-def _number(value: float) -> float | None:
-    return round(float(value), 6) if np.isfinite(value) else None
+# --------------------------------------------------------------------------------------------------
+# Everything together
 
 
-def _correlation(a: np.ndarray, b: np.ndarray) -> float | None:
-    both = np.isfinite(a) & np.isfinite(b)
-    if both.sum() < MIN_FRAMES or np.std(a[both]) == 0 or np.std(b[both]) == 0:
-        return None
-    return _number(np.corrcoef(a[both], b[both])[0, 1])
+def _number(value: float | None) -> float | None:
+    return round(float(value), 6) if value is not None and np.isfinite(value) else None
 
 
-def movement_summary(names: tuple[str, ...] | list[str], times: np.ndarray, positions: np.ndarray) -> dict[str, Any]:
-    """JSON-ready measures: ``landmarks`` {name: {measure: value}} with the keys of
-    :data:`MEASURE_DESCRIPTIONS`, ``pairs`` [{left, right, speed_correlation, path_length_ratio}],
-    ``duration_s`` and ``frame_rate_hz``."""
+def movement_summary(names: tuple[str, ...] | list[str], times: np.ndarray, positions: np.ndarray,
+                     smoothing_window: int = 0) -> dict[str, Any]:
+    """Every measure of this module for a recording, ready for ``json.dumps`` (plain floats, None where a
+    measure cannot be given, never NaN):
+
+    - ``landmarks``: {name: {measure: value}} with the keys of ``LANDMARK_MEASURES`` (all None for a landmark
+      known at fewer than ``MIN_FRAMES`` frames) and ``range_of_motion_xyz_m``, the range along each axis;
+    - ``pairs``: [{left, right, part, speed_correlation, path_length_ratio}] (:func:`limb_symmetry`);
+    - ``duration_s``, ``frame_rate_hz``, ``frames``, and ``frequency_resolution_hz``, the spacing of the
+      spectrum's frequencies over the whole recording (how coarse the frequencies are);
+    - ``smoothing_window``, the Savitzky–Golay window the positions were smoothed by (0: none).
+
+    :data:`MEASURE_DESCRIPTIONS` gives one plain sentence per measure."""
+    names = list(names)
     times = np.asarray(times, dtype=np.float64)
-    positions = np.asarray(positions, dtype=np.float64)
+    positions = smooth_positions(positions, smoothing_window)
     speeds = speed(times, positions)
-    lengths = path_length(positions)
+    means, peaks = mean_speed(speeds), peak_speed(speeds)
+    lengths, axes = path_length(positions), range_of_motion_axes(positions)
     ranges = range_of_motion(positions)
-    landmarks: dict[str, dict[str, float | None]] = {}
+    landmarks: dict[str, dict[str, Any]] = {}
     for j, name in enumerate(names):
-        known = np.isfinite(speeds[:, j])
-        if known.sum() < MIN_FRAMES:
-            landmarks[name] = dict.fromkeys(MEASURE_DESCRIPTIONS)
+        if np.isfinite(speeds[:, j]).sum() < MIN_FRAMES:
+            landmarks[name] = {**dict.fromkeys(LANDMARK_MEASURES), "range_of_motion_xyz_m": None}
             continue
-        frequencies, power = speed_spectrum(times, positions[:, j])
-        has_spectrum = len(frequencies) and power.sum() > 0
-        landmarks[name] = {
-            "mean_speed_m_s": _number(np.nanmean(speeds[:, j])),
-            "peak_speed_m_s": _number(np.nanpercentile(speeds[:, j], 95)),
-            "path_length_m": _number(lengths[j]),
-            "range_of_motion_m": _number(ranges[j]),
-            "dominant_frequency_hz": _number(frequencies[np.argmax(power)]) if has_spectrum else None,
-            "spectral_centroid_hz": _number((frequencies * power).sum() / power.sum()) if has_spectrum else None,
-        }
-    index = {name: j for j, name in enumerate(names)}
-    pairs = []
-    for left, right in limb_pairs(names):
-        a, b = lengths[index[left]], lengths[index[right]]
-        pairs.append({"left": left, "right": right, "speed_correlation": _correlation(speeds[:, index[left]], speeds[:, index[right]]),
-                      "path_length_ratio": _number(a / b) if b > 0 else None})
-    return {"landmarks": landmarks, "pairs": pairs, "duration_s": _number(times[-1] - times[0]) if len(times) else None,
-            "frame_rate_hz": _number(1.0 / np.median(np.diff(times))) if len(times) > 1 else None}
+        dominant, centroid = spectrum_summary(*speed_spectrum(times, positions[:, j]))
+        landmarks[name] = {"mean_speed_m_s": _number(means[j]), "peak_speed_m_s": _number(peaks[j]), "path_length_m": _number(lengths[j]),
+                           "range_of_motion_m": _number(ranges[j]), "dominant_frequency_hz": _number(dominant),
+                           "spectral_centroid_hz": _number(centroid), "range_of_motion_xyz_m": [_number(value) for value in axes[j]]}
+    rate = frame_rate(times)
+    return {"landmarks": landmarks, "pairs": limb_symmetry(names, times, positions),
+            "duration_s": _number(times[-1] - times[0]) if len(times) else None, "frame_rate_hz": _number(rate), "frames": int(len(times)),
+            "frequency_resolution_hz": _number(rate / min(len(times), MAX_SEGMENT)) if len(times) >= MIN_SPECTRUM_FRAMES else None,
+            "smoothing_window": int(smoothing_window)}
