@@ -54,7 +54,7 @@ def test_plate_segmentation_finds_the_subject_and_consistency_drops_what_one_vie
     from mmcsplat.scene.rig import rig_center, rig_scale
 
     session = write_session(tmp_path / "s.zarr", frames=2, plates=True)
-    segment_session(session, "background", {"method": "plate", "largest_component": False}, progress=False, consistent=True)
+    segment_session(session, "background", {"method": "plate", "keep": "all"}, progress=False, consistent=True)
     reader = SessionReader(session)
     for camera in reader.camera_names:
         found, truth = reader.frame(0, camera).mask, reader.source_mask(0, camera)
@@ -66,3 +66,28 @@ def test_plate_segmentation_finds_the_subject_and_consistency_drops_what_one_vie
     center = rig_center(reader.cameras)
     kept = consistent_mask(camera, bystander, views[:1] + views[2:], center, rig_scale(reader.cameras, center))
     assert not kept[:6, :6].any() and kept[mask].mean() > 0.95
+
+
+def test_plate_segmentation_of_the_synthetic_capture_without_its_masks_matches_the_true_masks(tmp_path):
+    """The acceptance bar: masks deleted, the `background` segmenter's defaults over the recorded plates reach
+    0.9 IoU with the true masks — the adult's leg in cam_0 and cam_1 (larger there than the infant) dropped
+    as off-centre, the outline's half-covered pixels trimmed."""
+    import shutil
+
+    from mmcsplat.pipeline.ingest import ingest
+    from mmcsplat.pipeline.segment import segment_session
+    from mmcsplat.synthetic import SynthConfig, synthesize
+
+    capture = synthesize(tmp_path / "capture", SynthConfig(frames=3), progress=False).out_dir
+    bare = tmp_path / "bare"
+    shutil.copytree(capture, bare, ignore=shutil.ignore_patterns("ground_truth.zarr"))
+    ingest(capture, tmp_path / "truth.zarr", progress=False)
+    ingest(bare, tmp_path / "bare.zarr", progress=False)
+    assert SessionReader(tmp_path / "bare.zarr").frame(0, "cam_0").mask is None
+    segment_session(tmp_path / "bare.zarr", "background", {"method": "plate"}, progress=False)
+    truth, found = SessionReader(tmp_path / "truth.zarr"), SessionReader(tmp_path / "bare.zarr")
+    scores = {}
+    for camera in truth.camera_names:
+        ious = [(a & b).sum() / (a | b).sum() for a, b in ((truth.frame(t, camera).mask, found.frame(t, camera).mask) for t in range(3))]
+        scores[camera] = float(np.mean(ious))
+    assert np.mean(list(scores.values())) >= 0.9 and min(scores.values()) > 0.85, scores

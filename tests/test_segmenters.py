@@ -101,7 +101,7 @@ def test_largest_component_keeps_only_the_biggest_blob_and_dilation_grows_it() -
     two_blobs = regions["red"] | regions["small"]
     np.testing.assert_array_equal(largest_component(two_blobs), regions["red"])
     assert not largest_component(np.zeros((H, W), bool)).any()
-    np.testing.assert_array_equal(PostProcess(largest_component=False)(two_blobs), two_blobs)
+    np.testing.assert_array_equal(PostProcess(keep="all")(two_blobs), two_blobs)
 
     dot = np.zeros((9, 9), bool)
     dot[4, 4] = True
@@ -112,6 +112,22 @@ def test_largest_component_keeps_only_the_biggest_blob_and_dilation_grows_it() -
     assert not both[regions["small"]].any() and both[3, 4] and both[4, 3] and not both[3, 3]
     with pytest.raises(ValueError, match="dilation"):
         PostProcess(dilation=-1)
+
+
+def test_central_component_keeps_what_the_rig_aims_at_not_a_larger_bystander() -> None:
+    from mmcsplat.plugins.segmenters.postprocess import PostProcess, central_component
+
+    mask = np.zeros((40, 60), bool)
+    mask[15:25, 25:33] = True  # the subject, where the rig's centre projects (30, 20)
+    mask[0:40, 0:12] = True  # a bystander's leg at the edge of the view, larger
+    centre = np.array([30.0, 20.0])
+    np.testing.assert_array_equal(central_component(mask, centre), mask & (np.arange(60) >= 25))
+    np.testing.assert_array_equal(central_component(mask, np.array([-5.0, 0.0])), mask & (np.arange(60) < 12))  # nearest, not inside
+    np.testing.assert_array_equal(PostProcess()(mask, centre), mask & (np.arange(60) >= 25))
+    np.testing.assert_array_equal(PostProcess(keep="largest")(mask, centre), mask & (np.arange(60) < 12))
+    np.testing.assert_array_equal(PostProcess()(mask), mask & (np.arange(60) < 12))  # no centre given: the largest
+    with pytest.raises(ValueError, match="keep"):
+        PostProcess(keep="biggest")
 
 
 def test_pieces_a_pixel_or_two_apart_are_one_component() -> None:
@@ -149,7 +165,7 @@ def test_onnx_semantic_maps_remaps_and_keeps_the_largest_component(tmp_path: Pat
     np.testing.assert_array_equal(plain_labels == 2, regions["blue"])
     np.testing.assert_array_equal(plain, regions["red"])
 
-    _, everything, _ = next(iter(_segmenter("onnx-semantic", model=str(model), largest_component=False).segment(session, "a")))
+    _, everything, _ = next(iter(_segmenter("onnx-semantic", model=str(model), keep="all").segment(session, "a")))
     np.testing.assert_array_equal(everything, regions["red"] | regions["blue"] | regions["small"])
 
 
@@ -268,7 +284,7 @@ def test_background_refuses_settings_that_would_empty_the_masks(params, message)
 def test_background_parameters_keep_their_defaults_and_effective_threshold() -> None:
     segmenter = _segmenter("background")
     assert (segmenter.method, segmenter.threshold, segmenter.cutoff) == ("mog2", None, 16.0)
-    assert (segmenter.largest_component, segmenter.dilation, segmenter.bridge) == (True, 0, 1)
+    assert (segmenter.keep, segmenter.dilation, segmenter.bridge, segmenter.edge_share) == ("central", 0, 1, 0.4)
     assert _segmenter("background", method="median").cutoff == 30.0
     assert _segmenter("background", method="knn", threshold=250).cutoff == 250.0
     assert _segmenter("background", learn_frames=[0, 4]).learn_frames == (0, 4)
@@ -318,7 +334,7 @@ def test_segmenting_again_starts_from_the_ingested_masks(tmp_path: Path, capsys:
     for key in shipped:
         np.testing.assert_array_equal(twice[key], once[key])  # not dilated by 4
     segment("background")
-    restored = segment("precomputed", "--set", "largest_component=false")
+    restored = segment("precomputed", "--set", "keep=all")
     for key, mask in shipped.items():
         np.testing.assert_array_equal(restored[key], mask)  # the speck the first passes dropped is back
 

@@ -195,7 +195,7 @@ def run_demo(out: Path, settings: DemoSettings = DemoSettings(), progress: bool 
         # Both into a hidden sibling renamed into place: an interrupted segmentation is not a session.
         partial = paths.session.with_name(f".{paths.session.name}.partial")
         ingest(paths.capture, partial, holdout=list(SYNTHETIC_HELDOUT), overwrite=True, progress=progress)
-        # The synthetic capture ships subject masks; segmenting keeps their largest component per view.
+        # The synthetic capture ships subject masks; segmenting keeps their central component per view.
         segment_session(partial, SYNTHETIC_SEGMENTER, progress=progress)
         os.replace(partial, paths.session)
 

@@ -35,7 +35,7 @@ STUDY_KEYS = {"study", "sessions", "variant"}
 HEADER_KEYS = {"name", "description", "folds", "seeds", "backends", "set"}
 SESSION_KEYS = {"path", "synthetic", "segmenter", "heldout", "folds", "ground_truth", "cameras", "perturb"}
 VARIANT_KEYS = {"name", "config", "set", "grid", "segmenter", *VARIANT_PLUGIN_TABLES}
-#: A synthetic session's default: the masks it ships, largest component kept (as ``mmcsplat demo`` does).
+#: A synthetic session's default: the masks it ships, central component kept (as ``mmcsplat demo`` does).
 SYNTHETIC_SEGMENTER = "precomputed"
 SYNTHETIC_HELDOUT = ("cam_0",)
 #: Synthesis settings added after studies were first keyed: left out of identities at these defaults,
