@@ -56,8 +56,8 @@ def segmentation_start(points: np.ndarray, scene: SceneContext) -> np.ndarray | 
     segmentation 0 is to make everything transparent — measured on the synthetic capture, paper-unmasked
     went transparent within 200 iterations and never fitted its training views (masked PSNR 9.4 dB)."""
     views = []
-    for camera in scene.cameras:
-        mask = scene.session.frame(scene.frame, camera.name).mask
+    for index, camera in enumerate(scene.cameras):
+        mask = scene.image(index).mask
         if mask is None:
             return None
         views.append((camera, mask))
@@ -74,10 +74,10 @@ REGION_SHARE = 0.9
 
 
 def mask_views(scene: SceneContext) -> list[tuple[Any, np.ndarray]]:
-    """(camera, mask) of the training cameras with a mask at the fitted frame."""
+    """(camera, mask) of the training cameras with a mask in the image the fit trains on."""
     views = []
-    for camera in scene.cameras:
-        mask = scene.session.frame(scene.frame, camera.name).mask
+    for index, camera in enumerate(scene.cameras):
+        mask = scene.image(index).mask
         if mask is not None:
             views.append((camera, mask))
     return views
@@ -203,10 +203,11 @@ class VisualHullInitializer(Initializer):
 
     def initial_gaussians(self, scene: SceneContext, generator: torch.Generator) -> Gaussians:
         views = []
-        for camera in scene.cameras:
-            frame = scene.session.frame(scene.frame, camera.name)
+        for index, camera in enumerate(scene.cameras):
+            frame = scene.image(index)
             if frame.mask is None:
-                raise InputError(f"visual-hull initializer: camera {camera.name!r} has no mask at frame {scene.frame}: run `mmcsplat segment` first")
+                raise InputError(f"visual-hull initializer: camera {camera.name!r} has no mask at frame {scene.frame_of(index)}: "
+                                 "run `mmcsplat segment` first")
             views.append((camera, frame.mask, frame.rgb))
         check_region(scene, "visual-hull", "half_size", self.half_size, cube=True)
         kept_points: list[np.ndarray] = []
@@ -265,9 +266,9 @@ class DepthSupervisedInitializer(Initializer):
 
     def _load(self, scene: SceneContext) -> None:
         """Read every training camera's depth map once; one Adam over all scale/offsets."""
-        for camera in scene.cameras:
+        for index, camera in enumerate(scene.cameras):
             try:
-                depth = self.depth_source.depth(scene.session, scene.frame, camera)
+                depth = self.depth_source.depth(scene.session, scene.frame_of(index), camera)
             except ValueError as error:
                 raise InputError(f"depth-supervised initializer: {error}") from error
             self._maps[camera.name] = torch.tensor(np.asarray(depth, dtype=np.float32))  # a copy: the source's may be shared

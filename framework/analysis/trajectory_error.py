@@ -144,8 +144,9 @@ def evaluate_tracks(run: Path, session: SessionReader, heldout: list[str], groun
     ``tracking_error`` when no ground-truth point is followed), ``tracking_followed_points``,
     ``tracking_per_frame_median_mm``, ``tracking_num_gaussians`` (the tracked model's size: a method
     that densifies while tracking ends larger than the first-frame fit, whose size is ``num_gaussians``)
-    and ``per_frame_val_masked_psnr`` (held-out cameras' mean per frame,
-    rendered with ``renderer`` over the run's ``background`` and scored by the ``psnr`` metric)."""
+    ``per_frame_val_masked_psnr`` (held-out cameras' mean per frame, rendered with ``renderer`` over the
+    run's ``background`` and scored by the ``psnr`` metric) and ``tracked_val_masked_psnr``, its mean over
+    the frames a held-out camera imaged (a moving camera's capture is held out this way only)."""
     backdrops = {name: camera_backdrop(background, session, name) for name in heldout}
     tracks = TrackReader(run)
     frames = range(int(tracks.attrs.get("first_frame", 0)), int(tracks.attrs.get("first_frame", 0)) + tracks.num_frames)
@@ -164,6 +165,8 @@ def evaluate_tracks(run: Path, session: SessionReader, heldout: list[str], groun
             scores.append(psnr(rgb.clamp(0, 1).double().numpy(), data.rgb.astype(np.float64) / 255.0, data.mask))
         per_frame.append(float(np.mean(scores)) if scores else None)
     metrics["per_frame_val_masked_psnr"] = per_frame
+    scored = [value for value in per_frame if value is not None]
+    metrics["tracked_val_masked_psnr"] = float(np.mean(scored)) if scored else None
     path = Path(ground_truth) if ground_truth is not None else find_ground_truth(session)
     if path is None:
         metrics.update(tracking_median_mm=None, tracking_p90_mm=None, tracking_2d_median_px=None)

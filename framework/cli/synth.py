@@ -28,6 +28,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--slide", type=float, default=0.0, metavar="M_PER_S",
                         help="move the whole infant along +x at this speed in m/s (default: 0); at about 1 m/s it leaves "
                              "some views within a second — a failure regime for `mmcsplat stability`")  # fmt: skip
+    parser.add_argument("--monocular", action="store_true",
+                        help="one camera orbiting the mat instead of the ring, written in the D-NeRF layout (transforms_train.json; "
+                             "transforms_test.json: --num-cameras fixed held-out cameras every 5th frame); no adult's leg")  # fmt: skip
+    parser.add_argument("--turns", type=float, default=1.0, help="with --monocular, orbits over the sequence (default: 1)")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing OUT_DIR")
     add_progress(parser)
 
@@ -39,6 +43,16 @@ def run(args: argparse.Namespace) -> int:
         frames=args.num_frames, cameras=args.num_cameras, width=args.width, height=args.height,
         seed=args.seed, fps=args.fps, adult_leg=args.adult_leg, slide=args.slide,
     )  # fmt: skip
+    if args.monocular:
+        from mmcsplat.plugin_api.errors import InputError
+        from mmcsplat.synthetic.monocular import synthesize_monocular
+
+        if args.overwrite:
+            raise InputError("--overwrite: a monocular capture is written to a new folder only")
+        written = synthesize_monocular(args.out_dir, config, turns=args.turns, progress=not args.no_progress)
+        print(f"wrote {written.out_dir}: {written.train_images} images of one orbiting camera and {written.heldout_images} held-out "
+              f"images of {config.cameras} fixed cameras, {config.width}×{config.height}, in {written.seconds:.1f} s")
+        return 0
     result = synthesize(args.out_dir, config, overwrite=args.overwrite, progress=not args.no_progress)
     print(f"wrote {result.out_dir}: {len(result.cameras)} cameras × {result.num_frames} frames of "
           f"{config.width}×{config.height} in {result.seconds:.1f} s")  # fmt: skip

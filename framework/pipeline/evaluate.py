@@ -110,7 +110,8 @@ def evaluate_run(run: Path, registry: Registry | None = None, backend: str | Non
     background = fitted_background(info)
     scores: dict[str, dict[str, list[float]]] = {"val": {}, "train": {}}
     per_camera = {}
-    names = [*info.train_cameras, *info.heldout_cameras]
+    # A moving camera's poses are cameras present at one frame each: only those imaging the fitted frame are scored.
+    names = [name for name in (*info.train_cameras, *info.heldout_cameras) if session.present(name)[frame]]
     for name in names:
         split = "train" if name in info.train_cameras else "val"
         data = session.frame(frame, name)

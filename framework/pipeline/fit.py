@@ -40,7 +40,7 @@ from mmcsplat.training.objective import view_loss, view_psnr
 from mmcsplat.training.schedule import CameraSchedule
 from mmcsplat.training.settings import FitSettings
 from mmcsplat.training.supersampling import supersampled
-from mmcsplat.training.views import load_view, require_masks, subject_warnings
+from mmcsplat.training.views import first_fit_images, load_view, require_masks, subject_warnings
 
 CHECKPOINT = "checkpoint.pt"
 
@@ -121,14 +121,21 @@ class FirstFrameFit:
         self.densifier: Densifier | None = densifiers[0].build(self.registry) if densifiers else None
         self.train_cameras, self.heldout_cameras = select_cameras(session, holdout)
         center = rig_center(session.cameras)
-        self.scene = SceneContext(session, tuple(self.train_cameras), self.settings.frame, center, rig_scale(session.cameras, center))
+        self.images = first_fit_images(session, self.train_cameras, self.settings.frame, self.settings.window)
+        first_seen: dict[int, int] = {}  # training camera number → the first frame the fit trains it on
+        for t, index in self.images:
+            first_seen.setdefault(index, t)
+        window = len({t for t, _ in self.images}) > 1
+        self.scene = SceneContext(session, tuple(self.train_cameras[index] for index in first_seen), self.settings.frame, center,
+                                  rig_scale(session.cameras, center), tuple(first_seen.values()) if window else ())
         self.views = self._load_views()
 
     def _load_views(self) -> list[TrainingView]:
         frame = self.settings.frame
         views = [
-            load_view(self.session, frame, camera, index, self.initializers, camera_backdrop(self.settings.background, self.session, camera.name))
-            for index, camera in enumerate(self.train_cameras)
+            load_view(self.session, t, self.train_cameras[index], index, self.initializers,
+                      camera_backdrop(self.settings.background, self.session, self.train_cameras[index].name))
+            for t, index in self.images
         ]
         require_masks(views, self.settings, self.session, frame)
         self.warnings = subject_warnings(views, frame)
@@ -160,6 +167,9 @@ class FirstFrameFit:
             log.info("fit of session %s with %s into %s: %d iterations, renderer %s, training cameras %s, held out %s",
                      self.session.url, self.config.source, self.out, self.settings.iterations, self.renderer_name,
                      ", ".join(c.name for c in self.train_cameras), ", ".join(c.name for c in self.heldout_cameras) or "none")
+            frames = sorted({t for t, _ in self.images})
+            if len(frames) > 1:
+                log.info("a moving camera: the first fit trains on %d images of frames %d–%d", len(self.images), frames[0], frames[-1])
             for warning in self.warnings:  # shown on the console as a Python warning already
                 log.info("warning: %s", warning)
             try:
@@ -194,7 +204,7 @@ class FirstFrameFit:
             for step in bar:
                 index = schedule.next()
                 view = self.views[index]
-                render = self.renderer.render(model.gaussians(), cameras[index])
+                render = self.renderer.render(model.gaussians(), cameras[view.index])
                 loss, image = view_loss(model, view, render, settings)
                 for initializer in self.initializers:
                     extra = initializer.extra_loss(step, render, view.camera, self.scene)

@@ -14,6 +14,8 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from mmcsplat.configuration.config import Config, PluginChoice, apply_override, load_config
 from mmcsplat.configuration.registry import Registry, default_registry
 from mmcsplat.pipeline.fit import load_fitted
@@ -56,6 +58,16 @@ def tracking_config(
     return loaded, loaded.plugin("dynamics")
 
 
+def require_cameras_per_frame(run: Path, session: SessionReader, cameras: Iterable[str], frames: range, method: str, needed: int) -> None:
+    """Refuse a dynamics method that needs ``needed`` training cameras at a frame on a capture whose
+    ``frames`` mostly hold fewer (one moving camera: a monocular capture), naming a method that can."""
+    counts = np.sum([session.present(name)[frames.start : frames.stop] for name in cameras], axis=0)
+    if needed > 1 and np.median(counts) < needed:
+        raise InputError(f"{run}: dynamics {method!r} fits each frame from that frame's own images and needs {needed} training cameras "
+                         f"at a frame, but session {session.url!r} images most frames with {int(np.median(counts))} (one moving camera?): "
+                         "track it with --dynamics deformation, which trains over every (frame, camera) image of the sequence")
+
+
 def track_run(
     run: Path,
     *,
@@ -90,6 +102,7 @@ def track_run(
     stop = session.num_frames if frames.stop is None else min(session.num_frames, frames.stop)
     if stop - first < 2:
         raise InputError(f"{run}: frames {first}–{stop - 1} of session {session.url!r} leave nothing to track after the fitted frame")
+    require_cameras_per_frame(run, session, info.train_cameras, range(first, stop), choice.name, method.cameras_per_frame)
     renderer_name = backend or info.renderer
     cameras = tuple(session.camera(name) for name in info.train_cameras)
     initializers = tuple(c.build(registry) for c in loaded.plugins("initializer"))

@@ -27,6 +27,7 @@ if TYPE_CHECKING:  # heavy imports only for type checkers
     from mmcsplat.configuration.config import Config
     from mmcsplat.configuration.registry import Registry
     from mmcsplat.storage.session import SessionReader
+    from mmcsplat.storage.session.format import SessionFrame
     from mmcsplat.training.model import GaussianModel
     from mmcsplat.training.settings import FitSettings
 
@@ -126,13 +127,26 @@ class Segmenter(ABC):
 @attrs.frozen(eq=False)
 class SceneContext:
     """What an initializer may look at: the training cameras, the first frame's session data, and the
-    scene's centre and scale (metres) derived from the calibration."""
+    scene's centre and scale (metres) derived from the calibration.
+
+    A rig's cameras all image the fitted ``frame``. A moving camera (a monocular capture) images one pose
+    per frame, so its first fit trains on the images of several frames: ``camera_frames`` then gives the
+    session frame of each of ``cameras``; read a camera's image with :meth:`image`, not at ``frame``."""
 
     session: SessionReader
     cameras: Sequence[Camera]
     frame: int
     center: np.ndarray
     scale: float
+    camera_frames: Sequence[int] = ()
+
+    def frame_of(self, index: int) -> int:
+        """The session frame whose image of ``cameras[index]`` the fit trains on."""
+        return self.camera_frames[index] if self.camera_frames else self.frame
+
+    def image(self, index: int) -> SessionFrame:
+        """The image (colour, mask, depth) of ``cameras[index]`` the fit trains on."""
+        return self.session.frame(self.frame_of(index), self.cameras[index].name)
 
 
 class Initializer(ABC):
@@ -248,6 +262,11 @@ class TrackingContext:
 
 class Dynamics(ABC):
     """Carries the first-frame Gaussians through the sequence."""
+
+    #: Training cameras a frame must hold for the method to fit it: one that fits each frame from that frame's
+    #: images alone needs two at least; one trained over the whole sequence learns from a single moving
+    #: camera too. Tracking refuses, before it starts, a capture whose frames mostly hold fewer.
+    cameras_per_frame: int = 1
 
     @abstractmethod
     def track(self, context: TrackingContext, out: Path) -> dict[str, Any]:

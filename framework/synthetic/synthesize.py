@@ -71,6 +71,18 @@ class SynthResult:
     seconds: float
 
 
+def infant_motion(config: SynthConfig) -> tuple[tuple[Part, ...], np.ndarray, BodyPose]:
+    """(body parts, frame times in seconds [T], pose of every part at every frame) of the infant that
+    ``config``'s seed, frame count, frame rate and slide describe."""
+    parts = infant_parts()
+    motion = Motion.random(parts, np.random.default_rng([config.seed, 2]))
+    times = np.arange(config.frames) / config.fps
+    poses = forward_kinematics(parts, motion.rotvecs(times))
+    if config.slide:
+        poses = BodyPose(poses.rotations, poses.origins + config.slide * times[:, None, None] * np.array([1.0, 0.0, 0.0]))
+    return parts, times, poses
+
+
 def synthesize(out_dir: str | Path, config: SynthConfig = SynthConfig(), *, overwrite: bool = False, progress: bool = True) -> SynthResult:
     """Render the synthetic infant capture into ``out_dir``: ``videos/<camera>.mp4``, an anipose
     ``calibration.toml``, ``plates/<camera>.png`` (clean plates: the empty mat) and ``ground_truth.zarr``
@@ -83,15 +95,9 @@ def synthesize(out_dir: str | Path, config: SynthConfig = SynthConfig(), *, over
 
     started = time.perf_counter()
     out_dir = Path(out_dir)
-    parts = infant_parts()
     cameras = ring_cameras(config.cameras, config.width, config.height, np.random.default_rng([config.seed, 1]))
-    motion = Motion.random(parts, np.random.default_rng([config.seed, 2]))
     leg = AdultLeg.beside_mat(np.pi / config.cameras) if config.adult_leg else None  # between cam_0 and cam_1
-
-    times = np.arange(config.frames) / config.fps
-    poses = forward_kinematics(parts, motion.rotvecs(times))
-    if config.slide:
-        poses = BodyPose(poses.rotations, poses.origins + config.slide * times[:, None, None] * np.array([1.0, 0.0, 0.0]))
+    parts, times, poses = infant_motion(config)
     point_local, point_part = surface_points(parts)
     with CaptureWriter(out_dir, cameras, config.frames, config.fps, overwrite) as writer:
         writer.write_array("surface_points", poses.to_world(point_part, point_local).astype(np.float32),

@@ -24,6 +24,8 @@ class FitSettings:
 
     iterations: int = parameter(2000, doc="training iterations, one training camera each", validator=at_least(1))
     frame: int = parameter(0, doc="the session frame fitted", validator=at_least(0))
+    window: int = parameter(0, doc="train on the images of this many frames from `frame` on (a moving camera's capture); 0: one frame "
+                                   "on a rig, on a monocular capture the frames that hold 8 images (training.views)", validator=at_least(0))
     seed: int = parameter(0, doc="seed of the initializers and the camera order")
     lambda_image: float = parameter(1.0, doc="weight of the image loss", validator=at_least(0))
     lambda_seg: float = parameter(3.0, doc="weight of the segmentation loss against the masks", validator=at_least(0))

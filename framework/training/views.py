@@ -26,6 +26,31 @@ if TYPE_CHECKING:
 MIN_TRAINING_CAMERAS = 4
 
 
+#: The images a monocular first fit trains on by default: the moving camera's next poses from the fitted
+#: frame until it has taken this many (on the synthetic orbit, 8 frames: a quarter turn).
+MONOCULAR_IMAGES = 8
+
+
+def first_fit_images(session: SessionReader, cameras: Sequence[Camera], frame: int, window: int) -> list[tuple[int, int]]:
+    """(session frame, training camera number) of every image a first fit trains on: the ``window`` frames
+    from ``frame`` on when ``window`` > 0; otherwise every camera at ``frame`` when at least two training
+    cameras image it (a rig: a camera missing there is an error when the image is read), else — one moving
+    camera, a monocular capture — the frames from ``frame`` on until they hold :data:`MONOCULAR_IMAGES`
+    images. An error when fewer than two images result."""
+    present = np.stack([session.present(camera.name) for camera in cameras])  # [C, T]
+    if window == 0 and present[:, frame].sum() >= 2:
+        return [(frame, index) for index in range(len(cameras))]
+    stop = frame + window if window else frame
+    if not window:
+        while stop < present.shape[1] and present[:, frame:stop].sum() < MONOCULAR_IMAGES:
+            stop += 1
+    images = [(int(t), int(index)) for t in range(frame, min(stop, present.shape[1])) for index in np.flatnonzero(present[:, t])]
+    if len(images) < 2:
+        raise InputError(f"session {session.url}: frames {frame}–{stop - 1} hold {len(images)} training image(s); a fit needs at least "
+                         "two: set fit.window to more frames, or fit.frame to a frame the cameras imaged")
+    return images
+
+
 def load_view(
     session: SessionReader, t: int, camera: Camera, index: int, initializers: Sequence[Initializer], backdrop: torch.Tensor
 ) -> TrainingView:

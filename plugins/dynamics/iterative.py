@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import attrs
 import numpy as np
@@ -54,6 +54,8 @@ class FrameResult:
 class IterativeDynamics(Dynamics):
     """Per-frame optimisation with constant-velocity prediction and local-rigidity priors; the neighbour
     graph over the foreground Gaussians is built once after the first frame."""
+
+    cameras_per_frame: ClassVar[int] = 2  # each frame is fitted from its own images alone
 
     iterations: int = parameter(2000, doc="Adam steps per frame, one training camera each", validator=at_least(0))
     neighbours: int = parameter(20, doc="k of the neighbour graph over foreground Gaussians", validator=at_least(1))
