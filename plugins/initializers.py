@@ -20,7 +20,7 @@ from mmcsplat.plugin_api.interfaces import DepthSource, Initializer, SceneContex
 from mmcsplat.plugin_api.parameters import at_least, finite_positive, parameter
 from mmcsplat.plugin_api.registration import PluginBuilder
 from mmcsplat.plugin_api.render_contract import Gaussians, RenderOutput
-from mmcsplat.scene.visual_hull import hull_cells, in_hull, mask_hits, mask_votes
+from mmcsplat.scene.visual_hull import REGION_SHARE, hull_cells, in_hull, mask_hits, mask_votes, region_reach
 
 INITIAL_OPACITY = 0.1
 INITIAL_SEG = 0.5
@@ -66,13 +66,6 @@ def segmentation_start(points: np.ndarray, scene: SceneContext) -> np.ndarray | 
     return np.clip(share, 0.02, 0.98)
 
 
-#: The share of the subject's visual hull a start or pruning region must hold: less, and the fit would
-#: start or prune away part of the subject (the issue's two adults: 3.4 % inside the infant-sized cube).
-#: A hull is looser than its subject, so the bar is not 100 %: the test scene's 24 cm cloud fitted in a
-#: 0.25 m cube holds 92 % of its 4-view hull; the Pose2Sim adult in the 0.75 m cube, 80 %.
-REGION_SHARE = 0.9
-
-
 def mask_views(scene: SceneContext) -> list[tuple[Any, np.ndarray]]:
     """(camera, mask) of the training cameras with a mask in the image the fit trains on."""
     views = []
@@ -95,7 +88,7 @@ def check_region(scene: SceneContext, initializer: str, key: str, size: float, c
     cells = hull_cells(views, center, max(2.0 * size, float(scene.scale))) - center
     if not len(cells):
         return
-    reach = np.abs(cells).max(axis=1) if cube else np.linalg.norm(cells, axis=1)
+    reach = region_reach(cells, cube)
     inside = float(np.mean(reach <= size))
     if inside < REGION_SHARE:
         shape = f"the start cube of half side {size} m" if cube else f"the pruning sphere of radius {size} m"

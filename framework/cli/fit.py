@@ -1,6 +1,8 @@
 """Fit the first frame of a session: Gaussians optimised on the training cameras (resumes a killed run).
 
-With --folds, one fit per held-out camera (leave-one-camera-out) into RUN/<camera>/.
+With --folds, one fit per held-out camera (leave-one-camera-out) into RUN/<camera>/. Start and pruning
+regions too small for the subject's visual hull are grown to hold it (mmcsplat.pipeline.regions) unless
+--fixed-regions.
 """
 
 from __future__ import annotations
@@ -20,6 +22,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_names(parser, "--holdout", "held-out cameras (default: the session's own)")
     add_names(parser, "--folds", "one fit per camera held out, into OUT/<camera>/")
     add_settings(parser, "override a configuration value, e.g. --set fit.iterations=500 (repeatable)")
+    parser.add_argument("--fixed-regions", action="store_true",
+                        help="keep the configuration's start and pruning regions even when the subject's visual hull does not fit "
+                             "in them (the fit is then refused), instead of growing them")
     add_progress(parser)
 
 
@@ -27,13 +32,18 @@ def run(args: argparse.Namespace) -> int:
     from mmcsplat.configuration.config import load_config
     from mmcsplat.pipeline.evaluate import fit_signals
     from mmcsplat.pipeline.fit import FirstFrameFit
+    from mmcsplat.pipeline.regions import region_overrides
     from mmcsplat.storage.session import SessionReader
 
     config = load_config(args.config, args.overrides)
     session = SessionReader(args.session)
     plan = [(args.out / camera, [camera]) for camera in args.folds] if args.folds else [(args.out, args.holdout)]
     for out, holdout in plan:
-        fit = FirstFrameFit(session, config, out, holdout=holdout, backend=args.backend, progress=not args.no_progress)
+        grown = [] if args.fixed_regions else region_overrides(session, config, holdout)
+        if grown:
+            print(f"{out}: start and pruning regions grown to hold the subject's visual hull: {', '.join(grown)}")
+        fitted = load_config(args.config, [*args.overrides, *grown]) if grown else config
+        fit = FirstFrameFit(session, fitted, out, holdout=holdout, backend=args.backend, progress=not args.no_progress)
         info = fit.run()
         resumed = f", resumed from iteration {info.resumed_from}" if info.resumed_from is not None else ""
         print(f"{out}: {info.iterations} iterations{resumed}, {info.num_gaussians} Gaussians, {info.wall_s:.1f} s "

@@ -25,7 +25,6 @@ from pathlib import Path
 from typing import Any
 
 import attrs
-import numpy as np
 
 from mmcsplat.jobs.demo import StepTime, fresh, run_step
 from mmcsplat.plugin_api.errors import InputError
@@ -33,7 +32,6 @@ from mmcsplat.storage.atomic import write_json_atomic
 
 SETTINGS_FILE = "capture.json"
 DEFAULT_CONFIG = "visual-hull-plate"
-REGION_MARGIN = 0.1  # metres added to the hull's reach for the start cube
 
 
 @attrs.frozen
@@ -76,26 +74,6 @@ def found(capture: Path, given: str | None, pattern: str, what: str) -> Path | N
     return matches[0].resolve() if matches else None
 
 
-def start_half_size(session_url: str, config: Any) -> float | None:
-    """The start cube's half side that holds the subject's visual hull at the fitted frame (training
-    cameras' masks), or ``None`` when the masks give no hull."""
-    from mmcsplat.pipeline.fit import select_cameras
-    from mmcsplat.scene.rig import rig_center, rig_scale
-    from mmcsplat.scene.visual_hull import hull_cells
-    from mmcsplat.storage.session import SessionReader
-
-    session = SessionReader(session_url)
-    train, _ = select_cameras(session, None)
-    frame = int((config.get("fit") or {}).get("frame", 0))
-    views = [(camera, session.frame(frame, camera.name).mask) for camera in train if session.present(camera.name)[frame]]
-    views = [(camera, mask) for camera, mask in views if mask is not None]
-    if len(views) < 2:
-        return None
-    center = rig_center(session.cameras)
-    cells = hull_cells(views, center, rig_scale(session.cameras, center)) - center
-    return float(np.ceil((np.abs(cells).max() + REGION_MARGIN) * 10) / 10) if len(cells) else None
-
-
 def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings = CaptureSettings(), progress: bool = True,
                 log: Callable[[str], None] = print) -> CaptureResult:
     """Run every step into ``out`` (module docstring); ``log`` gets one line per step."""
@@ -108,6 +86,7 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     from mmcsplat.pipeline.ingest import ingest
     from mmcsplat.pipeline.landmarks import LANDMARKS_CSV, LANDMARKS_INFO, track_landmarks
     from mmcsplat.pipeline.plates import estimate_plates
+    from mmcsplat.pipeline.regions import region_overrides
     from mmcsplat.pipeline.run_frames import RunStates
     from mmcsplat.pipeline.segment import segment_session
     from mmcsplat.pipeline.track import TRACK_INFO, track_run
@@ -144,17 +123,11 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
         os.replace(partial, session)
 
     def fit() -> None:
-        config = load_config(settings.config, settings.overrides)
-        half = start_half_size(str(session), config)
-        if half is not None:
-            overrides = [*settings.overrides]
-            for index, table in enumerate(config.plugins("initializer")):
-                if "half_size" in table.params and half > float(table.params["half_size"]):
-                    overrides.append(f"initializer.{index}.half_size={half}")
-                if "radius" in table.params and half * 1.8 > float(table.params["radius"]):
-                    overrides.append(f"initializer.{index}.radius={np.ceil(half * 18) / 10}")
-            config = load_config(settings.config, overrides)
-        FirstFrameFit(SessionReader(session), config, run, progress=progress).run()
+        reader = SessionReader(session)
+        grown = region_overrides(reader, load_config(settings.config, settings.overrides))
+        if grown:
+            log(f"run: start and pruning regions grown to hold the subject's visual hull: {', '.join(grown)}")
+        FirstFrameFit(reader, load_config(settings.config, [*settings.overrides, *grown]), run, progress=progress).run()
 
     def landmarks() -> None:
         track_landmarks(run, "trc", {"path": str(joints)}, keypoints="openpose" if keypoints else None,
