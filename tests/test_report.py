@@ -18,6 +18,7 @@ from render_fixtures import add_tracks
 from mmcsplat.cli import main
 from mmcsplat.configuration.registry import default_registry
 from mmcsplat.storage.curves import TrainingCurve
+from mmcsplat.storage.session import SessionReader
 from mmcsplat.studies.cells import COMPLETE, CellOutcome
 from mmcsplat.studies.runner import write_results
 from mmcsplat.studies.spec import expand, load_study
@@ -119,6 +120,7 @@ def test_run_page_shows_views_metrics_chart_and_renders(runs):
     assert sorted(videos) == sorted((run / "renders" / name).read_bytes() for name in ("novel.mp4", "trajectories_cam_0.mp4", "depth_cam_0.mp4"))
     assert (run / "renders" / "trajectories_cam_0.png").read_bytes() in pngs
     assert "Not rendered yet" not in page and "mmcsplat track" not in page
+    assert "Clean plates" not in page  # its session has none
 
 
 def test_untouched_run_says_which_commands_make_what_is_missing(runs, tmp_path):
@@ -132,6 +134,18 @@ def test_untouched_run_says_which_commands_make_what_is_missing(runs, tmp_path):
     assert f"mmcsplat render {static} --trajectories --novel --depth" in page
     assert "No curves.csv" in page
     assert len(embedded(page, "image/png")) == 6 and not embedded(page, "video/mp4")
+
+
+def test_run_page_shows_each_cameras_plate_and_how_it_was_made(tmp_path):
+    from mmcsplat.pipeline.plates import estimate_plates
+
+    session = write_session(tmp_path / "session.zarr", frames=3, plates=True)
+    estimate_plates(session, ["cam_1"], replace=True, progress=False)
+    run = write_fitted_run(tmp_path / "run", session)
+    assert main(["report", str(run)]) == 0
+    page = (run / "report.html").read_text()
+    assert "<h2>Clean plates</h2>" in page and page.count('alt="plate of cam_') == len(SessionReader(session).camera_names)
+    assert "cam_0: recorded" in page and "cam_1: estimated from 3 frames (subject masked out): stable background" in page
 
 
 def test_a_run_whose_tracks_follow_no_ground_truth_point_is_still_evaluated(runs, tmp_path, capsys):

@@ -29,6 +29,7 @@ from mmcsplat.storage.run_info import RUN_INFO
 if TYPE_CHECKING:  # torch-heavy modules are imported only when a run is reported
     from mmcsplat.outputs.renders import RunRenderer
     from mmcsplat.pipeline.run_frames import RunStates
+    from mmcsplat.storage.session import SessionReader
 
 REPORT_FILE = "report.html"
 RENDERS_DIR = "renders"
@@ -98,7 +99,7 @@ def run_report(run: Path, backend: str | None = None, registry: Registry | None 
 
     videos = [(path.read_bytes(), path.name) for path in sorted((Path(run) / RENDERS_DIR).glob("landmarks_*.mp4"))]
     sections = [run_summary(states), views_section(renderer, backend or states.info.renderer), metrics_section(run, metrics),
-                landmarks_section(run, videos), curves_section(run), renders_section(run, states)]
+                landmarks_section(run, videos), curves_section(run), plates_section(states.session), renders_section(run, states)]
     return page(f"Run {Path(run).resolve()}", sections)
 
 
@@ -154,6 +155,27 @@ def camera_views(renderer: RunRenderer, name: str) -> str:
         cells.append(f"<tr><th>{esc(label)}</th><td>{_frame_image(rendered, f'{name} {label} rendered')}</td><td>{truth_cell}</td></tr>")
     return (f"<h3>{esc(name)}</h3><table><thead><tr><th></th><th>rendered</th><th>ground truth</th></tr></thead>"
             f"<tbody>{''.join(cells)}</tbody></table>")
+
+
+def plates_section(session: SessionReader) -> str:
+    """Every camera's clean plate, how it was made (recorded, or estimated from the sequence with its
+    quality figures), or nothing when the session has none."""
+    cells = []
+    for name in session.camera_names:
+        source = session.plate_source(name)
+        if source is None:
+            continue
+        if source.get("kind") == "estimated":
+            how = (f"estimated from {source.get('samples', '?')} frames{' (subject masked out)' if source.get('masked') else ''}: "
+                   f"stable background {source.get('stable_share', 0):.0%}, never uncovered (inpainted) {source.get('uncovered_share', 0):.1%}")
+        else:
+            how = "recorded"
+        cells.append(image(encode_png(np.ascontiguousarray(session.plate(name))), f"plate of {name}", f"{name}: {how}"))
+    if not cells:
+        return ""
+    return ("<h2>Clean plates</h2><p>What each camera sees without the subject, the backdrop fits over plates are composited on. "
+            "An estimated plate is the per-pixel median of frames spread over the recording; where the subject never moved off a "
+            "pixel it is inpainted, and a low stable share means a moving background or a camera that moved.</p>" + "".join(cells))
 
 
 def _gray(values: np.ndarray) -> np.ndarray:
