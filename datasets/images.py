@@ -87,7 +87,7 @@ class ImageSequenceReader(Reader):
 
     fps: float = parameter(30.0, doc="the capture's frame rate, frames per second", converter=float, validator=finite_positive)
     size_mismatch: str = SIZE_MISMATCH_PARAMETER
-    camera_map: Mapping[str, str] | None = CAMERA_MAP_PARAMETER
+    camera_map: Mapping[str, str] | str | None = CAMERA_MAP_PARAMETER
     missing_frames: str = parameter("error", doc="an image number missing in a camera's sequence: error, or absent (marked absent)",
                                     validator=one_of("error", "absent"))
 

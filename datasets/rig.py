@@ -54,7 +54,8 @@ def find_calibration(source: Path, calibration: Path | None) -> Path:
 
 
 #: The ``camera_map`` parameter of the readers that match files to calibrated cameras.
-CAMERA_MAP_PARAMETER = parameter(None, doc="calibration camera name → its file's or folder's name, where the names differ")
+CAMERA_MAP_PARAMETER = parameter(None, doc="calibration camera name → its file's or folder's name, where the names differ; or "
+                                             "\"order\": the calibration's cameras, in its order, to the files in name order")
 #: The ``size_mismatch`` parameter of the readers that decode images against a calibration.
 SIZE_MISMATCH_PARAMETER = parameter("scale", doc="a decoded size unlike the calibration's: scale K, crop, or error (fit_camera)",
                                     validator=one_of(*SIZE_MISMATCH_POLICIES))

@@ -110,7 +110,7 @@ class VideoReader(Reader):
     """Reads a folder of per-camera videos."""
 
     size_mismatch: str = SIZE_MISMATCH_PARAMETER
-    camera_map: Mapping[str, str] | None = CAMERA_MAP_PARAMETER
+    camera_map: Mapping[str, str] | str | None = CAMERA_MAP_PARAMETER
     verify: bool = parameter(True, doc="decode each video once with ffmpeg first: a damaged one is an error naming the frame")
 
     def detect(self, source: Path) -> bool:

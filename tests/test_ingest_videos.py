@@ -361,6 +361,23 @@ def test_pose2sim_scene_calibration_names_match_its_videos(tmp_path: Path) -> No
 
 
 @pytest.mark.skipif(not POSE2SIM.is_dir(), reason=f"shared Pose2Sim demo not found at {POSE2SIM}")
+def test_camera_map_order_pairs_the_calibrations_cameras_with_the_videos_in_name_order(tmp_path: Path) -> None:
+    from mmcsplat.configuration.registry import default_registry
+
+    reader = default_registry().create("reader", "videos", verify=False, camera_map="order")
+    with pytest.warns(UserWarning, match="decodes at 1080×1920"):
+        videos = reader.open(POSE2SIM, POSE2SIM / "Calib_scene.toml").describe()["videos"]
+    assert {name: Path(path).name for name, path in videos.items()} == {f"int_cam0{i}_img": f"cam0{i}.mp4" for i in range(1, 5)}
+    (tmp_path / "videos").mkdir()
+    for i in (1, 2, 3):  # one video short of the calibration's four cameras
+        (tmp_path / "videos" / f"cam0{i}.mp4").symlink_to(POSE2SIM / "videos" / f"cam0{i}.mp4")
+    with pytest.raises(ValueError, match="calibration has 4 cameras and there are 3 videos"):
+        reader.open(tmp_path, POSE2SIM / "Calib_scene.toml")
+    with pytest.raises(ValueError, match="camera_map must be a table .* or 'order', got 'sorted'"):
+        VideoReader(verify=False, camera_map="sorted").open(POSE2SIM, POSE2SIM / "Calib_scene.toml")
+
+
+@pytest.mark.skipif(not POSE2SIM.is_dir(), reason=f"shared Pose2Sim demo not found at {POSE2SIM}")
 @pytest.mark.parametrize("layout", ["pose2sim", "anipose", "per-camera folders"])
 def test_project_layouts_are_recognised_without_flags(tmp_path: Path, layout: str) -> None:
     """Pose2Sim (calibration/Calib_*.toml, videos/), anipose (calibration/calibration.toml, videos-raw/) and

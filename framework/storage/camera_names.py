@@ -37,13 +37,27 @@ def _within(outer: tuple, inner: tuple) -> bool:
     return any(outer[i : i + len(inner)] == inner for i in range(len(outer) - len(inner) + 1))
 
 
+#: The ``camera_map`` value that pairs the calibration's cameras, in its order, with the files in name order.
+BY_ORDER = "order"
+
+
 def match_cameras(cameras: Sequence[Camera], paths: Iterable[Path], what: str, where: Path,
-                  camera_map: Mapping[str, str] | None = None) -> dict[str, Path]:
+                  camera_map: Mapping[str, str] | str | None = None) -> dict[str, Path]:
     """Camera name → its file: by ``camera_map`` (calibration name → file stem) where given, else by the
     module's name rule — the same stem, else the same name key, else a file whose key runs inside the
     camera's (Pose2Sim names ``cam01.mp4``'s camera ``int_cam01_img``); an error naming any camera without
-    one. Files that match no camera are ignored with a warning.
+    one. Files that match no camera are ignored with a warning. ``camera_map`` :data:`BY_ORDER` pairs the
+    cameras, in the calibration's order, with the files in natural name order, when their counts agree.
     """
+    paths = list(paths)
+    if isinstance(camera_map, str):
+        if camera_map != BY_ORDER:
+            raise InputError(f"{where}: camera_map must be a table (calibration name = file name) or {BY_ORDER!r}, got {camera_map!r}")
+        ordered = sorted(paths, key=lambda path: natural_key(path.name))
+        if len(ordered) != len(cameras):
+            raise InputError(f"{where}: camera_map = {BY_ORDER!r} pairs cameras and {what}s in order, but the calibration has "
+                             f"{len(cameras)} cameras and there are {len(ordered)} {what}s ({', '.join(p.name for p in ordered) or 'none'})")
+        return {camera.name: path for camera, path in zip(cameras, ordered, strict=True)}
     by_stem: dict[str, Path] = {}
     by_key: dict[tuple, list[Path]] = {}
     for path in paths:
