@@ -23,7 +23,7 @@ from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.interfaces import KeypointObservations
 from mmcsplat.plugin_api.parameters import above, at_least, one_of, parameter
 from mmcsplat.plugin_api.registration import PluginBuilder
-from mmcsplat.plugins.segmenters.postprocess import PostProcessedSegmenter, dilate, open_close, present_frames
+from mmcsplat.plugins.segmenters.postprocess import KEEP, PostProcessedSegmenter, dilate, open_close, present_frames
 from mmcsplat.storage.session import SessionReader
 
 #: Limbs drawn as thick segments, by keypoint name (pairs naming a keypoint the model lacks are skipped).
@@ -81,6 +81,10 @@ class KeypointSegmenter(PostProcessedSegmenter):
     refine: str = parameter("none", doc="none: the skeleton is the mask; plate: what differs from the clean plate inside it", validator=one_of("none", "plate"))
     margin: float = parameter(0.3, doc="plate: the skeleton grown by this share of the torso length bounds the mask", validator=at_least(0))
     threshold: float = parameter(20.0, doc="plate: grey levels of difference from the plate that count as subject", validator=above(0))
+    # Every piece of a mask bounded by the skeleton is the subject: refined against the plate, a body often
+    # splits at the belt or the knees (the Pose2Sim demo's cam_01 kept only its legs as the central piece).
+    keep: str = parameter("all", doc="the mask's component kept: all (the skeleton bounds the mask), central or largest",
+                          validator=one_of(*KEEP))
     registry: PluginBuilder = attrs.field(kw_only=True, repr=False)
 
     def _observations(self, session: SessionReader, camera: str) -> KeypointObservations:
