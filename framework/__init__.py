@@ -11,12 +11,10 @@ and :mod:`mmcsplat.datasets` and are reached only through the registry.
 
 import os
 
-# The CPU kernels run on numba's OpenMP threads, whose default is to spin while they wait: on a machine
-# shared with other work, two spinning threads made a render 1.6× slower than one thread. Passive waiting
-# keeps two threads as fast as one under load, for 10–25 % less speed-up on an idle machine
-# (docs/performance.md, "Threads"). Set here, before any OpenMP runtime starts; the environment's own
-# setting wins (OMP_WAIT_POLICY=ACTIVE on a dedicated machine).
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+# The CPU kernels run on numba's OpenMP threads (libgomp, as torch's own). Their wait policy is left to
+# the environment: libgomp's default spins briefly before sleeping, which the demo needs (passive
+# waiting made it 1.6× slower on an idle machine, 377 s against 235 s); on a machine shared with other
+# CPU-heavy work, OMP_WAIT_POLICY=PASSIVE keeps two threads as fast as one (docs/performance.md, "Threads").
 os.environ.setdefault("NUMBA_THREADING_LAYER", "omp")
 
 from .plugin_api.hookspecs import hookimpl  # noqa: E402
