@@ -22,11 +22,13 @@ REGION_MARGIN = 0.1
 
 def hull_offsets(session: SessionReader, holdout: Sequence[str] | None, frame: int) -> np.ndarray | None:
     """[K, 3] the subject's visual hull cells less the rig centre, from the masks of the training cameras
-    imaging ``frame``; ``None`` with fewer than two such masks or an empty hull."""
+    imaging ``frame``; ``None`` with fewer than two such masks, an empty hull, or no such frame."""
     from mmcsplat.pipeline.fit import select_cameras
     from mmcsplat.scene.rig import rig_center, rig_scale
     from mmcsplat.scene.visual_hull import hull_cells
 
+    if not 0 <= frame < session.num_frames:  # the fit itself refuses it, naming the session's frames
+        return None
     train, _ = select_cameras(session, holdout)
     views = [(camera, session.frame(frame, camera.name).mask) for camera in train if session.present(camera.name)[frame]]
     views = [(camera, mask) for camera, mask in views if mask is not None]
