@@ -125,9 +125,9 @@ class FirstFrameFit:
         first_seen: dict[int, int] = {}  # training camera number → the first frame the fit trains it on
         for t, index in self.images:
             first_seen.setdefault(index, t)
-        window = len({t for t, _ in self.images}) > 1
+        self.image_frames = sorted({t for t, _ in self.images})
         self.scene = SceneContext(session, tuple(self.train_cameras[index] for index in first_seen), self.settings.frame, center,
-                                  rig_scale(session.cameras, center), tuple(first_seen.values()) if window else ())
+                                  rig_scale(session.cameras, center), tuple(first_seen.values()) if len(self.image_frames) > 1 else ())
         self.views = self._load_views()
 
     def _load_views(self) -> list[TrainingView]:
@@ -167,9 +167,9 @@ class FirstFrameFit:
             log.info("fit of session %s with %s into %s: %d iterations, renderer %s, training cameras %s, held out %s",
                      self.session.url, self.config.source, self.out, self.settings.iterations, self.renderer_name,
                      ", ".join(c.name for c in self.train_cameras), ", ".join(c.name for c in self.heldout_cameras) or "none")
-            frames = sorted({t for t, _ in self.images})
-            if len(frames) > 1:
-                log.info("a moving camera: the first fit trains on %d images of frames %d–%d", len(self.images), frames[0], frames[-1])
+            if len(self.image_frames) > 1:
+                log.info("a moving camera: the first fit trains on %d images of frames %d–%d", len(self.images), self.image_frames[0],
+                         self.image_frames[-1])
             for warning in self.warnings:  # shown on the console as a Python warning already
                 log.info("warning: %s", warning)
             try:

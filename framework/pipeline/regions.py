@@ -15,6 +15,7 @@ import numpy as np
 from mmcsplat.configuration.config import Config
 from mmcsplat.configuration.registry import default_registry
 from mmcsplat.storage.session import SessionReader
+from mmcsplat.training.settings import FitSettings
 
 #: Metres added to the hull's reach for a grown region.
 REGION_MARGIN = 0.1
@@ -46,19 +47,17 @@ def region_overrides(session: SessionReader, config: Config, holdout: Sequence[s
     rounded up to 0.1 m; empty when the masks give no hull or every region holds it."""
     from mmcsplat.scene.visual_hull import REGION_SHARE, region_reach
 
-    offsets = hull_offsets(session, holdout, int((config.get("fit") or {}).get("frame", 0)))
+    offsets = hull_offsets(session, holdout, FitSettings.from_config(config).frame)
     if offsets is None:
         return []
+    reaches = {"half_size": region_reach(offsets, cube=True), "radius": region_reach(offsets, cube=False)}
     overrides = []
     registry = default_registry()
     for index, choice in enumerate(config.plugins("initializer")):
         initializer = choice.build(registry)  # its values in force, defaults included
-        for key, cube in (("half_size", True), ("radius", False)):
+        for key, reach in reaches.items():
             current = getattr(initializer, key, None)
-            if not isinstance(current, float):
-                continue
-            reach = region_reach(offsets, cube)
-            if np.mean(reach <= current) < REGION_SHARE:
+            if isinstance(current, float) and np.mean(reach <= current) < REGION_SHARE:
                 needed = np.ceil((reach.max() + REGION_MARGIN) * 10) / 10
                 overrides.append(f"initializer.{index}.{key}={float(needed)}")
     return overrides

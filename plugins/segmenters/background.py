@@ -80,7 +80,8 @@ class BackgroundSegmenter(PostProcessedSegmenter):
             for t in learn:
                 subtractor.apply(session.frame(int(t), camera).rgb)
         for t in frames:  # learning rate 0: every frame is judged by the same, fully learnt model
-            yield subtractor.apply(session.frame(int(t), camera).rgb, learningRate=0) == 255  # shadows are 127
+            foreground = subtractor.apply(session.frame(int(t), camera).rgb, learningRate=0) == 255  # shadows are 127
+            yield open_close(foreground, self.open_radius, self.close_radius)
 
     def _median(self, session: SessionReader, camera: str, learn: np.ndarray, frames: np.ndarray) -> Iterator[np.ndarray]:
         picks = np.unique(np.linspace(0, len(learn) - 1, min(self.samples, len(learn))).round().astype(int))
@@ -124,4 +125,4 @@ class BackgroundSegmenter(PostProcessedSegmenter):
         method = {"median": self._median, "plate": self._plate}.get(self.method, self._adaptive)
         masks = method(session, camera, learn, frames)
         for t, mask in zip(frames, masks, strict=True):
-            yield int(t), mask if self.method in ("median", "plate") else open_close(mask, self.open_radius, self.close_radius), None
+            yield int(t), mask, None
