@@ -14,7 +14,7 @@ from scipy.spatial.transform import Rotation
 
 from mmcsplat.cli import main
 from mmcsplat.pipeline.fit import load_fitted
-from mmcsplat.storage.landmark_files import read_c3d, read_landmark_csv, read_trc, write_landmark_csv
+from mmcsplat.storage.landmark_formats import read_c3d, read_landmark_csv, read_trc, write_landmark_csv
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.storage.tracks import TrackWriter
 

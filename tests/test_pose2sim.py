@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from mmcsplat.cli import main
-from mmcsplat.storage.landmark_files import read_landmark_csv
+from mmcsplat.storage.landmark_formats import read_landmark_csv
 from mmcsplat.storage.session import SessionReader
 
 POSE2SIM = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "pose2sim_demo"

@@ -162,7 +162,7 @@ def run_demo(out: Path, settings: DemoSettings = DemoSettings(), progress: bool 
              log: Callable[[str], None] = print) -> DemoResult:
     """Run every step of the demo into ``out`` (created), skipping those already done; ``log`` gets one
     line per step."""
-    from mmcsplat.outputs.landmark_files import export_landmarks
+    from mmcsplat.outputs.landmark_export import export_landmarks
     from mmcsplat.outputs.landmark_video import render_landmarks
     from mmcsplat.outputs.renders import RunRenderer, render_novel, render_trajectories
     from mmcsplat.outputs.report import write_report

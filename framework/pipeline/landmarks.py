@@ -25,7 +25,7 @@ from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.interfaces import KeypointObservations, Landmarks, LandmarkSource
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.atomic import write_json_atomic
-from mmcsplat.storage.landmark_files import write_landmark_csv
+from mmcsplat.storage.landmark_formats import write_landmark_csv
 from mmcsplat.storage.locking import run_lock
 from mmcsplat.storage.run_log import run_log
 from mmcsplat.storage.session import SessionReader
