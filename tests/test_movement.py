@@ -14,6 +14,7 @@ from mmcsplat.analysis.movement import (
     PAIR_MEASURES,
     angle_range,
     flexion,
+    joint_angle_accuracy,
     joint_angles,
     landmark_side,
     limb_landmarks,
@@ -271,3 +272,15 @@ def test_joint_angles_in_the_summary_and_its_rows():
     assert ("LAnkle", "mean_speed_m_s", summary["landmarks"]["LAnkle"]["mean_speed_m_s"], "m/s") in rows
     assert ("LHip", "range_of_motion_xyz_m:z", summary["landmarks"]["LHip"]["range_of_motion_xyz_m"][2], "m") in rows
     json.dumps(summary, allow_nan=False)
+
+
+def test_joint_angle_accuracy_against_the_source():
+    u, v = _plane(3)
+    names = ("left_hip", "left_knee", "left_ankle", "left_shoulder", "left_elbow")
+    truth = _bent(np.full(10, 30.0), u, v, np.zeros(3))
+    carried = _bent(np.array([30.0] + [34.0] * 5 + [40.0] * 4), u, v, np.zeros(3))  # frame 0, the fitted one, is not scored
+    arm = np.full((10, 2, 3), np.nan)  # no wrist and an unknown arm: nothing to score there
+    accuracy = joint_angle_accuracy(names, np.concatenate([carried, arm], axis=1), np.concatenate([truth, arm], axis=1))
+    assert accuracy["pairs"] == 9 and accuracy["median_deg"] == pytest.approx(4, abs=1e-6)
+    assert accuracy["p90_deg"] == pytest.approx(10, abs=1e-6) and accuracy["per_angle_median_deg"] == {"left_knee_flexion": pytest.approx(4, abs=1e-6)}
+    assert joint_angle_accuracy(names[3:], arm, arm) is None
