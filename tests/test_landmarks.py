@@ -85,6 +85,8 @@ def test_movement_measures_are_written_beside_the_landmarks(scene):
     bend = flexion(truth[:, 4], truth[:, 5], truth[:, 2])
     np.testing.assert_allclose(knee["per_frame_deg"], bend, atol=1e-3)
     assert knee["range_deg"] < 1e-3 and knee["frames"] == FRAMES
+    angle_error = json.loads((run / "landmarks.json").read_text())["accuracy_joint_angles"]  # against the file's own knee angle
+    assert angle_error["median_deg"] < 1e-3 and angle_error["pairs"] == FRAMES - 1
     assert movement["joint_angles_left_out"]["right_knee_flexion"] == "no right hip among the landmarks"
     with open(run / "movement.csv", newline="") as file:
         rows = list(csv.reader(file))
@@ -134,4 +136,4 @@ def test_the_overlay_video_and_the_report_show_them(scene):
     assert "<h2>Movement</h2>" in page and "Where the hands and feet went" in page and "Left and right" in page
     assert "3D error where the landmark moved" in page and "landmarks_cam_0.mp4" in page
     assert "<h3>Joint angles</h3>" in page and "joint angles over time" in page and "0° with the leg straight" in page
-    assert "right knee flexion (no right hip among the landmarks)" in page
+    assert "right knee flexion (no right hip among the landmarks)" in page and "joint angle error, median (°)" in page
