@@ -212,20 +212,19 @@ def landmark_side(name: str) -> tuple[str, str] | None:
     underscores, hyphens or dots — or None for a name without a side. Understands "left_wrist", "Left Wrist",
     "LeftWrist", "wrist_left", "wrist.L", "l_wrist" and Pose2Sim's/OpenPose's "LWrist", "RBigToe" (a capital
     L or R directly before a capital letter)."""
-    part = _part
     for side in ("left", "right"):
         letter = side[0]
         for pattern in (rf"^{side}{_SEPARATORS}*(.+)$", rf"^{letter}{_SEPARATORS}+(.+)$",
                         rf"^(.+?){_SEPARATORS}+(?:{side}|{letter})$"):
             match = re.match(pattern, name, flags=re.IGNORECASE)
-            if match and part(match.group(1)):
-                return side, part(match.group(1))
+            if match and _part(match.group(1)):
+                return side, _part(match.group(1))
         match = re.match(rf"^(.+?[a-z]){side.capitalize()}$", name)  # camel case: wristLeft, WristRight
         if match:
-            return side, part(match.group(1))
+            return side, _part(match.group(1))
     match = re.match(r"^([LR])([A-Z].*)$", name)
     if match:
-        return ("left" if match.group(1) == "L" else "right"), part(match.group(2))
+        return ("left" if match.group(1) == "L" else "right"), _part(match.group(2))
     return None
 
 
