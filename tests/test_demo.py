@@ -39,11 +39,11 @@ def test_demo_writes_every_output_and_names_it(demo):
     paths = DemoPaths.under(out.resolve())
     outputs = [paths.capture / "calibration.toml", paths.capture / "ground_truth.zarr", paths.session, paths.run / "run.json",
                paths.tracks, paths.track_info, paths.metrics, paths.landmarks_csv, paths.landmarks_info, paths.landmarks_trc,
-               paths.trajectories_video, paths.trajectories_strip, paths.landmarks_video, paths.novel, paths.report]  # fmt: skip
+               paths.movement, paths.run / "movement.csv", paths.trajectories_video, paths.trajectories_strip, paths.landmarks_video, paths.novel, paths.report]  # fmt: skip
     assert [path for path in outputs if not path.exists()] == []
     summary = output[output.index("mmcsplat demo finished"):]
     for path in (paths.capture, paths.session, paths.run, paths.tracks, paths.metrics, paths.landmarks_csv, paths.landmarks_trc,
-                 paths.trajectories_video, paths.trajectories_strip, paths.landmarks_video, paths.novel, paths.report):  # fmt: skip
+                 paths.movement, paths.trajectories_video, paths.trajectories_strip, paths.landmarks_video, paths.novel, paths.report):  # fmt: skip
         assert f" {path}\n" in summary + "\n", path
     assert "iterative, 2 iterations per frame" in summary
     metrics = json.loads(paths.metrics.read_text())
@@ -57,6 +57,9 @@ def test_demo_writes_every_output_and_names_it(demo):
     assert landmarks["source"] == "synthetic" and len(landmarks["names"]) == 14
     moving = landmarks["accuracy_3d"]["moving_median_mm"]
     assert f"median error {'n/a' if moving is None else f'{moving:.1f} mm'}" in summary
+    movement = json.loads(paths.movement.read_text())  # the synthetic infant's joints have every angle's landmarks
+    assert movement["joint_angles_left_out"] == {} and len(movement["joint_angles"]) == 8
+    assert all(len(angle["per_frame_deg"]) == 3 for angle in movement["joint_angles"].values())
 
 
 def test_rerun_skips_done_steps_and_redoes_stale_ones(demo, capsys):

@@ -14,7 +14,7 @@ from fitting_scene import write_session
 from mmcsplat.cli import main
 from mmcsplat.configuration.registry import default_registry
 from mmcsplat.plugins.landmarks.openpose import MODELS
-from mmcsplat.storage.landmark_files import read_trc
+from mmcsplat.storage.landmark_formats import read_trc
 from mmcsplat.storage.session import SessionReader
 
 POSE2SIM = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "pose2sim_demo"

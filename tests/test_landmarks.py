@@ -1,9 +1,11 @@
 """mmcsplat landmarks: joints read from a file are bound to the subject's Gaussians, carried through a run's
 tracks (here a known rigid motion, so the answer is exact), scored against the file's later frames, left
-out when nothing is near them, exported to TRC / CSV / C3D, drawn on a camera and shown in the report."""
+out when nothing is near them, measured (movement.json and .csv, a knee angle among them), exported to
+TRC / CSV / C3D, drawn on a camera and shown in the report."""
 
 from __future__ import annotations
 
+import csv
 import json
 
 import numpy as np
@@ -12,14 +14,16 @@ import torch
 from fitting_scene import write_fitted_run, write_session
 from scipy.spatial.transform import Rotation
 
+from mmcsplat.analysis.movement import flexion
 from mmcsplat.cli import main
 from mmcsplat.pipeline.fit import load_fitted
-from mmcsplat.storage.landmark_files import read_c3d, read_landmark_csv, read_trc, write_landmark_csv
+from mmcsplat.storage.landmark_formats import read_c3d, read_landmark_csv, read_trc, write_landmark_csv
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.storage.tracks import TrackWriter
 
 FRAMES = 5
-NAMES = ("LWrist", "RWrist", "LAnkle", "RAnkle", "far")
+NAMES = ("LWrist", "RWrist", "LAnkle", "RAnkle", "LHip", "LKnee", "far")
+CARRIED = len(NAMES) - 1  # all but "far"
 
 
 def motion(t: int) -> tuple[Rotation, np.ndarray]:
@@ -42,7 +46,8 @@ def scene(tmp_path_factory):
             turned = (rotation * Rotation.from_quat(quats, scalar_first=True)).as_quat(scalar_first=True)
             writer.write_frame(t, means=torch.as_tensor(rotation.apply(means) + shift, dtype=torch.float32),
                                quats=torch.as_tensor(turned, dtype=torch.float32))
-    start = np.array([[0.10, 0.03, 0.0], [-0.10, 0.02, 0.01], [0.05, -0.04, 0.02], [-0.06, -0.03, 0.0], [2.0, 2.0, 2.0]])
+    start = np.array([[0.10, 0.03, 0.0], [-0.10, 0.02, 0.01], [0.05, -0.04, 0.02], [-0.06, -0.03, 0.0],
+                      [0.0, -0.06, 0.0], [0.0, -0.01, 0.01], [2.0, 2.0, 2.0]])
     truth = np.stack([motion(t)[0].apply(start) + motion(t)[1] for t in range(FRAMES)])
     times = SessionReader(session).frame_times
     path = root / "joints.csv"
@@ -54,16 +59,41 @@ def test_landmarks_follow_the_tracks_and_are_scored(scene, capsys):
     run, path, truth = scene
     with pytest.warns(UserWarning, match="landmarks far: no subject Gaussian within 10 cm"):
         assert main(["landmarks", str(run), "--source", "csv", "--set", f"path={path}"]) == 0
-    assert "4 landmarks over 5 frames; left out (no subject Gaussian within 10 cm): far" in capsys.readouterr().out
+    assert f"{CARRIED} landmarks over 5 frames; left out (no subject Gaussian within 10 cm): far" in capsys.readouterr().out
     names, frames, times, positions, extra = read_landmark_csv(run / "landmarks.csv")
     assert names == NAMES and frames.tolist() == list(range(FRAMES))
-    np.testing.assert_allclose(positions[:, :4], truth[:, :4], atol=2e-6)  # float32 tracks
-    assert np.isnan(positions[:, 4]).all()
+    np.testing.assert_allclose(positions[:, :CARRIED], truth[:, :CARRIED], atol=2e-6)  # float32 tracks
+    assert np.isnan(positions[:, CARRIED]).all()
     assert np.nanmax(extra["spread_mm"]) < 0.01 and np.nanmin(extra["confidence"]) > 0.99  # rigid: the anchors agree
     info = json.loads((run / "landmarks.json").read_text())
     accuracy = info["accuracy_3d"]
-    assert accuracy["median_mm"] < 0.01 and accuracy["pairs"] == 4 * (FRAMES - 1)
+    assert accuracy["median_mm"] < 0.01 and accuracy["pairs"] == CARRIED * (FRAMES - 1)
     assert accuracy["still_moving_median_mm"] > 10 and info["unbound"] == ["far"]
+
+
+def test_movement_measures_are_written_beside_the_landmarks(scene):
+    run, path, truth = scene
+    (run / "movement.json").unlink(missing_ok=True)
+    with pytest.warns(UserWarning, match="landmarks far"):
+        assert main(["landmarks", str(run), "--source", "csv", "--set", f"path={path}"]) == 0
+    movement = json.loads((run / "movement.json").read_text())
+    assert movement["frames"] == FRAMES and set(movement["landmarks"]) == set(NAMES)
+    assert movement["landmarks"]["far"]["mean_speed_m_s"] is None  # never carried: not measured
+    travelled = np.linalg.norm(np.diff(truth[:, 0], axis=0), axis=1).sum()
+    assert movement["landmarks"]["LWrist"]["path_length_m"] == pytest.approx(travelled, abs=1e-5)
+    knee = movement["joint_angles"]["left_knee_flexion"]  # the rigid motion keeps the leg's bend: one known angle at every frame
+    bend = flexion(truth[:, 4], truth[:, 5], truth[:, 2])
+    np.testing.assert_allclose(knee["per_frame_deg"], bend, atol=1e-3)
+    assert knee["range_deg"] < 1e-3 and knee["frames"] == FRAMES
+    angle_error = json.loads((run / "landmarks.json").read_text())["accuracy_joint_angles"]  # against the file's own knee angle
+    assert angle_error["median_deg"] < 1e-3 and angle_error["pairs"] == FRAMES - 1
+    assert movement["joint_angles_left_out"]["right_knee_flexion"] == "no right hip among the landmarks"
+    with open(run / "movement.csv", newline="") as file:
+        rows = list(csv.reader(file))
+    assert rows[0] == ["subject", "measure", "value", "unit"]
+    knee_range = [row for row in rows if row[:2] == ["left_knee_flexion", "range_deg"]]
+    assert len(knee_range) == 1 and float(knee_range[0][2]) == pytest.approx(knee["range_deg"]) and knee_range[0][3] == "deg"
+    assert ["far", "mean_speed_m_s", "", "m/s"] in rows  # unknown: an empty cell
 
 
 def test_exports_read_back(scene, tmp_path):
@@ -73,10 +103,10 @@ def test_exports_read_back(scene, tmp_path):
     assert main(["export", str(run), *(f"--{suffix}={file}" for suffix, file in files.items())]) == 0
     trc = read_trc(files["trc"])
     assert trc.names == NAMES and trc.rate == SessionReader(load_fitted(run)[0].session).fps
-    np.testing.assert_allclose(trc.positions[:, :4], truth[:, :4], atol=2e-6)
+    np.testing.assert_allclose(trc.positions[:, :CARRIED], truth[:, :CARRIED], atol=2e-6)
     names, positions, _ = read_c3d(files["c3d"])
-    np.testing.assert_allclose(positions[:, :4], truth[:, :4], atol=1e-5)  # float32 millimetres
-    assert np.isnan(positions[:, 4]).all()
+    np.testing.assert_allclose(positions[:, :CARRIED], truth[:, :CARRIED], atol=1e-5)  # float32 millimetres
+    assert np.isnan(positions[:, CARRIED]).all()
     assert read_landmark_csv(files["csv"])[0] == NAMES
 
 
@@ -105,3 +135,5 @@ def test_the_overlay_video_and_the_report_show_them(scene):
     page = (run / "report.html").read_text()
     assert "<h2>Movement</h2>" in page and "Where the hands and feet went" in page and "Left and right" in page
     assert "3D error where the landmark moved" in page and "landmarks_cam_0.mp4" in page
+    assert "<h3>Joint angles</h3>" in page and "joint angles over time" in page and "0° with the leg straight" in page
+    assert "right knee flexion (no right hip among the landmarks)" in page and "joint angle error, median (°)" in page

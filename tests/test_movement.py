@@ -9,13 +9,19 @@ import numpy as np
 import pytest
 
 from mmcsplat.analysis.movement import (
+    JOINT_ANGLES,
     LANDMARK_MEASURES,
-    MEASURE_DESCRIPTIONS,
+    PAIR_MEASURES,
+    angle_range,
+    flexion,
+    joint_angle_accuracy,
+    joint_angles,
     landmark_side,
     limb_landmarks,
     limb_pairs,
     limb_symmetry,
     mean_speed,
+    movement_rows,
     movement_summary,
     path_length,
     peak_speed,
@@ -102,7 +108,7 @@ def test_gaps_are_skipped_and_an_unknown_landmark_has_no_measures():
     names = ("wrist_left", "wrist_right", "knee_left")
     summary = movement_summary(names, TIMES, positions)
     assert summary["landmarks"]["wrist_left"]["mean_speed_m_s"] == pytest.approx(0.1)
-    assert summary["landmarks"]["wrist_right"] == {**dict.fromkeys(LANDMARK_MEASURES), "range_of_motion_xyz_m": None}
+    assert summary["landmarks"]["wrist_right"] == dict.fromkeys(LANDMARK_MEASURES)
     assert all(value is not None for value in summary["landmarks"]["knee_left"].values())  # a swing seen 9 frames in 10
     assert summary["landmarks"]["wrist_left"]["dominant_frequency_hz"] is None  # a steady glide has no rhythm
     assert summary["landmarks"]["knee_left"]["dominant_frequency_hz"] == pytest.approx(2.0, abs=RATE / 81)
@@ -178,7 +184,103 @@ def test_every_summary_key_has_a_plain_sentence():
     summary = movement_summary(POSE2SIM, TIMES, np.repeat(_swing(1.0, 0.02)[:, None], len(POSE2SIM), axis=1))
     keys = {key for values in summary["landmarks"].values() for key in values}
     keys |= {key for pair in summary["pairs"] for key in pair} - {"left", "right", "part"}
-    assert keys <= set(MEASURE_DESCRIPTIONS) and set(LANDMARK_MEASURES) <= keys
-    assert all(sentence.endswith(".") for sentence in MEASURE_DESCRIPTIONS.values())
+    assert keys == set(LANDMARK_MEASURES) | set(PAIR_MEASURES)
+    tables = {**LANDMARK_MEASURES, **PAIR_MEASURES, **JOINT_ANGLES}
+    assert summary["measures"] == {key: {"unit": m.unit, "label": m.label, "sentence": m.sentence} for key, m in tables.items()}
+    assert all(measure.sentence.endswith(".") and measure.label for measure in tables.values())
     assert len(summary["pairs"]) == 9 and all(pair["speed_correlation"] == pytest.approx(1.0) for pair in summary["pairs"])
     json.dumps(summary, allow_nan=False)
+
+
+def _plane(seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Two orthonormal directions of a random plane in space."""
+    u, v = np.linalg.qr(np.random.default_rng(seed).normal(size=(3, 2)))[0].T
+    return u, v
+
+
+def _bent(angle_deg: np.ndarray, u: np.ndarray, v: np.ndarray, start: np.ndarray, lengths=(0.10, 0.09)) -> np.ndarray:
+    """[T, 3, 3] a three-point chain (proximal, joint, distal) whose second segment turns by ``angle_deg`` from
+    the first's direction ``u`` towards ``v``."""
+    angle = np.radians(np.atleast_1d(angle_deg))[:, None]
+    joint = start + lengths[0] * u
+    distal = joint + lengths[1] * (np.cos(angle) * u + np.sin(angle) * v)
+    return np.stack([np.broadcast_to(start, distal.shape), np.broadcast_to(joint, distal.shape), distal], axis=1)
+
+
+@pytest.mark.parametrize("angle", [0.0, 30.0, 90.0, 135.0, 179.0])
+def test_a_chain_bent_by_a_known_angle(angle):
+    u, v = _plane(int(angle))
+    chain = _bent(np.array([angle]), u, v, np.array([0.3, -0.2, 0.1]))
+    np.testing.assert_allclose(flexion(chain[:, 0], chain[:, 1], chain[:, 2]), angle, atol=1e-6)
+
+
+def test_knee_and_elbow_flexion_through_a_known_range_in_every_naming_style():
+    knee = 20 + 50 * (1 - np.cos(2 * np.pi * 0.5 * TIMES)) / 2  # 20° to 70° and back, every 2 s
+    elbow = 10 + 80 * TIMES / TIMES[-1]  # 10° straightening to 90° bent
+    u, v = _plane(1)
+    leg, arm = _bent(knee, u, v, np.array([0.0, 0.1, 0.0])), _bent(elbow, -u, v, np.array([0.2, 0.1, 0.0]))
+    for names in (("RHip", "RKnee", "RAnkle", "RShoulder", "RElbow", "RWrist"),  # Pose2Sim / OpenPose
+                  ("hip_right", "knee_right", "ankle_right", "shoulder_right", "elbow_right", "wrist_right"),  # the synthetic infant
+                  ("right hip", "right knee", "right ankle", "right shoulder", "right elbow", "right wrist")):  # a DeepLabCut project
+        angles, left_out = joint_angles(names, np.concatenate([leg, arm], axis=1))
+        np.testing.assert_allclose(angles["right_knee_flexion"], knee, atol=1e-6)
+        np.testing.assert_allclose(angles["right_elbow_flexion"], elbow, atol=1e-6)
+        assert left_out["left_knee_flexion"] == "no left hip among the landmarks"  # one side only: the other is left out, not guessed
+        assert set(left_out) == {f"left_{key}" for key in JOINT_ANGLES} | {"right_hip_flexion", "right_shoulder_flexion"}  # no trunk
+    extremes = angle_range(angles["right_knee_flexion"])
+    assert extremes["min_deg"] == pytest.approx(20, abs=1e-6) and extremes["max_deg"] == pytest.approx(70, abs=1e-6)
+    assert extremes["range_deg"] == pytest.approx(50, abs=1e-6) and extremes["frames"] == len(TIMES)
+
+
+def test_hip_and_shoulder_flexion_against_the_trunk():
+    hip, shoulder = 40 + 30 * np.sin(2 * np.pi * TIMES), 75.0 * TIMES / TIMES[-1]
+    down, forward = np.array([-1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0])  # an infant lying on its back along x, facing up
+    def limb(angle: np.ndarray, root: np.ndarray) -> np.ndarray:
+        turned = np.radians(angle)[:, None]
+        return root + 0.1 * (np.cos(turned) * down + np.sin(turned) * forward)
+
+    points = {"neck": np.array([0.10, 0.0, 0.0]), "waist": np.array([-0.07, 0.0, 0.0]),
+              "hip_left": np.array([-0.10, -0.045, 0.0]), "hip_right": np.array([-0.10, 0.045, 0.0]),
+              "shoulder_left": np.array([0.07, -0.07, 0.0]), "shoulder_right": np.array([0.07, 0.07, 0.0])}
+    tracks = {name: np.broadcast_to(point, (len(TIMES), 3)) for name, point in points.items()}
+    tracks |= {f"knee_{side}": limb(hip, points[f"hip_{side}"]) for side in ("left", "right")}
+    tracks |= {f"elbow_{side}": limb(shoulder, points[f"shoulder_{side}"]) for side in ("left", "right")}
+    angles, left_out = joint_angles(tuple(tracks), np.stack(list(tracks.values()), axis=1))
+    for side in ("left", "right"):
+        np.testing.assert_allclose(angles[f"{side}_hip_flexion"], hip, atol=1e-6)
+        np.testing.assert_allclose(angles[f"{side}_shoulder_flexion"], shoulder, atol=1e-6)
+    assert "left_hip_flexion" not in left_out and "no left ankle" in left_out["left_knee_flexion"]
+    # Pose2Sim's names: no mid-hip landmark, so the trunk runs from the neck to between the two hips.
+    pose2sim = {"neck": "Neck", "hip_left": "LHip", "hip_right": "RHip", "knee_left": "LKnee", "knee_right": "RKnee"}
+    angles, _ = joint_angles(tuple(pose2sim.values()), np.stack([tracks[name] for name in pose2sim], axis=1))
+    np.testing.assert_allclose(angles["right_hip_flexion"], hip, atol=1e-6)
+    angles, left_out = joint_angles(("LHip", "RHip", "LKnee"), np.stack([tracks["hip_left"], tracks["hip_right"], tracks["knee_left"]], axis=1))
+    assert angles == {} and left_out["left_hip_flexion"] == "no neck or thorax landmark nor both shoulders"
+
+
+def test_joint_angles_in_the_summary_and_its_rows():
+    u, v = _plane(2)
+    leg = _bent(np.full(len(TIMES), 30.0), u, v, np.zeros(3))
+    leg[10:20, 2] = np.nan  # the ankle unseen for 10 frames: the knee angle is unknown there, not filled in
+    summary = movement_summary(("LHip", "LKnee", "LAnkle"), TIMES, leg)
+    knee = summary["joint_angles"]["left_knee_flexion"]
+    assert knee["frames"] == len(TIMES) - 10 and knee["per_frame_deg"][10:20] == [None] * 10
+    assert knee["min_deg"] == pytest.approx(30, abs=1e-6) and knee["range_deg"] == pytest.approx(0, abs=1e-6)
+    assert set(summary["joint_angles"]) == {"left_knee_flexion"} and "right_knee_flexion" in summary["joint_angles_left_out"]
+    rows = movement_rows(summary)
+    assert ("left_knee_flexion", "range_deg", knee["range_deg"], "deg") in rows
+    assert ("LAnkle", "mean_speed_m_s", summary["landmarks"]["LAnkle"]["mean_speed_m_s"], "m/s") in rows
+    assert ("LHip", "range_of_motion_xyz_m:z", summary["landmarks"]["LHip"]["range_of_motion_xyz_m"][2], "m") in rows
+    json.dumps(summary, allow_nan=False)
+
+
+def test_joint_angle_accuracy_against_the_source():
+    u, v = _plane(3)
+    names = ("left_hip", "left_knee", "left_ankle", "left_shoulder", "left_elbow")
+    truth = _bent(np.full(10, 30.0), u, v, np.zeros(3))
+    carried = _bent(np.array([30.0] + [34.0] * 5 + [40.0] * 4), u, v, np.zeros(3))  # frame 0, the fitted one, is not scored
+    arm = np.full((10, 2, 3), np.nan)  # no wrist and an unknown arm: nothing to score there
+    accuracy = joint_angle_accuracy(names, np.concatenate([carried, arm], axis=1), np.concatenate([truth, arm], axis=1))
+    assert accuracy["pairs"] == 9 and accuracy["median_deg"] == pytest.approx(4, abs=1e-6)
+    assert accuracy["p90_deg"] == pytest.approx(10, abs=1e-6) and accuracy["per_angle_median_deg"] == {"left_knee_flexion": pytest.approx(4, abs=1e-6)}
+    assert joint_angle_accuracy(names[3:], arm, arm) is None

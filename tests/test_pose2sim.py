@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from mmcsplat.cli import main
-from mmcsplat.storage.landmark_files import read_landmark_csv
+from mmcsplat.storage.landmark_formats import read_landmark_csv
 from mmcsplat.storage.session import SessionReader
 
 POSE2SIM = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "pose2sim_demo"
@@ -48,6 +48,8 @@ def test_pose2sim_demo_runs_with_one_command(tmp_path):
     assert scores["cam_04"]["source_scale"] == pytest.approx(8.0, rel=0.01)
     assert all(np.isfinite(s["carried_median_source_px"]) and s["reference_median_source_px"] < 40 for s in scores.values())
     assert (run / "renders" / "landmarks_cam_04.mp4").exists() and "<h2>Movement</h2>" in (run / "report.html").read_text()
+    movement = json.loads((run / "movement.json").read_text())  # Pose2Sim's BODY_25 names give every joint angle
+    assert movement["joint_angles_left_out"] == {} and (run / "movement.csv").exists()
     with redirect_stdout(StringIO()) as again:
         assert main(command) == 0
     steps = re.findall(r"^\[run\] .*", again.getvalue(), flags=re.M)

@@ -7,14 +7,15 @@ import json
 import sys
 
 import attrs
+import numpy as np
 import pytest
-from fitting_scene import write_config, write_ground_truth, write_session
+from fitting_scene import moved, subject, write_config, write_ground_truth, write_session
 
 from mmcsplat.cli import main
 from mmcsplat.configuration.registry import default_registry
 from mmcsplat.pipeline.fit import CHECKPOINT, FirstFrameFit
 from mmcsplat.storage.session import SessionReader
-from mmcsplat.studies.cells import RESULT_FILE
+from mmcsplat.studies.cells import RESULT_FILE, CellOutcome
 from mmcsplat.studies.results import derive_columns, pareto_front
 from mmcsplat.studies.runner import publish, run_study
 from mmcsplat.studies.sessions import prepare_session
@@ -216,6 +217,11 @@ def test_interrupted_study_skips_done_cells_and_resumes_the_cut_off_fit(scene, t
 def test_a_dynamics_cell_tracks_and_charts_frame_by_frame(tmp_path):
     write_session(tmp_path / "moving.zarr", frames=3)
     write_ground_truth(tmp_path / "truth.zarr", frames=3)
+    import zarr
+
+    leg = np.stack([moved(subject(), t).means.numpy()[[0, 1, 2]] for t in range(3)])  # three of the subject's Gaussians as a leg's joints
+    zarr.open_group(str(tmp_path / "truth.zarr"), mode="a").create_array(
+        "joints", data=leg.astype(np.float32), attributes={"joint_names": ["hip_left", "knee_left", "ankle_left"]})
     write_config(tmp_path / "fit.toml", iterations=2, checkpoint_every=2)
     # Initial points in a cube that holds the subject's hull (the region check), dense enough that some sit within the
     # tracking evaluation's follow radius.
@@ -229,6 +235,18 @@ def test_a_dynamics_cell_tracks_and_charts_frame_by_frame(tmp_path):
     assert len(outcome.per_frame_val_masked_psnr) == 3 and len(outcome.tracking_per_frame_median_mm) == 3
     assert (tmp_path / "out" / "charts" / "dynamics.svg").stat().st_size > 0
     assert "## Dynamics" in (tmp_path / "out" / "results.md").read_text()
+    # The joints carried by the tracks: their errors and the knee's range of motion (the only angle these three joints give).
+    assert outcome.landmark_median_mm is not None and outcome.joint_angle_median_error_deg is not None
+    assert outcome.knee_flexion_range_deg is not None and outcome.hip_flexion_range_deg is None
+    aggregated = json.loads((tmp_path / "out" / "results.json").read_text())["variants"][0]
+    assert aggregated["knee_flexion_range_deg"] == pytest.approx(outcome.knee_flexion_range_deg)
+    assert "joint angles, median error (°)" in (tmp_path / "out" / "results.md").read_text()
+
+
+def test_a_cell_recorded_before_the_movement_measures_still_reads(tmp_path):
+    (tmp_path / RESULT_FILE).write_text(json.dumps({"key": "old", "status": "complete", "landmark_median_mm": 3.5}))
+    outcome = CellOutcome.read(tmp_path)  # still done: not run again for the fields added since
+    assert outcome.landmark_median_mm == 3.5 and outcome.knee_flexion_range_deg is None
 
 
 def test_a_synthetic_session_is_synthesized_ingested_and_segmented_once(tmp_path):

@@ -108,7 +108,7 @@ def test_a_browser_draws_the_scene(viewer, tmp_path):
 def test_landmarks_are_shown_with_their_trails(run, tmp_path):
     import shutil
 
-    from mmcsplat.storage.landmark_files import write_landmark_csv
+    from mmcsplat.storage.landmark_formats import write_landmark_csv
 
     shutil.copytree(run.parent, tmp_path / "project")  # the run keeps its session beside it (a relative path)
     copy = tmp_path / "project" / run.name

@@ -3,6 +3,11 @@ fast, how far and over what range each body part moved, how alike the left and r
 at which rhythms — the time and frequency description of spontaneous movement that, for infants, the
 Computer-based Infant Movement Assessment builds on.
 
+Each measure is one entry of a table — :data:`LANDMARK_MEASURES` (per landmark), :data:`PAIR_MEASURES`
+(per left/right pair), :data:`JOINT_ANGLES` (per side, per frame) — naming its function, its unit and one
+sentence the report prints; :func:`movement_summary` computes every entry, so a new measure is one function
+plus its entry (docs/landmarks.md, "Adding a measure").
+
 Trajectories are ``times`` [T] seconds (uniform or nearly), ``positions`` [T, L, 3] metres, NaN where a
 landmark is unknown at a frame, and ``names`` [L]. Every function skips unknown frames rather than
 inventing them; a landmark without enough known frames gets ``None`` for what cannot be measured.
@@ -12,29 +17,12 @@ Everything here is a pure function of its arguments (numpy and scipy only).
 from __future__ import annotations
 
 import re
+from collections.abc import Callable, Sequence
 from typing import Any
 
+import attrs
 import numpy as np
 
-#: One plain sentence per measure of :func:`movement_summary` (its per-landmark keys, then its per-pair
-#: keys), for the report to print beside the numbers.
-MEASURE_DESCRIPTIONS: dict[str, str] = {
-    "mean_speed_m_s": "The average speed of the body part over the frames where it was seen.",
-    "peak_speed_m_s": "The speed the body part reached in its fastest 5 % of moments (the 95th percentile), so that one glitch does not set it.",
-    "path_length_m": "The total distance the body part travelled along its path, adding up the steps between consecutive frames where it was seen.",
-    "range_of_motion_m": "How far apart the body part's extreme positions were: along each axis the spread between its 5th and 95th "
-                         "percentile positions, and the largest of the three.",
-    "range_of_motion_xyz_m": "The same spread of the body part's positions along each axis of the calibration separately (x, y, z).",
-    "dominant_frequency_hz": "The rhythm with the most power in the body part's speed, in cycles per second: a limb swinging back and forth "
-                             "f times a second speeds up twice per swing, so its speed peaks at 2f; coarse for short recordings.",
-    "spectral_centroid_hz": "The average frequency of the body part's speed, weighted by power: higher for quicker, more fidgety movement.",
-    "speed_correlation": "How alike the left and right sides moved in time: the correlation of their speeds, 1 when they speed up and "
-                         "slow down together, near 0 when unrelated, negative when one moves while the other rests.",
-    "path_length_ratio": "How far the left side travelled compared with the right: 1 when both travelled as far, above 1 when the left travelled farther.",
-}
-#: The per-landmark keys of :func:`movement_summary`, in the order the report shows them.
-LANDMARK_MEASURES: tuple[str, ...] = ("mean_speed_m_s", "peak_speed_m_s", "path_length_m", "range_of_motion_m",
-                                      "dominant_frequency_hz", "spectral_centroid_hz")
 MIN_FRAMES = 5  # known frames (or frames known on both sides) below which a speed-based measure or a correlation is not given
 MIN_SPECTRUM_FRAMES = 8  # known frames below which no spectrum is given
 LOW_FREQUENCY_HZ = 0.1  # the spectrum's lower edge: slower "rhythms" are drift over the recording, not movement
@@ -214,27 +202,29 @@ def spectrum_summary(frequencies: np.ndarray, power: np.ndarray) -> tuple[float 
 _SEPARATORS = r"[\s_\-.]"
 
 
+def _part(name: str) -> str:
+    """A name lower-cased without spaces, underscores, hyphens or dots: "Mid Hip" and "mid_hip" are "midhip"."""
+    return re.sub(_SEPARATORS, "", name).lower()
+
+
 def landmark_side(name: str) -> tuple[str, str] | None:
     """(side, part) of a landmark name — side "left" or "right", part the rest lower-cased without spaces,
     underscores, hyphens or dots — or None for a name without a side. Understands "left_wrist", "Left Wrist",
     "LeftWrist", "wrist_left", "wrist.L", "l_wrist" and Pose2Sim's/OpenPose's "LWrist", "RBigToe" (a capital
     L or R directly before a capital letter)."""
-    def part(rest: str) -> str:
-        return re.sub(_SEPARATORS, "", rest).lower()
-
     for side in ("left", "right"):
         letter = side[0]
         for pattern in (rf"^{side}{_SEPARATORS}*(.+)$", rf"^{letter}{_SEPARATORS}+(.+)$",
                         rf"^(.+?){_SEPARATORS}+(?:{side}|{letter})$"):
             match = re.match(pattern, name, flags=re.IGNORECASE)
-            if match and part(match.group(1)):
-                return side, part(match.group(1))
+            if match and _part(match.group(1)):
+                return side, _part(match.group(1))
         match = re.match(rf"^(.+?[a-z]){side.capitalize()}$", name)  # camel case: wristLeft, WristRight
         if match:
-            return side, part(match.group(1))
+            return side, _part(match.group(1))
     match = re.match(r"^([LR])([A-Z].*)$", name)
     if match:
-        return ("left" if match.group(1) == "L" else "right"), part(match.group(2))
+        return ("left" if match.group(1) == "L" else "right"), _part(match.group(2))
     return None
 
 
@@ -247,35 +237,6 @@ def limb_pairs(names: tuple[str, ...] | list[str]) -> list[tuple[str, str]]:
         if found and found not in sides:
             sides[found] = name
     return [(sides[("left", part)], sides[("right", part)]) for side, part in sides if side == "left" and ("right", part) in sides]
-
-
-def _correlation(a: np.ndarray, b: np.ndarray) -> float | None:
-    both = np.isfinite(a) & np.isfinite(b)
-    if both.sum() < MIN_FRAMES or np.ptp(a[both]) == 0 or np.ptp(b[both]) == 0:
-        return None
-    value = float(np.corrcoef(a[both], b[both])[0, 1])
-    return value if np.isfinite(value) else None
-
-
-def limb_symmetry(names: tuple[str, ...] | list[str], times: np.ndarray, positions: np.ndarray,
-                  smoothing_window: int = 0) -> list[dict[str, Any]]:
-    """How alike the two sides moved, per left/right pair of :func:`limb_pairs`: ``speed_correlation``, the
-    Pearson correlation of the two speeds over the frames where both are known (1: they speed up and slow down
-    together; None with fewer than ``MIN_FRAMES`` such frames or when one side never changes speed), and
-    ``path_length_ratio``, the left's path length over the right's (None when either is unknown or the right
-    did not move). Each entry also names ``left``, ``right`` and the ``part``."""
-    names = list(names)
-    positions = smooth_positions(positions, smoothing_window)
-    speeds = speed(times, positions)
-    lengths = path_length(positions)
-    enough = np.isfinite(speeds).sum(axis=0) >= MIN_FRAMES
-    result = []
-    for left, right in limb_pairs(names):
-        i, j = names.index(left), names.index(right)
-        ratio = lengths[i] / lengths[j] if enough[i] and enough[j] and lengths[j] > 0 else np.nan
-        result.append({"left": left, "right": right, "part": landmark_side(left)[1],
-                       "speed_correlation": _number(_correlation(speeds[:, i], speeds[:, j])), "path_length_ratio": _number(ratio)})
-    return result
 
 
 def limb_landmarks(names: tuple[str, ...] | list[str]) -> dict[str, str]:
@@ -299,45 +260,307 @@ def limb_landmarks(names: tuple[str, ...] | list[str]) -> dict[str, str]:
     return {key: chosen[key][1] for key in order if key in chosen}
 
 
+
+
+# --------------------------------------------------------------------------------------------------
+# Joint angles
+
+#: Side-less landmark parts (as :func:`_part` spells them) standing for the top and the bottom of the trunk,
+#: in order of preference: OpenPose's Neck and MidHip, HALPE's Hip, the synthetic infant's neck and waist.
+#: Without one, the midpoint of the two shoulders (top) or of the two hips (bottom) stands for it.
+TRUNK_TOP = ("neck", "thorax")
+TRUNK_BOTTOM = ("midhip", "hip", "pelvis", "waist")
+
+
+class MissingLandmark(LookupError):
+    """A landmark a joint angle needs is not among the recording's names: the angle is left out, never guessed."""
+
+
+@attrs.frozen
+class Body:
+    """The landmarks of a recording found by body part, whatever the naming style (:func:`landmark_side`):
+    ``names`` [L] and ``positions`` [T, L, 3] metres."""
+
+    names: tuple[str, ...]
+    positions: np.ndarray
+
+    def joint(self, side: str, part: str) -> np.ndarray:
+        """[T, 3] the landmark of ``part`` ("knee", "wrist", …) on ``side``; :class:`MissingLandmark` if none."""
+        for j, name in enumerate(self.names):
+            if landmark_side(name) == (side, part):
+                return self.positions[:, j]
+        raise MissingLandmark(f"no {side} {part} among the landmarks")
+
+    def _middle(self, parts: tuple[str, ...], pair: str) -> np.ndarray:
+        for wanted in parts:
+            for j, name in enumerate(self.names):
+                if landmark_side(name) is None and _part(name) == wanted:
+                    return self.positions[:, j]
+        try:
+            return (self.joint("left", pair) + self.joint("right", pair)) / 2
+        except MissingLandmark:
+            raise MissingLandmark(f"no {' or '.join(parts)} landmark nor both {pair}s") from None
+
+    def trunk(self) -> np.ndarray:
+        """[T, 3] the trunk's direction, from its top (neck, or between the shoulders) down to its bottom (mid-hip,
+        or between the hips)."""
+        return self._middle(TRUNK_BOTTOM, "hip") - self._middle(TRUNK_TOP, "shoulder")
+
+
+def segment_angle(first: np.ndarray, second: np.ndarray) -> np.ndarray:
+    """[T] degrees between two segments' directions (each [T, 3]): 0 when they point the same way, 180 when
+    opposite; NaN where either is unknown or has no length. Taken as atan2(|a × b|, a · b), which stays exact
+    near 0° and 180°, where the arccosine of the dot product loses precision."""
+    first, second = np.asarray(first, dtype=np.float64), np.asarray(second, dtype=np.float64)
+    angle = np.degrees(np.arctan2(np.linalg.norm(np.cross(first, second), axis=-1), np.sum(first * second, axis=-1)))
+    angle[(np.linalg.norm(first, axis=-1) == 0) | (np.linalg.norm(second, axis=-1) == 0)] = np.nan
+    return angle
+
+
+def flexion(proximal: np.ndarray, joint: np.ndarray, distal: np.ndarray) -> np.ndarray:
+    """[T] degrees a three-point chain bends at ``joint``: the angle between the segment proximal → joint and
+    the segment joint → distal, so a straight limb is 0°."""
+    return segment_angle(joint - proximal, distal - joint)
+
+
+def knee_flexion(body: Body, side: str) -> np.ndarray:
+    """[T] degrees: the thigh (hip → knee) against the shank (knee → ankle)."""
+    return flexion(body.joint(side, "hip"), body.joint(side, "knee"), body.joint(side, "ankle"))
+
+
+def elbow_flexion(body: Body, side: str) -> np.ndarray:
+    """[T] degrees: the upper arm (shoulder → elbow) against the forearm (elbow → wrist)."""
+    return flexion(body.joint(side, "shoulder"), body.joint(side, "elbow"), body.joint(side, "wrist"))
+
+
+def hip_flexion(body: Body, side: str) -> np.ndarray:
+    """[T] degrees: the trunk (top → bottom, :meth:`Body.trunk`) against the thigh (hip → knee)."""
+    return segment_angle(body.trunk(), body.joint(side, "knee") - body.joint(side, "hip"))
+
+
+def shoulder_flexion(body: Body, side: str) -> np.ndarray:
+    """[T] degrees: the trunk (top → bottom, :meth:`Body.trunk`) against the upper arm (shoulder → elbow)."""
+    return segment_angle(body.trunk(), body.joint(side, "elbow") - body.joint(side, "shoulder"))
+
+
+def angle_range(angles: np.ndarray) -> dict[str, Any]:
+    """The extremes of one joint angle over a recording (``angles`` [T] degrees, NaN where unknown):
+    ``min_deg``, ``max_deg``, ``range_deg`` (max − min: the range of motion) and ``frames``, the frames where
+    it is known; the values are None when it is known at none."""
+    angles = np.asarray(angles, dtype=np.float64)
+    known = angles[np.isfinite(angles)]
+    if not known.size:
+        return {"min_deg": None, "max_deg": None, "range_deg": None, "frames": 0}
+    return {"min_deg": _number(known.min()), "max_deg": _number(known.max()), "range_deg": _number(known.max() - known.min()),
+            "frames": int(known.size)}
+
+
+# --------------------------------------------------------------------------------------------------
+# The table of measures
+
+
+@attrs.frozen
+class Motion:
+    """A recording ready to be measured: ``names`` [L], ``times`` [T] s, ``positions`` [T, L, 3] m (smoothed
+    as asked) and their ``speeds`` [T, L] m/s (:func:`speed`)."""
+
+    names: tuple[str, ...]
+    times: np.ndarray
+    positions: np.ndarray
+    speeds: np.ndarray
+
+    @classmethod
+    def of(cls, names: Sequence[str], times: np.ndarray, positions: np.ndarray, smoothing_window: int = 0) -> Motion:
+        """The recording with its positions smoothed by ``smoothing_window`` (:func:`smooth_positions`)."""
+        times = np.asarray(times, dtype=np.float64)
+        positions = smooth_positions(positions, smoothing_window)
+        return cls(tuple(names), times, positions, speed(times, positions))
+
+
+@attrs.frozen
+class Measure:
+    """One named measure: ``function`` computes it, ``unit`` is its values' unit ("" for a ratio), ``label``
+    the report's column heading and ``sentence`` one plain sentence on what it is, printed beside the numbers."""
+
+    function: Callable[..., Any]
+    unit: str
+    label: str
+    sentence: str
+
+
+def _spectrum_measure(which: int) -> Callable[[Motion], np.ndarray]:
+    """[L] the dominant frequency (``which`` 0) or the spectral centroid (1) of each landmark's speed."""
+    def measure(motion: Motion) -> np.ndarray:
+        values = [spectrum_summary(*speed_spectrum(motion.times, motion.positions[:, j]))[which] for j in range(len(motion.names))]
+        return np.array([np.nan if value is None else value for value in values])
+
+    return measure
+
+
+def _correlation(motion: Motion, i: int, j: int) -> float | None:
+    a, b = motion.speeds[:, i], motion.speeds[:, j]
+    both = np.isfinite(a) & np.isfinite(b)
+    if both.sum() < MIN_FRAMES or np.ptp(a[both]) == 0 or np.ptp(b[both]) == 0:
+        return None
+    value = float(np.corrcoef(a[both], b[both])[0, 1])
+    return value if np.isfinite(value) else None
+
+
+def _path_length_ratio(motion: Motion, i: int, j: int) -> float | None:
+    enough = np.isfinite(motion.speeds[:, [i, j]]).sum(axis=0) >= MIN_FRAMES
+    left, right = path_length(motion.positions[:, [i, j]])
+    return float(left / right) if enough.all() and right > 0 else None
+
+
+#: Per landmark: ``function(motion)`` gives [L] values (or [L, 3], one per axis), NaN where not measurable.
+#: All are None for a landmark known at fewer than ``MIN_FRAMES`` frames. The report shows them in this order.
+LANDMARK_MEASURES: dict[str, Measure] = {
+    "mean_speed_m_s": Measure(lambda motion: mean_speed(motion.speeds), "m/s", "mean speed",
+                              "The average speed of the body part over the frames where it was seen."),
+    "peak_speed_m_s": Measure(lambda motion: peak_speed(motion.speeds), "m/s", "peak speed",
+                              "The speed the body part reached in its fastest 5 % of moments (the 95th percentile), so that one glitch does not set it."),
+    "path_length_m": Measure(lambda motion: path_length(motion.positions), "m", "path",
+                             "The total distance the body part travelled along its path, adding up the steps between consecutive frames where it was seen."),
+    "range_of_motion_m": Measure(lambda motion: range_of_motion(motion.positions), "m", "range",
+                                 "How far apart the body part's extreme positions were: along each axis the spread between its 5th and 95th "
+                                 "percentile positions, and the largest of the three."),
+    "range_of_motion_xyz_m": Measure(lambda motion: range_of_motion_axes(motion.positions), "m", "range x / y / z",
+                                     "The same spread of the body part's positions along each axis of the calibration separately (x, y, z)."),
+    "dominant_frequency_hz": Measure(_spectrum_measure(0), "Hz", "rhythm",
+                                     "The rhythm with the most power in the body part's speed, in cycles per second: a limb swinging back and forth "
+                                     "f times a second speeds up twice per swing, so its speed peaks at 2f; coarse for short recordings."),
+    "spectral_centroid_hz": Measure(_spectrum_measure(1), "Hz", "centroid",
+                                    "The average frequency of the body part's speed, weighted by power: higher for quicker, more fidgety movement."),
+}
+#: Per left/right pair of :func:`limb_pairs`: ``function(motion, left index, right index)`` gives a number or None.
+PAIR_MEASURES: dict[str, Measure] = {
+    "speed_correlation": Measure(_correlation, "", "speed correlation",
+                                 "How alike the left and right sides moved in time: the correlation of their speeds, 1 when they speed up and "
+                                 "slow down together, near 0 when unrelated, negative when one moves while the other rests."),
+    "path_length_ratio": Measure(_path_length_ratio, "", "path length ratio",
+                                 "How far the left side travelled compared with the right: 1 when both travelled as far, above 1 when the left "
+                                 "travelled farther."),
+}
+#: Per side and frame: ``function(body, side)`` gives [T] degrees, raising :class:`MissingLandmark` when a
+#: landmark it needs is absent. Flexion is 0° for a straight limb (or a limb in line with the trunk).
+JOINT_ANGLES: dict[str, Measure] = {
+    "knee_flexion": Measure(knee_flexion, "deg", "knee flexion",
+                            "How far the knee bends: the angle between the thigh (hip to knee) and the shank (knee to ankle), 0° with the leg straight."),
+    "elbow_flexion": Measure(elbow_flexion, "deg", "elbow flexion",
+                             "How far the elbow bends: the angle between the upper arm (shoulder to elbow) and the forearm (elbow to wrist), "
+                             "0° with the arm straight."),
+    "hip_flexion": Measure(hip_flexion, "deg", "hip flexion",
+                           "How far the thigh is raised from the line of the trunk (neck to mid-hip): 0° with the leg in line with the trunk; "
+                           "measured in 3D, so spreading the legs apart (abduction) adds to it."),
+    "shoulder_flexion": Measure(shoulder_flexion, "deg", "shoulder flexion",
+                                "How far the upper arm is raised from the trunk (neck to mid-hip): 0° with the arm along the side; measured in 3D, "
+                                "so raising the arm sideways (abduction) adds to it."),
+}
+SIDES = ("left", "right")
+
+
+def limb_symmetry(names: Sequence[str], times: np.ndarray, positions: np.ndarray, smoothing_window: int = 0) -> list[dict[str, Any]]:
+    """How alike the two sides moved, per left/right pair of :func:`limb_pairs`: each of :data:`PAIR_MEASURES`
+    — ``speed_correlation``, the Pearson correlation of the two speeds over the frames where both are known (None
+    with fewer than ``MIN_FRAMES`` such frames or when one side never changes speed), and ``path_length_ratio``,
+    the left's path length over the right's (None when either is known at fewer than ``MIN_FRAMES`` frames or
+    the right did not move). Each entry also names ``left``, ``right`` and the ``part``."""
+    return _pairs(Motion.of(names, times, positions, smoothing_window))
+
+
+def _pairs(motion: Motion) -> list[dict[str, Any]]:
+    names = list(motion.names)
+    return [{"left": left, "right": right, "part": landmark_side(left)[1],
+             **{key: _number(measure.function(motion, names.index(left), names.index(right))) for key, measure in PAIR_MEASURES.items()}}
+            for left, right in limb_pairs(names)]
+
+
+def joint_angles(names: Sequence[str], positions: np.ndarray) -> tuple[dict[str, np.ndarray], dict[str, str]]:
+    """({"left_knee_flexion": [T] degrees, …}, {angle: why it is left out}) for every entry of
+    :data:`JOINT_ANGLES` on each side; an angle whose landmarks are absent is left out, with the reason."""
+    body = Body(tuple(names), np.asarray(positions, dtype=np.float64))
+    angles, left_out = {}, {}
+    for key, measure in JOINT_ANGLES.items():
+        for side in SIDES:
+            try:
+                angles[f"{side}_{key}"] = measure.function(body, side)
+            except MissingLandmark as missing:
+                left_out[f"{side}_{key}"] = str(missing)
+    return angles, left_out
+
+
+def joint_angle_accuracy(names: Sequence[str], carried: np.ndarray, reference: np.ndarray) -> dict[str, Any] | None:
+    """How far the joint angles of the ``carried`` landmarks are from those of the ``reference`` (both [T, L, 3],
+    the same ``names``; the reference is the source's own landmarks at the same frames) after the first, fitted,
+    frame where both are known: ``median_deg`` and ``p90_deg`` of the absolute difference over every (frame,
+    angle) pair, their count ``pairs``, and ``per_angle_median_deg``. None when no angle is known in both."""
+    mine, _ = joint_angles(names, carried)
+    theirs, _ = joint_angles(names, reference)
+    errors = {key: np.abs(mine[key][1:] - theirs[key][1:]) for key in mine}
+    errors = {key: error[np.isfinite(error)] for key, error in errors.items()}
+    pooled = np.concatenate([np.zeros(0), *errors.values()])
+    if not pooled.size:
+        return None
+    return {"median_deg": _number(np.median(pooled)), "p90_deg": _number(np.percentile(pooled, 90)), "pairs": int(pooled.size),
+            "per_angle_median_deg": {key: _number(np.median(error)) if error.size else None for key, error in errors.items()}}
+
+
 # --------------------------------------------------------------------------------------------------
 # Everything together
 
 
-def _number(value: float | None) -> float | None:
+def _number(value: Any) -> Any:
+    """A JSON-ready value: a float rounded to 1e-6 (None for NaN or None), a list for an array."""
+    if isinstance(value, np.ndarray):
+        return [_number(item) for item in value]
     return round(float(value), 6) if value is not None and np.isfinite(value) else None
 
 
-def movement_summary(names: tuple[str, ...] | list[str], times: np.ndarray, positions: np.ndarray,
-                     smoothing_window: int = 0) -> dict[str, Any]:
-    """Every measure of this module for a recording, ready for ``json.dumps`` (plain floats, None where a
+def movement_summary(names: Sequence[str], times: np.ndarray, positions: np.ndarray, smoothing_window: int = 0) -> dict[str, Any]:
+    """Every measure of the tables for a recording, ready for ``json.dumps`` (plain floats, None where a
     measure cannot be given, never NaN):
 
-    - ``landmarks``: {name: {measure: value}} with the keys of ``LANDMARK_MEASURES`` (all None for a landmark
-      known at fewer than ``MIN_FRAMES`` frames) and ``range_of_motion_xyz_m``, the range along each axis;
-    - ``pairs``: [{left, right, part, speed_correlation, path_length_ratio}] (:func:`limb_symmetry`);
+    - ``landmarks``: {name: {measure: value}} with the keys of :data:`LANDMARK_MEASURES` (all None for a
+      landmark known at fewer than ``MIN_FRAMES`` frames);
+    - ``pairs``: [{left, right, part, *PAIR_MEASURES}] (:func:`limb_symmetry`);
+    - ``joint_angles``: {"left_knee_flexion": {min_deg, max_deg, range_deg, frames, per_frame_deg}} for every
+      entry of :data:`JOINT_ANGLES` on each side whose landmarks exist (:func:`angle_range`; ``per_frame_deg``
+      the angle at every frame, None where unknown), and ``joint_angles_left_out``: {angle: why};
+    - ``measures``: {key: {unit, label, sentence}} of every table entry, so the file explains itself;
     - ``duration_s``, ``frame_rate_hz``, ``frames``, and ``frequency_resolution_hz``, the spacing of the
       spectrum's frequencies over the whole recording (how coarse the frequencies are);
-    - ``smoothing_window``, the Savitzky–Golay window the positions were smoothed by (0: none).
-
-    :data:`MEASURE_DESCRIPTIONS` gives one plain sentence per measure."""
-    names = list(names)
-    times = np.asarray(times, dtype=np.float64)
-    positions = smooth_positions(positions, smoothing_window)
-    speeds = speed(times, positions)
-    means, peaks = mean_speed(speeds), peak_speed(speeds)
-    lengths, axes = path_length(positions), range_of_motion_axes(positions)
-    ranges = range_of_motion(positions)
-    landmarks: dict[str, dict[str, Any]] = {}
-    for j, name in enumerate(names):
-        if np.isfinite(speeds[:, j]).sum() < MIN_FRAMES:
-            landmarks[name] = {**dict.fromkeys(LANDMARK_MEASURES), "range_of_motion_xyz_m": None}
-            continue
-        dominant, centroid = spectrum_summary(*speed_spectrum(times, positions[:, j]))
-        landmarks[name] = {"mean_speed_m_s": _number(means[j]), "peak_speed_m_s": _number(peaks[j]), "path_length_m": _number(lengths[j]),
-                           "range_of_motion_m": _number(ranges[j]), "dominant_frequency_hz": _number(dominant),
-                           "spectral_centroid_hz": _number(centroid), "range_of_motion_xyz_m": [_number(value) for value in axes[j]]}
+    - ``smoothing_window``, the Savitzky–Golay window the positions were smoothed by (0: none)."""
+    motion = Motion.of(names, times, positions, smoothing_window)
+    enough = np.isfinite(motion.speeds).sum(axis=0) >= MIN_FRAMES
+    values = {key: measure.function(motion) for key, measure in LANDMARK_MEASURES.items()}
+    landmarks = {name: {key: _number(values[key][j]) if enough[j] else None for key in LANDMARK_MEASURES} for j, name in enumerate(motion.names)}
+    angles, left_out = joint_angles(motion.names, motion.positions)
+    times = motion.times
     rate = frame_rate(times)
-    return {"landmarks": landmarks, "pairs": limb_symmetry(names, times, positions),
+    return {"landmarks": landmarks, "pairs": _pairs(motion),
+            "joint_angles": {key: {**angle_range(series), "per_frame_deg": _number(series)} for key, series in angles.items()},
+            "joint_angles_left_out": left_out,
+            "measures": {key: {"unit": measure.unit, "label": measure.label, "sentence": measure.sentence}
+                         for table in (LANDMARK_MEASURES, PAIR_MEASURES, JOINT_ANGLES) for key, measure in table.items()},
             "duration_s": _number(times[-1] - times[0]) if len(times) else None, "frame_rate_hz": _number(rate), "frames": int(len(times)),
             "frequency_resolution_hz": _number(rate / min(len(times), MAX_SEGMENT)) if len(times) >= MIN_SPECTRUM_FRAMES else None,
             "smoothing_window": int(smoothing_window)}
+
+
+def movement_rows(summary: dict[str, Any]) -> list[tuple[str, str, float | None, str]]:
+    """The scalars of a :func:`movement_summary` as (subject, measure, value, unit) rows for a CSV — one row
+    per landmark and measure (``range_of_motion_xyz_m:x`` for an axis), per pair ("LWrist/RWrist") and measure,
+    and per joint angle and extreme (``min_deg``, ``max_deg``, ``range_deg``); None where unknown."""
+    units = {key: entry["unit"] for key, entry in summary["measures"].items()}
+    rows: list[tuple[str, str, float | None, str]] = []
+    for name, values in summary["landmarks"].items():
+        for key, value in values.items():
+            if key.endswith("_xyz_m"):
+                rows += [(name, f"{key}:{axis}", item, units[key]) for axis, item in zip("xyz", value or [None] * 3, strict=True)]
+            else:
+                rows.append((name, key, value, units[key]))
+    for pair in summary["pairs"]:
+        rows += [(f"{pair['left']}/{pair['right']}", key, pair[key], units[key]) for key in PAIR_MEASURES]
+    for angle, extremes in summary["joint_angles"].items():
+        rows += [(angle, key, extremes[key], "deg") for key in ("min_deg", "max_deg", "range_deg")]
+    return rows

@@ -68,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
         path = export_transforms(args.run, args.transforms)
         print(f"{path}: nerfstudio dataset of the fitted frame")
     if any(landmark_files.values()):
-        from mmcsplat.outputs.landmark_files import export_landmarks
+        from mmcsplat.outputs.landmark_export import export_landmarks
 
         for path in export_landmarks(args.run, **landmark_files):
             print(f"{path}: the run's landmarks")

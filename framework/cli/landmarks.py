@@ -5,8 +5,10 @@ nearest within 10 cm, anchored in each one's local frame) and carried through ev
 without tracks gives the fitted frame alone). Sources (`mmcsplat plugins landmarks`): trc and csv files of
 3D points, openpose keypoints triangulated in the session's cameras, the synthetic capture's joints.
 Where the source knows the landmarks at later frames too, the carried ones are scored against them (3D,
-mm); --keypoints scores them against 2D detections in every camera (px). `mmcsplat export RUN --trc/--csv
-/--c3d` writes them for OpenSim, Pose2Sim and motion-lab tools; `mmcsplat report RUN` plots them.
+mm); --keypoints scores them against 2D detections in every camera (px). Their movement measures (speeds,
+paths, ranges, rhythms, left/right symmetry, knee, elbow, hip and shoulder flexion) go to RUN/movement.json
+and RUN/movement.csv. `mmcsplat export RUN --trc/--csv/--c3d` writes the landmarks for OpenSim, Pose2Sim and
+motion-lab tools; `mmcsplat report RUN` plots them.
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from mmcsplat.cli.main import CommandError
-    from mmcsplat.pipeline.landmarks import LANDMARKS_CSV, track_landmarks
+    from mmcsplat.pipeline.landmarks import LANDMARKS_CSV, MOVEMENT_CSV, MOVEMENT_JSON, track_landmarks
 
     if args.anchors < 1 or not args.max_distance > 0:
         raise CommandError(f"--anchors must be ≥ 1 and --max-distance > 0, got {args.anchors} and {args.max_distance}")
@@ -42,6 +44,8 @@ def run(args: argparse.Namespace) -> int:
     bound = len(info["names"]) - len(info["unbound"])
     print(f"{args.run / LANDMARKS_CSV}: {bound} landmarks over {info['frames'][1] - info['frames'][0]} frames"
           + (f"; left out (no subject Gaussian within {args.max_distance * 100:.0f} cm): {', '.join(info['unbound'])}" if info["unbound"] else ""))
+    print(f"{args.run / MOVEMENT_JSON} and {MOVEMENT_CSV}: the movement measures, {len(result.movement['joint_angles'])} joint angles"
+          + (f" ({len(result.movement['joint_angles_left_out'])} left out: their landmarks are absent)" if result.movement["joint_angles_left_out"] else ""))
     accuracy = info.get("accuracy_3d")
     if accuracy and accuracy["median_mm"] is not None:
         moving = (f"; where they moved > 1 cm: {accuracy['moving_median_mm']:.1f} mm against {accuracy['still_moving_median_mm']:.1f} mm held still"

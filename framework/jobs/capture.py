@@ -84,7 +84,7 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     from mmcsplat.pipeline.evaluate import METRICS_FILE, evaluate
     from mmcsplat.pipeline.fit import FirstFrameFit
     from mmcsplat.pipeline.ingest import ingest
-    from mmcsplat.pipeline.landmarks import LANDMARKS_CSV, LANDMARKS_INFO, track_landmarks
+    from mmcsplat.pipeline.landmarks import LANDMARKS_CSV, LANDMARKS_INFO, MOVEMENT_JSON, track_landmarks
     from mmcsplat.pipeline.plates import estimate_plates
     from mmcsplat.pipeline.regions import region_overrides
     from mmcsplat.pipeline.run_frames import RunStates
@@ -141,7 +141,7 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     step("evaluate", fresh([run / METRICS_FILE], [run / TRACK_INFO]), lambda: evaluate(run))
     renders = run / "renders"
     if joints is not None:
-        step("landmarks", fresh([run / LANDMARKS_CSV, run / LANDMARKS_INFO], [run / TRACK_INFO]), landmarks)
+        step("landmarks", fresh([run / LANDMARKS_CSV, run / LANDMARKS_INFO, run / MOVEMENT_JSON], [run / TRACK_INFO]), landmarks)
         step("render landmarks", fresh(renders.glob("landmarks_*.mp4"), [run / LANDMARKS_CSV]) and any(renders.glob("landmarks_*.mp4")),
              lambda: render_landmarks(run, _made(renders), progress=progress))
     step("render trajectories", any(renders.glob("trajectories_*.png")) and fresh(renders.glob("trajectories_*.png"), [run / TRACK_INFO]),

@@ -64,6 +64,7 @@ class DemoPaths:
     landmarks_csv: Path
     landmarks_info: Path
     landmarks_trc: Path
+    movement: Path
     renders: Path
     trajectories_video: Path
     trajectories_strip: Path
@@ -76,7 +77,7 @@ class DemoPaths:
         """The paths in ``out``: the run is OUT/first-frame, its renders and report where the commands put them."""
         from mmcsplat.outputs.report import RENDERS_DIR, REPORT_FILE
         from mmcsplat.pipeline.evaluate import METRICS_FILE
-        from mmcsplat.pipeline.landmarks import LANDMARKS_CSV, LANDMARKS_INFO
+        from mmcsplat.pipeline.landmarks import LANDMARKS_CSV, LANDMARKS_INFO, MOVEMENT_JSON
         from mmcsplat.pipeline.track import TRACK_INFO
         from mmcsplat.storage.tracks import TRACKS_DIR
 
@@ -84,7 +85,7 @@ class DemoPaths:
         renders = run / RENDERS_DIR
         trajectories = renders / f"trajectories_{SYNTHETIC_HELDOUT[0]}"
         return cls(out, out / "capture", out / "session.zarr", run, run / TRACKS_DIR, run / TRACK_INFO, run / METRICS_FILE,
-                   run / LANDMARKS_CSV, run / LANDMARKS_INFO, run / "landmarks.trc", renders, trajectories.with_suffix(".mp4"),
+                   run / LANDMARKS_CSV, run / LANDMARKS_INFO, run / "landmarks.trc", run / MOVEMENT_JSON, renders, trajectories.with_suffix(".mp4"),
                    trajectories.with_suffix(".png"), renders / f"landmarks_{SYNTHETIC_HELDOUT[0]}.mp4", renders / "novel.mp4",
                    run / REPORT_FILE)
 
@@ -162,7 +163,7 @@ def run_demo(out: Path, settings: DemoSettings = DemoSettings(), progress: bool 
              log: Callable[[str], None] = print) -> DemoResult:
     """Run every step of the demo into ``out`` (created), skipping those already done; ``log`` gets one
     line per step."""
-    from mmcsplat.outputs.landmark_files import export_landmarks
+    from mmcsplat.outputs.landmark_export import export_landmarks
     from mmcsplat.outputs.landmark_video import render_landmarks
     from mmcsplat.outputs.renders import RunRenderer, render_novel, render_trajectories
     from mmcsplat.outputs.report import write_report
@@ -214,14 +215,14 @@ def run_demo(out: Path, settings: DemoSettings = DemoSettings(), progress: bool 
         track_landmarks(run, "synthetic")
         export_landmarks(run, trc=paths.landmarks_trc)
 
-    step("landmarks", fresh([paths.landmarks_csv, paths.landmarks_info, paths.landmarks_trc], [paths.track_info]), landmarks)
+    step("landmarks", fresh([paths.landmarks_csv, paths.landmarks_info, paths.landmarks_trc, paths.movement], [paths.track_info]), landmarks)
     paths.renders.mkdir(exist_ok=True)
     step("render trajectories", fresh([paths.trajectories_video, paths.trajectories_strip], [paths.track_info]),
          lambda: render_trajectories(renderer(), paths.renders, SYNTHETIC_HELDOUT[0]))
     step("render landmarks", fresh([paths.landmarks_video], [paths.landmarks_csv]),
          lambda: render_landmarks(run, paths.renders, SYNTHETIC_HELDOUT[0], progress=progress))
     step("render novel view", fresh([paths.novel], [paths.track_info]), lambda: render_novel(renderer(), paths.renders))
-    step("report", fresh([paths.report], [paths.metrics, paths.landmarks_info, paths.trajectories_video, paths.trajectories_strip,
+    step("report", fresh([paths.report], [paths.metrics, paths.landmarks_info, paths.movement, paths.trajectories_video, paths.trajectories_strip,
                                           paths.landmarks_video, paths.novel]),
          lambda: write_report(run, paths.report, backend=settings.backend))
     iterations = json.loads(paths.track_info.read_text())["params"].get("iterations")
@@ -247,6 +248,7 @@ def summary(result: DemoResult) -> str:
         ("metrics", paths.metrics),
         ("landmarks (the infant's joints, carried)", paths.landmarks_csv),
         ("landmarks for OpenSim / Pose2Sim", paths.landmarks_trc),
+        ("movement measures, joint angles", paths.movement),
         ("tracking figure, video", paths.trajectories_video),
         ("tracking figure, strip of frames", paths.trajectories_strip),
         ("landmarks on the held-out camera", paths.landmarks_video),

@@ -19,7 +19,7 @@ from mmcsplat.outputs.video import write_video
 from mmcsplat.pipeline.landmarks import LANDMARKS_CSV
 from mmcsplat.pipeline.run_frames import RunStates
 from mmcsplat.plugin_api.errors import MissingFileError
-from mmcsplat.storage.landmark_files import read_landmark_csv
+from mmcsplat.storage.landmark_formats import read_landmark_csv
 
 MIN_SHORT_SIDE = 480  # pixels
 MARGIN = 0.25  # of the landmarks' box, added on each side

@@ -1,7 +1,9 @@
 """The "Movement" section of a run's report: the landmarks of ``RUN/landmarks.csv`` as a clinician reads
 them — where each hand and foot went and how fast, how far and how alike the two sides moved, at which
-frequencies — with their accuracy (``RUN/landmarks.json``) and the overlay video. Every figure and table
-carries one plain sentence on what it shows."""
+frequencies, how far the knees, elbows, hips and shoulders bent — with their accuracy
+(``RUN/landmarks.json``) and the overlay video. The measures are read from ``RUN/movement.json`` (computed
+by the landmarks step from the tables of :mod:`mmcsplat.analysis.movement`), each shown with its table
+entry's label, unit and sentence. Every figure and table carries one plain sentence on what it shows."""
 
 from __future__ import annotations
 
@@ -12,16 +14,15 @@ from typing import Any
 
 import numpy as np
 
-from mmcsplat.analysis.movement import MEASURE_DESCRIPTIONS, limb_landmarks, movement_summary, speed, speed_spectrum
+from mmcsplat.analysis.movement import limb_landmarks, movement_summary, speed, speed_spectrum
 from mmcsplat.outputs.report_html import command, esc, image, table, video
-from mmcsplat.pipeline.landmarks import LANDMARKS_CSV, LANDMARKS_INFO
-from mmcsplat.storage.landmark_files import read_landmark_csv
+from mmcsplat.pipeline.landmarks import LANDMARKS_CSV, LANDMARKS_INFO, MOVEMENT_JSON
+from mmcsplat.storage.landmark_formats import read_landmark_csv
 
-#: Each measure's column heading and the factor from its SI unit to the one shown (centimetres read better
-#: for an infant's limbs).
-COLUMNS = {"mean_speed_m_s": ("mean speed (cm/s)", 100), "peak_speed_m_s": ("peak speed (cm/s)", 100),
-           "path_length_m": ("path (cm)", 100), "range_of_motion_m": ("range (cm)", 100),
-           "dominant_frequency_hz": ("rhythm (Hz)", 1), "spectral_centroid_hz": ("centroid (Hz)", 1)}
+#: The unit shown for a measure's SI unit, and the factor between them (centimetres read better for an
+#: infant's limbs); other units are shown as they are.
+SHOWN_UNITS = {"m/s": ("cm/s", 100.0), "m": ("cm", 100.0)}
+SIDE_COLOURS = {"left": "#1f77b4", "right": "#d62728"}
 LIMB_COLOURS = {"left hand": "#1f77b4", "right hand": "#d62728", "left foot": "#2ca02c", "right foot": "#ff7f0e"}
 AXES = ("x", "y", "z")
 
@@ -88,12 +89,78 @@ def spectrum_chart(times: np.ndarray, limbs: dict[str, np.ndarray]) -> bytes:
     return _png(figure)
 
 
+def angles_chart(times: np.ndarray, angles: dict[str, dict[str, Any]], labels: dict[str, str]) -> bytes:
+    """PNG: each joint angle (degrees) against seconds, one panel per joint, left and right in two colours;
+    ``angles`` are movement.json's ``joint_angles``, ``labels`` each angle measure's label."""
+    kinds = list(dict.fromkeys(key.partition("_")[2] for key in angles))
+    figure = _figure(7.5, 1.9 * len(kinds))
+    panels = figure.subplots(len(kinds), 1, sharex=True, squeeze=False)[:, 0]
+    for panel, kind in zip(panels, kinds, strict=True):
+        for side, colour in SIDE_COLOURS.items():
+            if f"{side}_{kind}" in angles:
+                values = [np.nan if value is None else value for value in angles[f"{side}_{kind}"]["per_frame_deg"]]
+                panel.plot(times, values, color=colour, label=side, linewidth=2)
+        panel.set_ylabel(f"{labels[kind]} (°)", fontsize=9)
+        panel.grid(alpha=0.3)
+    panels[0].legend(ncol=2, fontsize=9, loc="lower left", bbox_to_anchor=(0, 1.02))
+    panels[-1].set_xlabel("time (s)", fontsize=10)
+    return _png(figure)
+
+
+def _shown(value: Any, unit: str) -> Any:
+    """A measure's value in the unit shown (:data:`SHOWN_UNITS`): a number, "x / y / z" for one per axis."""
+    factor = SHOWN_UNITS.get(unit, ("", 1.0))[1]
+    if isinstance(value, list):
+        return " / ".join("n/a" if item is None else f"{item * factor:.2f}" for item in value)
+    return None if value is None else round(value * factor, 2)
+
+
+def _heading(measure: dict[str, str]) -> str:
+    unit = SHOWN_UNITS.get(measure["unit"], (measure["unit"], 1.0))[0]
+    return f"{measure['label']} ({unit})" if unit else measure["label"]
+
+
+def measures_html(summary: dict[str, Any], times: np.ndarray) -> list[str]:
+    """The measures of a movement.json: per landmark, left and right, joint angles — each table with its
+    measures' sentences."""
+    measures = summary["measures"]
+    landmark_keys = list(next(iter(summary["landmarks"].values()), {}))
+    parts = ["<h3>Measures per landmark</h3>" + table(
+        ["landmark", *(_heading(measures[key]) for key in landmark_keys)],
+        [(name, *(_shown(values[key], measures[key]["unit"]) for key in landmark_keys)) for name, values in summary["landmarks"].items()])]
+    parts.append(_sentences(measures, landmark_keys))
+    if summary.get("pairs"):
+        pair_keys = [key for key in summary["pairs"][0] if key in measures]
+        parts.append("<h3>Left and right</h3><p>How alike the two sides moved.</p>" + table(
+            ["left", "right", *(_heading(measures[key]) for key in pair_keys)],
+            [(pair["left"], pair["right"], *(pair[key] for key in pair_keys)) for pair in summary["pairs"]]) + _sentences(measures, pair_keys))
+    angles, left_out = summary.get("joint_angles") or {}, summary.get("joint_angles_left_out") or {}
+    if angles:
+        kinds = list(dict.fromkeys(key.partition("_")[2] for key in angles))
+        parts.append("<h3>Joint angles</h3><p>How far each joint bent, in degrees, from the landmarks' segments: 0° is a straight "
+                     "limb (or one in line with the trunk); the range is the largest angle less the smallest over the frames where "
+                     "the joint's landmarks were known.</p>")
+        parts.append(image(angles_chart(times, angles, {kind: measures[kind]["label"] for kind in kinds}), "joint angles over time",
+                           "Each joint's angle at every moment, left and right together."))
+        parts.append(table(["joint angle", "side", "smallest (°)", "largest (°)", "range (°)", "frames"],
+                           [(measures[key.partition("_")[2]]["label"], key.partition("_")[0], values["min_deg"], values["max_deg"],
+                             values["range_deg"], values["frames"]) for key, values in angles.items()]) + _sentences(measures, kinds))
+    if left_out:
+        parts.append("<p class=\"note\">Joint angles not measured (their landmarks are absent): "
+                     + esc("; ".join(f"{key.replace('_', ' ')} ({why})" for key, why in left_out.items())) + ".</p>")
+    return parts
+
+
+def _sentences(measures: dict[str, dict[str, str]], keys: list[str]) -> str:
+    return "<ul>" + "".join(f"<li><strong>{esc(measures[key]['label'])}</strong>: {esc(measures[key]['sentence'])}</li>" for key in keys) + "</ul>"
+
+
 def _mm(value: float | None) -> str:
     return "n/a" if value is None else f"{value:.1f}"
 
 
 def accuracy_rows(info: dict[str, Any]) -> list[tuple[str, str]]:
-    """The landmarks' accuracy as (measure, value) rows: 3D against the source, 2D per camera."""
+    """The landmarks' accuracy as (measure, value) rows: 3D and joint angles against the source, 2D per camera."""
     rows: list[tuple[str, str]] = []
     accuracy = info.get("accuracy_3d")
     if accuracy:
@@ -101,6 +168,9 @@ def accuracy_rows(info: dict[str, Any]) -> list[tuple[str, str]]:
                  ("3D error, 90th percentile (mm)", _mm(accuracy["p90_mm"])),
                  ("3D error where the landmark moved > 1 cm (mm)", _mm(accuracy["moving_median_mm"])),
                  ("… if the landmarks had been held still (mm)", _mm(accuracy["still_moving_median_mm"]))]
+    angles = info.get("accuracy_joint_angles")
+    if angles:
+        rows += [("joint angle error, median (°)", _mm(angles["median_deg"])), ("joint angle error, 90th percentile (°)", _mm(angles["p90_deg"]))]
     for camera, scores in (info.get("accuracy_2d") or {}).items():
         rows.append((f"2D error in {camera}{' (held out)' if scores['heldout'] else ''}, carried / source's own (px)",
                      f"{_mm(scores['carried_median_px'])} / {_mm(scores['reference_median_px'])}"))
@@ -130,20 +200,8 @@ def landmarks_section(run: Path, videos: list[tuple[bytes, str]]) -> str:
         if len(times) >= 8:
             parts.append(image(spectrum_chart(times, limbs), "frequency of the limb movements",
                                "At which rhythms the limbs moved: peaks are the frequencies of repeated movements (short recordings resolve them coarsely)."))
-    summary = movement_summary(names, times, positions)
-    def shown(value: float | None, factor: float) -> float | None:
-        return None if value is None else round(value * factor, 2)
-
-    parts.append("<h3>Measures per landmark</h3>" + table(
-        ["landmark", *(heading for heading, _ in COLUMNS.values())],
-        [(name, *(shown(values.get(key), factor) for key, (_, factor) in COLUMNS.items())) for name, values in summary["landmarks"].items()]))
-    parts.append("<ul>" + "".join(f"<li><strong>{esc(heading)}</strong>: {esc(MEASURE_DESCRIPTIONS[key])}</li>"
-                                  for key, (heading, _) in COLUMNS.items()) + "</ul>")
-    if summary.get("pairs"):
-        parts.append("<h3>Left and right</h3><p>How alike the two sides moved: the correlation of their speeds (1: in step, 0: unrelated) "
-                     "and the ratio of the distances they travelled (1: as far).</p>" + table(
-                         ["left", "right", "speed correlation", "path length ratio"],
-                         [(pair["left"], pair["right"], pair["speed_correlation"], pair["path_length_ratio"]) for pair in summary["pairs"]]))
+    movement_path = Path(run) / MOVEMENT_JSON  # a run carried before movement.json existed: the same tables, computed here
+    parts += measures_html(json.loads(movement_path.read_text()) if movement_path.is_file() else movement_summary(names, times, positions), times)
     rows = accuracy_rows(info)
     if rows:
         parts.append("<h3>Accuracy of the landmarks</h3><p>How far the carried landmarks were from the source's own at the same frames "

@@ -1,5 +1,5 @@
 """``mmcsplat landmarks RUN``: named landmarks carried through a run — ``RUN/landmarks.csv`` and
-``RUN/landmarks.json``.
+``RUN/landmarks.json`` — and their movement measures, ``RUN/movement.json`` and ``RUN/movement.csv``.
 
 The landmarks of a source (a ``landmarks`` plugin: TRC or CSV file, triangulated 2D keypoints, a synthetic
 capture's joints) at the run's fitted frame are bound to the subject's Gaussians there and carried through
@@ -11,6 +11,8 @@ own disagreement with the source's 3D landmarks.
 
 from __future__ import annotations
 
+import csv
+import io
 import warnings
 from pathlib import Path
 from typing import Any
@@ -19,19 +21,22 @@ import attrs
 import numpy as np
 
 from mmcsplat.analysis.landmark_binding import ANCHORS, MAX_DISTANCE, bind_landmarks, carry, confidence, landmark_accuracy
+from mmcsplat.analysis.movement import joint_angle_accuracy, movement_rows, movement_summary
 from mmcsplat.configuration.registry import Registry, default_registry
 from mmcsplat.pipeline.run_frames import RunStates
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.interfaces import KeypointObservations, Landmarks, LandmarkSource
 from mmcsplat.scene.camera import Camera
-from mmcsplat.storage.atomic import write_json_atomic
-from mmcsplat.storage.landmark_files import write_landmark_csv
+from mmcsplat.storage.atomic import write_json_atomic, write_text_atomic
+from mmcsplat.storage.landmark_formats import write_landmark_csv
 from mmcsplat.storage.locking import run_lock
 from mmcsplat.storage.run_log import run_log
 from mmcsplat.storage.session import SessionReader
 
 LANDMARKS_CSV = "landmarks.csv"
 LANDMARKS_INFO = "landmarks.json"
+MOVEMENT_JSON = "movement.json"
+MOVEMENT_CSV = "movement.csv"
 MIN_KEYPOINT_CONFIDENCE = 0.3  # detections below it are not scored (OpenPose's own cut-off for a visible keypoint)
 SUBJECT_OPACITY = 0.1  # Gaussians fainter than this carry no landmark: they are too easily floaters
 
@@ -68,18 +73,30 @@ def pixel_errors(camera: Camera, carried: np.ndarray, reference: np.ndarray, obs
 
 @attrs.frozen
 class LandmarkRun:
-    """What :func:`track_landmarks` wrote: the carried landmarks and the record of ``landmarks.json``."""
+    """What :func:`track_landmarks` wrote: the carried landmarks, the record of ``landmarks.json`` and the
+    measures of ``movement.json``."""
 
     landmarks: Landmarks
     spread: np.ndarray
     info: dict[str, Any]
+    movement: dict[str, Any]
+
+
+def write_movement(run: Path, summary: dict[str, Any]) -> None:
+    """RUN/movement.json, a :func:`~mmcsplat.analysis.movement.movement_summary`, and RUN/movement.csv, its
+    scalars one ``subject,measure,value,unit`` row each (an empty value where unknown); each written atomically."""
+    write_json_atomic(run / MOVEMENT_JSON, summary)
+    text = io.StringIO()
+    csv.writer(text, lineterminator="\n").writerows([("subject", "measure", "value", "unit"), *movement_rows(summary)])
+    write_text_atomic(run / MOVEMENT_CSV, text.getvalue())
 
 
 def track_landmarks(run: str | Path, source: str, params: dict[str, Any] | None = None, *, keypoints: str | None = None,
                     keypoint_params: dict[str, Any] | None = None, anchors: int = ANCHORS, max_distance: float = MAX_DISTANCE,
                     registry: Registry | None = None) -> LandmarkRun:
     """Bind the landmarks of the ``landmarks`` plugin ``source`` (built with ``params``) at ``run``'s fitted
-    frame, carry them through its frames, score them, and write RUN/landmarks.csv and RUN/landmarks.json.
+    frame, carry them through its frames, score them, and write RUN/landmarks.csv and RUN/landmarks.json, and
+    their movement measures RUN/movement.json and RUN/movement.csv.
     ``keypoints`` names a second source whose 2D detections score the carried landmarks per camera."""
     run = Path(run)
     registry = registry or default_registry()
@@ -118,15 +135,18 @@ def track_landmarks(run: str | Path, source: str, params: dict[str, Any] | None 
         }
         if len(frames) > 1 and np.isfinite(reference.positions[1:]).any():
             info["accuracy_3d"] = attrs.asdict(landmark_accuracy(reference.names, carried, reference.positions))
+            info["accuracy_joint_angles"] = joint_angle_accuracy(reference.names, carried, reference.positions)
         if keypoints is not None:
             info["accuracy_2d"] = _accuracy_2d(registry, keypoints, keypoint_params, session, set(states.info.heldout_cameras), frames,
                                                reference, carried)
         write_json_atomic(run / LANDMARKS_INFO, info)
+        movement = movement_summary(reference.names, times, carried)
+        write_movement(run, movement)
         log.info("landmarks from %s: %d bound, %s unbound; %d frames", source, int(binding.bound.sum()), binding.unbound or "none", len(frames))
         if binding.unbound:
             warnings.warn(f"landmarks {', '.join(binding.unbound)}: no subject Gaussian within {max_distance * 100:.0f} cm at frame "
                           f"{states.first_frame} — left out (NaN), not invented", stacklevel=2)
-    return LandmarkRun(Landmarks(reference.names, frames, carried, source=f"carried by {run}"), spread, info)
+    return LandmarkRun(Landmarks(reference.names, frames, carried, source=f"carried by {run}"), spread, info, movement)
 
 
 def _accuracy_2d(registry: Registry, name: str, params: dict[str, Any] | None, session: SessionReader, heldout: set[str],

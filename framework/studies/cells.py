@@ -35,7 +35,9 @@ class CellOutcome:
     any other error. ``floater_share`` is evaluate's share of opacity mass outside the masks' visual
     hull, ``mask_agreement`` its per-camera agreement of each mask with the other cameras' hull,
     ``drift`` its drift verdict (tracked cells), ``loss_min``/``loss_final`` and ``warnings`` the fit's
-    (run.json).
+    (run.json). ``landmark_*`` are the carried joints' errors against the capture's own; ``joint_angle_*`` their
+    knee, elbow, hip and shoulder flexion's error, and ``*_flexion_range_deg`` each joint's range of motion
+    (the mean of the two sides') from the cell's movement.json — None in a cell recorded before they existed.
     """
 
     key: str
@@ -65,6 +67,12 @@ class CellOutcome:
     landmark_median_mm: float | None = None
     landmark_moving_median_mm: float | None = None
     landmark_still_moving_median_mm: float | None = None
+    joint_angle_median_error_deg: float | None = None
+    joint_angle_p90_error_deg: float | None = None
+    knee_flexion_range_deg: float | None = None
+    elbow_flexion_range_deg: float | None = None
+    hip_flexion_range_deg: float | None = None
+    shoulder_flexion_range_deg: float | None = None
     per_frame_val_masked_psnr: list[float | None] | None = None
     tracking_per_frame_median_mm: list[float] | None = None
     resumed_at: int | None = None
@@ -130,18 +138,31 @@ def _run(spec: CellSpec, cell_dir: Path) -> dict[str, Any]:
     }
 
 
+#: The joint angles whose range of motion a cell reports (keys of :data:`mmcsplat.analysis.movement.JOINT_ANGLES`).
+HEADLINE_ANGLES = ("knee_flexion", "elbow_flexion", "hip_flexion", "shoulder_flexion")
+
+
 def _landmarks(spec: CellSpec, cell_dir: Path) -> dict[str, float | None]:
-    """The error of the synthetic capture's joints carried by the cell's tracks (docs/landmarks.md); none
-    for a session whose ground truth has no joints (or no ground truth): the cell's other results stand."""
+    """The error of the synthetic capture's joints carried by the cell's tracks and of their joint angles,
+    and each headline angle's range of motion (docs/landmarks.md); none for a session whose ground truth has
+    no joints (or no ground truth): the cell's other results stand."""
     from mmcsplat.pipeline.landmarks import track_landmarks
     from mmcsplat.plugin_api.errors import InputError, MissingFileError
 
     try:
-        accuracy = track_landmarks(cell_dir, "synthetic", {"path": spec.ground_truth} if spec.ground_truth else {}).info.get("accuracy_3d") or {}
+        carried = track_landmarks(cell_dir, "synthetic", {"path": spec.ground_truth} if spec.ground_truth else {})
     except (InputError, MissingFileError):
         return {}
+    accuracy = carried.info.get("accuracy_3d") or {}
+    angles = carried.info.get("accuracy_joint_angles") or {}
+    ranges = {}
+    for kind in HEADLINE_ANGLES:
+        sides = [carried.movement["joint_angles"].get(f"{side}_{kind}", {}).get("range_deg") for side in ("left", "right")]
+        known = [value for value in sides if value is not None]
+        ranges[f"{kind}_range_deg"] = sum(known) / len(known) if known else None
     return {"landmark_median_mm": accuracy.get("median_mm"), "landmark_moving_median_mm": accuracy.get("moving_median_mm"),
-            "landmark_still_moving_median_mm": accuracy.get("still_moving_median_mm")}
+            "landmark_still_moving_median_mm": accuracy.get("still_moving_median_mm"),
+            "joint_angle_median_error_deg": angles.get("median_deg"), "joint_angle_p90_error_deg": angles.get("p90_deg"), **ranges}
 
 
 def _fit(spec: CellSpec, cell_dir: Path) -> tuple[RunInfo, int | None]:

@@ -28,7 +28,8 @@ SMALLEST_WITHIN_DB = 0.5
 #: Aggregated per variant (mean, std over its complete cells).
 METRICS = ("val_masked_psnr", "train_masked_psnr", "val_interior_masked_psnr", "val_psnr", "val_ssim", "train_psnr", "num_gaussians", "floater_share", "iterations",
            "wall_s", "iterations_per_s", "track_wall_s", "track_wall_s_per_frame", "tracking_median_mm", "tracking_p90_mm",
-           "landmark_median_mm", "landmark_moving_median_mm", "landmark_still_moving_median_mm")
+           "landmark_median_mm", "landmark_moving_median_mm", "landmark_still_moving_median_mm", "joint_angle_median_error_deg",
+           "joint_angle_p90_error_deg", "knee_flexion_range_deg", "elbow_flexion_range_deg", "hip_flexion_range_deg", "shoulder_flexion_range_deg")
 SERIES = ("per_frame_val_masked_psnr", "tracking_per_frame_median_mm")
 #: Lists and maps (the series, the fit's warnings, per-camera mask agreement): in results.json, not results.csv.
 NESTED = (*SERIES, "warnings", "mask_agreement")
@@ -260,12 +261,13 @@ def markdown(study: Study, rows: Sequence[Row], aggregates: Sequence[Aggregate],
     tracked = [a for a in aggregates if a.columns.dynamics]
     if tracked:
         table = [["Variant", "dynamics", "tracking median (mm)", "tracking p90 (mm)", "joints, median (mm)", "joints that moved > 1 cm (mm)",
-                  "… held still (mm)", "tracking (s/frame)", "cells"]]
+                  "… held still (mm)", "joint angles, median error (°)", "tracking (s/frame)", "cells"]]
         table.append(["---"] * len(table[0]))
         for a in tracked:
             table.append([a.label, a.columns.dynamics or "", _spread(a, "tracking_median_mm", ".1f"), _spread(a, "tracking_p90_mm", ".1f"),
                           _spread(a, "landmark_median_mm", ".1f"), _spread(a, "landmark_moving_median_mm", ".1f"),
-                          _spread(a, "landmark_still_moving_median_mm", ".1f"), _spread(a, "track_wall_s_per_frame", ".2f"),
+                          _spread(a, "landmark_still_moving_median_mm", ".1f"), _spread(a, "joint_angle_median_error_deg", ".1f"),
+                          _spread(a, "track_wall_s_per_frame", ".2f"),
                           f"{a.cells - a.failed}/{a.cells}"])
         lines += [f"{heading}# Dynamics", ""] + markdown_rows(table) + [""]
     for title, path in charts:

@@ -1,6 +1,6 @@
 """Landmarks from files of 3D points: ``trc`` (OpenSim / Pose2Sim marker trajectories) and ``csv``
 (``frame,time,name,x,y,z`` rows, or ``name,x,y,z`` for one frame), read by
-:mod:`mmcsplat.storage.landmark_files`.
+:mod:`mmcsplat.storage.landmark_formats`.
 
 A TRC file's rows are the capture's frames in order (row 1 = capture frame 0, as Pose2Sim writes them for
 a video's frames); session frames map to them through the session's capture frame numbers, so an
@@ -20,7 +20,7 @@ import numpy as np
 from mmcsplat.plugin_api.interfaces import Landmarks, LandmarkSource
 from mmcsplat.plugin_api.parameters import one_of, parameter
 from mmcsplat.storage.calibration import metres_per_unit
-from mmcsplat.storage.landmark_files import CSV_SHORT_COLUMNS, TRC_CONVENTIONS, read_landmark_csv, read_trc
+from mmcsplat.storage.landmark_formats import CSV_SHORT_COLUMNS, TRC_CONVENTIONS, read_landmark_csv, read_trc
 from mmcsplat.storage.session import SessionReader
 
 

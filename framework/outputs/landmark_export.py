@@ -1,6 +1,6 @@
 """``mmcsplat export RUN --trc / --csv / --c3d``: a run's carried landmarks (``RUN/landmarks.csv``) in the
 files biomechanics tools read — TRC for OpenSim and Pose2Sim (Y-up, Pose2Sim's axes), CSV for everyone,
-C3D for motion-capture labs (:mod:`mmcsplat.storage.landmark_files` has each format's conventions)."""
+C3D for motion-capture labs (:mod:`mmcsplat.storage.landmark_formats` has each format's conventions)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from pathlib import Path
 from mmcsplat.pipeline.landmarks import LANDMARKS_CSV
 from mmcsplat.pipeline.run_frames import RunStates
 from mmcsplat.plugin_api.errors import MissingFileError
-from mmcsplat.storage.landmark_files import read_landmark_csv, write_c3d, write_landmark_csv, write_trc
+from mmcsplat.storage.landmark_formats import read_landmark_csv, write_c3d, write_landmark_csv, write_trc
 
 
 def export_landmarks(run: str | Path, trc: str | Path | None = None, csv: str | Path | None = None, c3d: str | Path | None = None) -> list[Path]:

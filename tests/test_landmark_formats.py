@@ -1,4 +1,4 @@
-"""mmcsplat.storage.landmark_files: TRC, landmark CSV and C3D read and written as the tools that use them expect."""
+"""mmcsplat.storage.landmark_formats: TRC, landmark CSV and C3D read and written as the tools that use them expect."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from mmcsplat.plugin_api.errors import InputError, MissingFileError
-from mmcsplat.storage.landmark_files import (
+from mmcsplat.storage.landmark_formats import (
     read_c3d,
     read_landmark_csv,
     read_trc,
