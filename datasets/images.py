@@ -9,12 +9,14 @@ is found as for the ``videos`` format. Images carry no frame rate: ``fps`` gives
 from __future__ import annotations
 
 import re
+import warnings
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 
 import attrs
 import numpy as np
 
+from mmcsplat.datasets.posed_images import MISSING_FRAMES_PARAMETER
 from mmcsplat.datasets.rig import (
     CAMERA_MAP_PARAMETER,
     SIZE_MISMATCH_PARAMETER,
@@ -25,7 +27,7 @@ from mmcsplat.datasets.rig import (
 )
 from mmcsplat.plugin_api.errors import InputError, NotAFolderError
 from mmcsplat.plugin_api.interfaces import Reader, RecordedFrame, Recording
-from mmcsplat.plugin_api.parameters import finite_positive, one_of, parameter
+from mmcsplat.plugin_api.parameters import finite_positive, parameter
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.calibration import read_calibration
 from mmcsplat.storage.camera_names import match_cameras, natural_key
@@ -56,17 +58,20 @@ def frames_by_number(files: dict[str, list[Path]], missing_frames: str, source: 
     first = min(min(found) for found in numbers.values())
     length = common_length({name: max(found) - first + 1 for name, found in numbers.items()}, "image folder", source)
     placed: dict[str, list[Path | None]] = {}
+    gaps: dict[str, list[int]] = {}
     for name, paths in files.items():
         slots: list[Path | None] = [None] * length
         for number, path in zip(numbers[name], paths, strict=True):
             if number - first < length:
                 slots[number - first] = path
-        gaps = [first + t for t, path in enumerate(slots) if path is None]
-        if gaps and missing_frames == "error":
-            shown = ", ".join(map(str, gaps[:5])) + (" …" if len(gaps) > 5 else "")
-            raise InputError(f"{source}: camera {name!r} has no image numbered {shown} (frames are matched by the number in their "
-                             f"file names; pass the reader option missing_frames='absent' to ingest the rest with those frames absent)")
+        gaps[name] = [first + t for t, path in enumerate(slots) if path is None]
         placed[name] = slots
+    listed = "; ".join(f"camera {name!r} has no image numbered {', '.join(map(str, absent))}" for name, absent in gaps.items() if absent)
+    if listed and missing_frames == "error":
+        raise InputError(f"{source}: {listed} (frames are matched by the number in their file names; pass --skip-missing to mmcsplat "
+                         "ingest, the reader option missing_frames=absent, to ingest the rest with those frames absent)")
+    if listed:
+        warnings.warn(f"{source}: {sum(map(len, gaps.values()))} frames absent: {listed}", stacklevel=3)
     return placed, length
 
 
@@ -88,8 +93,7 @@ class ImageSequenceReader(Reader):
     fps: float = parameter(30.0, doc="the capture's frame rate, frames per second", converter=float, validator=finite_positive)
     size_mismatch: str = SIZE_MISMATCH_PARAMETER
     camera_map: Mapping[str, str] | str | None = CAMERA_MAP_PARAMETER
-    missing_frames: str = parameter("error", doc="an image number missing in a camera's sequence: error, or absent (marked absent)",
-                                    validator=one_of("error", "absent"))
+    missing_frames: str = MISSING_FRAMES_PARAMETER
 
     def detect(self, source: Path) -> bool:
         source = Path(source)
