@@ -49,6 +49,7 @@ class CaptureSettings:
     units: str = "m"
     scale: float = 0.25
     frames: tuple[int | None, int | None, int | None] = (None, None, None)
+    cameras: tuple[str, ...] = attrs.field(default=(), converter=tuple)
     holdout: tuple[str, ...] = attrs.field(default=(), converter=tuple)
     keypoints: str | None = None
     joints: str | None = None
@@ -118,7 +119,8 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
         # Into a hidden sibling renamed into place: a session half segmented is not a session.
         partial = session.with_name(f".{session.name}.partial")
         ingest(capture, partial, calibration=Path(settings.calibration) if settings.calibration else None, units=settings.units,
-               frames=slice(*settings.frames), scale=settings.scale, holdout=list(settings.holdout), overwrite=True, progress=progress)
+               frames=slice(*settings.frames), scale=settings.scale, cameras=list(settings.cameras) or None, holdout=list(settings.holdout),
+               overwrite=True, progress=progress)
         source = {"name": "openpose", "folder": str(keypoints)} if keypoints else None
         segmenter, first, refined = ("keypoints", {"source": source}, {"source": source, "refine": "plate"}) if source else \
             ("background", {"method": "median"}, {"method": "plate"})

@@ -215,6 +215,9 @@ def ingest(
     registry = default_registry()
     name = format or detect_format(source, registry)
     reader = registry.create("reader", name, **(reader_options or {}))
+    if cameras is not None and attrs.has(type(reader)) and "cameras" in attrs.fields_dict(type(reader)):
+        # A reader of a calibration reads and checks only the cameras asked for: a broken one left out stays out.
+        reader = attrs.evolve(reader, cameras=tuple(cameras))
     recording = reader.open(source, calibration, units)
     try:
         selected = _select(recording.cameras, cameras, "--cameras")
