@@ -9,8 +9,8 @@ Cameras are named ``cam_NN`` after their ``cam_id``; the cameras of ``test_meta.
 The format stores a camera per frame, but mmcsplat's cameras are fixed: the same ``cam_id`` with a
 different ``k`` or ``w2c`` at another frame is an error. Every file is checked at open, so a missing
 image fails before anything is written, the error listing every missing one; with
-``missing_frames="absent"`` they are skipped (:mod:`mmcsplat.datasets.posed_images`). The format carries no frame rate: ``fps`` defaults to 30 (the
-CMU Panoptic HD cameras').
+``missing_frames="absent"`` they are skipped (:mod:`mmcsplat.datasets.posed_images`). The format carries
+no frame rate: ``fps`` defaults to 30 (the CMU Panoptic HD cameras').
 """
 
 from __future__ import annotations
