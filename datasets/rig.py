@@ -210,4 +210,7 @@ class RigRecording(Recording):
             yield frame
 
     def describe(self) -> dict:
-        return dict(self._provenance)
+        """The reader's provenance, with the ground truth's path where the capture has one (its masks are
+        the truth to score against, not masks the capture brings: ``mmcsplat run`` does not fit on them)."""
+        truth = {"ground_truth": str(self._ground_truth.path)} if self._ground_truth else {}
+        return {**self._provenance, **truth}

@@ -79,3 +79,25 @@ def test_run_uses_the_masks_the_capture_brings(tmp_path):
     assert all(session.plate_source(name)["kind"] == "estimated" for name in session.camera_names)
     metrics = json.loads((out / "run" / "metrics.json").read_text())
     assert metrics["heldout_cameras"] == ["cam_04"]
+
+
+def test_run_fits_on_shipped_masks_but_never_on_a_ground_truth(tmp_path):
+    import rig_fixtures as rig
+    import zarr
+
+    from mmcsplat.jobs.capture import mask_choice
+    from mmcsplat.pipeline.ingest import ingest
+
+    source = tmp_path / "capture"
+    cameras = rig.make_capture(source, frames=2)
+    group = zarr.open_group(str(source / "ground_truth.zarr"), mode="w")
+    for camera in cameras:
+        group.create_array(f"masks/{camera.name}", data=np.ones((2, camera.height, camera.width), np.uint8))
+    choice = mask_choice(ingest(source, tmp_path / "truth.zarr", progress=False), "background")
+    assert choice["masks"] == "background" and "its ground truth" in choice["detail"]
+    for camera in cameras:
+        (source / "masks" / camera.name).mkdir(parents=True)
+        for t in range(2):
+            cv2.imwrite(str(source / "masks" / camera.name / f"{t}.png"), np.full((camera.height, camera.width), 255, np.uint8))
+    choice = mask_choice(ingest(source, tmp_path / "shipped.zarr", holdout=["cam_b"], progress=False), "background")
+    assert choice == {"masks": "capture", "cameras": ["cam_a", "cam_b"], "detail": "the capture's own, of cam_a, cam_b"}

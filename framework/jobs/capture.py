@@ -169,7 +169,12 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
 def mask_choice(session: SessionReader, segmenter: str) -> dict[str, Any]:
     """Which masks ``run`` uses: ``{"masks": "capture", …}`` when every training camera of ``session`` has
     masks from its capture (held-out ones without are scored against the training masks' hull), else
-    ``{"masks": segmenter, …}`` (the capture's masks of some cameras are then replaced, and said so)."""
+    ``{"masks": segmenter, …}`` (the capture's masks of some cameras are then replaced, and said so). A
+    synthetic capture's ground-truth masks are never fitted on."""
+    reader = session.provenance.get("reader", {})
+    if reader.get("ground_truth") and not reader.get("masks"):  # a synthetic capture's truth scores the run; it does not fit it
+        return {"masks": segmenter, "cameras": list(session.camera_names),
+                "detail": f"made by the {segmenter} segmenter for every camera (the capture's masks are its ground truth, {reader['ground_truth']})"}
     shipped = [name for name in session.camera_names if session.has_source_mask(name)]
     training = [name for name in session.camera_names if name not in session.heldout]
     if shipped and set(training) <= set(shipped):
