@@ -419,3 +419,9 @@ def test_a_masks_folder_per_camera_is_ingested_as_the_captures_masks(tmp_path: P
     (source / "masks" / "cam_b" / "0002.png").unlink()
     with pytest.raises(ValueError, match=r"masks: fewer mask images than the 3 frames \(cam_b: 2\)"):
         _ingest(source, tmp_path / "other.zarr")
+
+
+def test_skip_missing_on_videos_says_there_is_nothing_to_skip(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    rig.make_capture(tmp_path / "capture", frames=2)
+    assert main(["ingest", str(tmp_path / "capture"), str(tmp_path / "out.zarr"), "--skip-missing", "--no-progress"]) == 2
+    assert "--skip-missing: the videos reader has no missing_frames option" in capsys.readouterr().err

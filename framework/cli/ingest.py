@@ -53,7 +53,8 @@ def run(args: argparse.Namespace) -> int:
             holdout=args.holdout,
             overwrite=args.overwrite,
             plates=args.plates,
-            reader_options={**settings_table(args.options), **({"missing_frames": "absent"} if args.skip_missing else {})},
+            reader_options=settings_table(args.options),
+            skip_missing=args.skip_missing,
             progress=not args.no_progress,
         )
     sizes = sorted({f"{camera.width}×{camera.height}" for camera in session.cameras})
