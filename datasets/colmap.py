@@ -34,8 +34,11 @@ Conventions applied:
     registered image are left out with a warning. ``fps`` gives the frame rate.
   - ``auto`` (default): ``video`` when every registered image name is ``CAM/FILE``, else ``static``.
 
-- Images listed in the model must exist; images in ``images/`` the model does not list are ignored
-  (except as frames of the video layout). There are no masks and no held-out cameras.
+- Images listed in the model must exist (an error lists every missing one), or with
+  ``missing_frames="absent"`` are skipped: a static camera without its image is left out, a video
+  layout's gap is a frame the camera lacks (:mod:`mmcsplat.datasets.posed_images`). Images in ``images/``
+  the model does not list are ignored (except as frames of the video layout). There are no masks and no
+  held-out cameras.
 """
 
 from __future__ import annotations
@@ -50,13 +53,13 @@ import attrs
 import numpy as np
 
 from mmcsplat.datasets.images import frames_by_number, image_files
-from mmcsplat.datasets.nerfstudio import PIXEL_CENTRE, PosedImage, PosedImageRecording
+from mmcsplat.datasets.nerfstudio import PIXEL_CENTRE
+from mmcsplat.datasets.posed_images import MISSING_FRAMES_PARAMETER, PosedImage, PosedImageRecording, missing_files
 from mmcsplat.plugin_api.errors import InputError, MissingFileError
 from mmcsplat.plugin_api.interfaces import Reader
 from mmcsplat.plugin_api.parameters import finite_positive, one_of, parameter
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.calibration import metres_per_unit
-from mmcsplat.storage.capture_files import require_files
 
 #: The supported camera models and their number of parameters.
 MODEL_PARAMETERS = {"SIMPLE_PINHOLE": 3, "PINHOLE": 4, "SIMPLE_RADIAL": 4, "RADIAL": 5, "OPENCV": 8}
@@ -104,6 +107,7 @@ class ColmapReader(Reader):
     layout: str = parameter("auto", doc="static (one frame, a camera per image), video (a camera per images/ sub-folder) or auto",
                             validator=one_of(*LAYOUTS))
     fps: float = parameter(30.0, doc="the frame rate of the video layout, frames per second", converter=float, validator=finite_positive)
+    missing_frames: str = MISSING_FRAMES_PARAMETER
 
     def detect(self, source: Path) -> bool:
         """A folder with ``images/`` and a sparse model in ``sparse/0/`` or ``sparse/``."""
@@ -129,7 +133,10 @@ class ColmapReader(Reader):
         for image in registered:
             if image.camera_id not in models:
                 raise InputError(f"{images_file}: image {image.name!r} uses camera {image.camera_id}, which {cameras_file.name} lacks")
-        require_files([source / "images" / image.name for image in registered], f"image listed in {images_file}:")
+        missing = missing_files([source / "images" / image.name for image in registered], f"images listed in {images_file}", self.missing_frames)
+        registered = [image for image in registered if source / "images" / image.name not in missing]
+        if not registered:
+            raise InputError(f"{images_file}: none of its images is on disk in {source / 'images'}")
         layout = self.layout
         if layout == "auto":
             layout = "video" if all(len(Path(image.name).parts) == 2 for image in registered) else "static"
@@ -175,7 +182,8 @@ class ColmapReader(Reader):
                          if folder.is_dir() and folder.name not in by_folder and image_files(folder))
         if unposed:
             warnings.warn(f"{images_file}: no registered image in images/{', images/'.join(unposed)}; those folders are left out", stacklevel=3)
-        files, num_frames = frames_by_number({name: image_files(source / "images" / name) for name in sorted(by_folder)}, "error", source)
+        files, num_frames = frames_by_number({name: image_files(source / "images" / name) for name in sorted(by_folder)},
+                                            self.missing_frames, source)
         images = {name: {t: PosedImage(path, None, f"{images_file}: camera folder {name!r}") for t, path in enumerate(paths) if path is not None}
                   for name, paths in files.items()}
         return PosedImageRecording(source, cameras, images, np.arange(num_frames) / self.fps, self.fps, (), provenance)

@@ -8,25 +8,26 @@ image path relative to ``ims/``, e.g. ``"0/000000.jpg"``) and ``cam_id[t][c]``. 
 Cameras are named ``cam_NN`` after their ``cam_id``; the cameras of ``test_meta.json`` are marked held out.
 The format stores a camera per frame, but mmcsplat's cameras are fixed: the same ``cam_id`` with a
 different ``k`` or ``w2c`` at another frame is an error. Every file is checked at open, so a missing
-image fails before anything is written. The format carries no frame rate: ``fps`` defaults to 30 (the
-CMU Panoptic HD cameras').
+image fails before anything is written, the error listing every missing one; with
+``missing_frames="absent"`` they are skipped (:mod:`mmcsplat.datasets.posed_images`). The format carries
+no frame rate: ``fps`` defaults to 30 (the CMU Panoptic HD cameras').
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import attrs
 import numpy as np
 
+from mmcsplat.datasets.posed_images import MISSING_FRAMES_PARAMETER, PosedImage, PosedImageRecording, missing_files
 from mmcsplat.plugin_api.errors import InputError
-from mmcsplat.plugin_api.interfaces import Reader, RecordedFrame, Recording
+from mmcsplat.plugin_api.interfaces import Reader
 from mmcsplat.plugin_api.parameters import finite_positive, parameter
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.calibration import metres_per_unit, read_calibration
-from mmcsplat.storage.capture_files import read_image, read_json, read_mask, require_files
+from mmcsplat.storage.capture_files import read_json, require_files
 
 _KEYS = ("w", "h", "k", "w2c", "fn", "cam_id")
 _SPLITS = ("train_meta.json", "test_meta.json")
@@ -34,25 +35,26 @@ _SPLITS = ("train_meta.json", "test_meta.json")
 
 @attrs.frozen
 class _CameraFrames:
-    """Where one camera's frames are: image and mask paths by frame index (masks may be absent)."""
+    """One camera and its images (with their masks, where it has any) by frame index."""
 
     camera: Camera
-    images: dict[int, Path]
-    masks: dict[int, Path] | None
+    images: dict[int, PosedImage]
     meta: Path
 
 
 @attrs.frozen
 class D3DGSReader(Reader):
-    """Reads the Dynamic3DGaussians layout; ``fps`` is the capture's frame rate, which the files lack."""
+    """Reads the Dynamic3DGaussians layout; ``fps`` is the capture's frame rate, which the files lack,
+    ``missing_frames`` what a listed image that is not on disk does."""
 
     fps: float = parameter(30.0, doc="the capture's frame rate, frames per second", converter=float, validator=finite_positive)
+    missing_frames: str = MISSING_FRAMES_PARAMETER
 
     def detect(self, source: Path) -> bool:
         """A folder with a ``train_meta.json``."""
         return (Path(source) / "train_meta.json").is_file()
 
-    def open(self, source: Path, calibration: Path | None = None, units: str = "m") -> D3DGSRecording:
+    def open(self, source: Path, calibration: Path | None = None, units: str = "m") -> PosedImageRecording:
         """Parse both metas and check that every image (and mask, where a camera has any) exists.
         ``units`` is the unit of the translations of ``w2c`` (or of ``calibration``, which then replaces
         the cameras by name)."""
@@ -65,7 +67,7 @@ class D3DGSReader(Reader):
             meta = source / split
             if split != "train_meta.json" and not meta.is_file():
                 continue
-            parsed, frames = _parse_meta(meta, source, scale)
+            parsed, frames = _parse_meta(meta, source, scale, self.missing_frames)
             num_frames = max(num_frames, frames)
             for name, entry in parsed.items():
                 if name in cameras:
@@ -76,11 +78,15 @@ class D3DGSReader(Reader):
         if calibration is not None:
             cameras = _override(cameras, Path(calibration), units)
         order = sorted(cameras, key=lambda name: (len(name), name))
-        return D3DGSRecording(source, [cameras[name] for name in order], num_frames, self.fps, heldout)
+        provenance = {"format": "d3dgs", "heldout_from": "test_meta.json", "fps_assumed": self.fps,
+                      "masks": "seg/ beside ims/" if any(image.mask for entry in cameras.values() for image in entry.images.values()) else None}
+        return PosedImageRecording(source, [cameras[name].camera for name in order], {name: cameras[name].images for name in order},
+                                   np.arange(num_frames) / self.fps, self.fps, [name for name in order if name in heldout], provenance)
 
 
-def _parse_meta(meta: Path, source: Path, scale: float) -> tuple[dict[str, _CameraFrames], int]:
-    """The cameras of one meta file (translations scaled to metres) and its number of frames."""
+def _parse_meta(meta: Path, source: Path, scale: float, missing_frames: str) -> tuple[dict[str, _CameraFrames], int]:
+    """The cameras of one meta file (translations scaled to metres; a camera whose images are all
+    skipped as missing is left out) and its number of frames."""
     document = read_json(meta, _KEYS)
     try:
         width, height = int(document["w"]), int(document["h"])
@@ -109,14 +115,17 @@ def _parse_meta(meta: Path, source: Path, scale: float) -> tuple[dict[str, _Came
             if not isinstance(fn, str):
                 raise InputError(f"{where}: 'fn' must be a file name, got {fn!r}")
             images[name][t] = source / "ims" / fn
+    missing = missing_files([path for by_index in images.values() for path in by_index.values()], f"images listed in {meta}", missing_frames)
     cameras = {}
     for name, (K, pose, first) in poses.items():
         try:
             camera = Camera(name=name, width=width, height=height, K=K, R=pose[:3, :3], t=pose[:3, 3] * scale)
         except ValueError as error:
             raise InputError(f"{meta}: frame {first}: {error}") from error
-        require_files(list(images[name].values()), f"image of camera {name} listed in {meta}:")
-        cameras[name] = _CameraFrames(camera, images[name], _masks(source, name, images[name]), meta)
+        present = {t: path for t, path in images[name].items() if path not in missing}
+        if present:
+            masks = _masks(source, name, present)
+            cameras[name] = _CameraFrames(camera, {t: PosedImage(path, masks[t] if masks else None, str(meta)) for t, path in present.items()}, meta)
     return cameras, len(document["fn"])
 
 
@@ -156,48 +165,3 @@ def _override(cameras: dict[str, _CameraFrames], calibration: Path, units: str) 
     if missing:
         raise InputError(f"calibration {calibration} lacks camera(s) {', '.join(missing)} of the d3dgs source")
     return {name: attrs.evolve(entry, camera=replacements[name]) for name, entry in cameras.items()}
-
-
-class D3DGSRecording(Recording):
-    """An opened Dynamic3DGaussians capture; images are decoded on demand."""
-
-    def __init__(self, source: Path, cameras: list[_CameraFrames], num_frames: int, fps: float, heldout: list[str]) -> None:
-        self.source = source
-        self._entries = {entry.camera.name: entry for entry in cameras}
-        self.cameras = [entry.camera for entry in cameras]
-        self.num_frames = num_frames
-        self.fps = fps
-        self.heldout = tuple(name for name in self._entries if name in heldout)
-        self.has_masks = any(entry.masks is not None for entry in cameras)
-
-    def _entry(self, camera: str) -> _CameraFrames:
-        try:
-            return self._entries[camera]
-        except KeyError:
-            raise KeyError(f"d3dgs source {self.source} has no camera {camera!r}") from None
-
-    def present(self, camera: str) -> np.ndarray:
-        """The frames listed for ``camera`` in its meta file."""
-        present = np.zeros(self.num_frames, dtype=bool)
-        present[list(self._entry(camera).images)] = True
-        return present
-
-    def frames(self, camera: str, indices: range) -> Iterator[RecordedFrame]:
-        """Decode the listed frames of ``camera`` in ``indices``; sizes are checked against the meta's."""
-        entry = self._entry(camera)
-        for t in indices:
-            path = entry.images.get(t)
-            if path is None:
-                continue
-            rgb, _ = read_image(path)
-            mask = read_mask(entry.masks[t]) if entry.masks is not None else None
-            expected = (entry.camera.height, entry.camera.width)
-            for what, array, file in (("image", rgb, path), ("mask", mask, entry.masks and entry.masks[t])):
-                if array is not None and array.shape[:2] != expected:
-                    raise InputError(f"{what} {file} is {array.shape[1]}×{array.shape[0]}, but {entry.meta} says "
-                                     f"{expected[1]}×{expected[0]}")
-            yield RecordedFrame(t=t, rgb=rgb, mask=mask)
-
-    def describe(self) -> dict[str, Any]:
-        """The format, the source and where the held-out cameras came from."""
-        return {"format": "d3dgs", "source": str(self.source), "heldout_from": "test_meta.json", "fps_assumed": self.fps}

@@ -10,7 +10,7 @@ Conventions chosen here:
 - Cameras: OpenCV world-to-camera, obtained by flipping the camera's y and z axes. Each distinct pose of a
   split is a camera, ``train_000``, ``val_000``, … (numbered by first appearance; D-NeRF's poses are all
   distinct, so the number is the frame's position in the file), present only at the frame indices of
-  its images; :meth:`DNeRFRecording.present` says which. Cameras of val and test are held out.
+  its images; the recording's ``present`` says which. Cameras of val and test are held out.
 - Intrinsics: fx = fy = 0.5·W / tan(0.5·camera_angle_x) and the principal point at the image centre as
   Blender renders it, which in mmcsplat's (OpenCV's) convention — pixel (u, v) centred at (u, v) — is
   ((W − 1)/2, (H − 1)/2). (NeRF-style loaders cast rays through (u − W/2), half a pixel off Blender's
@@ -20,22 +20,25 @@ Conventions chosen here:
   the mask stored, a fit may choose its background.
 - Time: frame indices are the sorted distinct times over all splits; the times are read as seconds (the
   clip lasts 1 s) and fps is 1 / the median spacing (1 for a single time).
+- Missing images: an error listing every one, or with ``missing_frames="absent"`` skipped
+  (:mod:`mmcsplat.datasets.posed_images`); the times of skipped images still count, so the frame indices
+  do not depend on which files are present.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import attrs
 import numpy as np
 
+from mmcsplat.datasets.posed_images import ALPHA_THRESHOLD, MISSING_FRAMES_PARAMETER, PosedImage, PosedImageRecording, missing_files
 from mmcsplat.plugin_api.errors import InputError
-from mmcsplat.plugin_api.interfaces import Reader, RecordedFrame, Recording
+from mmcsplat.plugin_api.interfaces import Reader
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.calibration import metres_per_unit
-from mmcsplat.storage.capture_files import read_image, read_json, require_files
+from mmcsplat.storage.capture_files import read_image, read_json
 
 SPLITS = ("train", "val", "test")
 _IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".exr", ".tif", ".tiff", ".bmp", ".webp"}
@@ -52,17 +55,21 @@ class _Image:
     time: float
     json: Path
     index: int
+    missing: bool
 
 
 @attrs.frozen
 class DNeRFReader(Reader):
-    """Reads the D-NeRF / Blender layout (no parameters: the files give poses, times and splits)."""
+    """Reads the D-NeRF / Blender layout (the files give poses, times and splits); ``missing_frames`` is
+    what a listed image that is not on disk does."""
+
+    missing_frames: str = MISSING_FRAMES_PARAMETER
 
     def detect(self, source: Path) -> bool:
         """A folder with a ``transforms_train.json``."""
         return (Path(source) / "transforms_train.json").is_file()
 
-    def open(self, source: Path, calibration: Path | None = None, units: str = "m") -> DNeRFRecording:
+    def open(self, source: Path, calibration: Path | None = None, units: str = "m") -> PosedImageRecording:
         """Parse every split and check that each image exists. ``units`` is the unit of the poses'
         translations; a separate calibration cannot apply to per-frame poses and is refused."""
         source = Path(source)
@@ -77,17 +84,44 @@ class DNeRFReader(Reader):
             path = source / f"transforms_{split}.json"
             if split != "train" and not path.is_file():
                 continue
-            split_cameras, split_images, alpha = _parse_split(path, source, split, scale)
+            split_cameras, split_images, alpha = _parse_split(path, source, split, scale, self.missing_frames)
             has_masks = has_masks or (split == "train" and alpha)
             cameras += split_cameras
             images += split_images
             if split != "train":
                 heldout += [camera.name for camera in split_cameras]
-        return DNeRFRecording(source, cameras, images, heldout, has_masks)
+        times = np.unique(np.round([image.time for group in images for image in group], _DECIMALS))
+        placed: dict[str, dict[int, PosedImage]] = {}
+        for camera, group in zip(cameras, images):
+            by_index: dict[int, _Image] = {}
+            for image in group:
+                t = int(np.searchsorted(times, round(image.time, _DECIMALS)))
+                if t in by_index:
+                    raise InputError(f"{image.json}: frames[{by_index[t].index}] and frames[{image.index}] have the same pose and time {image.time}")
+                by_index[t] = image
+            placed[camera.name] = {t: PosedImage(image.path, None, f"{image.json}: frames[{image.index}]")
+                                   for t, image in by_index.items() if not image.missing}
+        cameras = [camera for camera in cameras if placed[camera.name]]
+        fps = 1.0 / float(np.median(np.diff(times))) if len(times) > 1 else 1.0
+        return PosedImageRecording(source, cameras, {camera.name: placed[camera.name] for camera in cameras}, times, fps,
+                                   [name for name in heldout if placed[name]], self._provenance(), alpha_mask=has_masks)
+
+    @staticmethod
+    def _provenance() -> dict[str, Any]:
+        """The conventions applied (see the module's documentation)."""
+        return {
+            "format": "dnerf",
+            "heldout_from": "transforms_val.json, transforms_test.json",
+            "principal_point": "image centre as Blender renders it: ((W-1)/2, (H-1)/2) with pixel centres at integers",
+            "rgb": "composited over black by alpha",
+            "mask": f"alpha > {ALPHA_THRESHOLD}",
+            "time": "source times read as seconds; fps = 1 / median spacing",
+        }
 
 
-def _parse_split(path: Path, source: Path, split: str, scale: float) -> tuple[list[Camera], list[list[_Image]], bool]:
-    """The cameras of one transforms file, the images of each, and whether its images carry alpha."""
+def _parse_split(path: Path, source: Path, split: str, scale: float, missing_frames: str) -> tuple[list[Camera], list[list[_Image]], bool]:
+    """The cameras of one transforms file, the images of each (missing ones marked, with
+    ``missing_frames="absent"``), and whether its images carry alpha."""
     document = read_json(path, ("camera_angle_x", "frames"))
     frames = document["frames"]
     if not isinstance(frames, list) or not frames:
@@ -104,9 +138,14 @@ def _parse_split(path: Path, source: Path, split: str, scale: float) -> tuple[li
         if missing:
             raise InputError(f"{where}: missing key(s) {', '.join(repr(key) for key in missing)}")
         files.append(_image_path(source, frame["file_path"], where))
-    require_files(files, f"image listed in {path}:")
+    missing = missing_files(files, f"images listed in {path}", missing_frames)
+    present = [file for file in files if file not in missing]
+    if not present and split != "train":
+        return [], [], False  # a held-out split with none of its images: nothing to evaluate on
+    if not present:
+        raise InputError(f"{path}: none of its images is on disk")
     # One image gives the split's size; every frame is checked against it when decoded.
-    first, alpha = read_image(files[0])
+    first, alpha = read_image(present[0])
     height, width = first.shape[:2]
     focal = 0.5 * width / np.tan(0.5 * angle)
     K = np.array([[focal, 0.0, (width - 1) / 2], [0.0, focal, (height - 1) / 2], [0.0, 0.0, 1.0]])
@@ -124,7 +163,7 @@ def _parse_split(path: Path, source: Path, split: str, scale: float) -> tuple[li
             cameras.append(Camera(name=f"{split}_{len(cameras):03d}", width=width, height=height, K=K, R=R,
                                   t=-R @ (c2w_cv[:3, 3] * scale)))
             images.append([])
-        images[poses[key]].append(_Image(file, _number(where, "time", frame["time"]), path, index))
+        images[poses[key]].append(_Image(file, _number(where, "time", frame["time"]), path, index, file in missing))
     return cameras, images, alpha is not None
 
 
@@ -155,74 +194,3 @@ def _pose(where: str, value: Any) -> np.ndarray:
     if not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-5) or np.linalg.det(rotation) < 0:
         raise InputError(f"{where}: 'transform_matrix' is not a rigid transform (its 3×3 part is not a rotation)")
     return np.vstack([matrix[:3], [0.0, 0.0, 0.0, 1.0]])
-
-
-class DNeRFRecording(Recording):
-    """An opened D-NeRF capture: sparse, each camera present at the times of its images."""
-
-    def __init__(self, source: Path, cameras: list[Camera], images: list[list[_Image]], heldout: list[str],
-                 has_masks: bool) -> None:
-        self.source = source
-        self.cameras = cameras
-        self.heldout = tuple(heldout)
-        self.has_masks = has_masks
-        self._times = np.unique(np.round([image.time for group in images for image in group], _DECIMALS))
-        self.num_frames = len(self._times)
-        self.fps = 1.0 / float(np.median(np.diff(self._times))) if self.num_frames > 1 else 1.0
-        self._frames: dict[str, dict[int, _Image]] = {}
-        for camera, group in zip(cameras, images):
-            by_index = self._frames[camera.name] = {}
-            for image in group:
-                t = int(np.searchsorted(self._times, round(image.time, _DECIMALS)))
-                if t in by_index:
-                    other = by_index[t]
-                    raise InputError(f"{image.json}: frames[{other.index}] and frames[{image.index}] have the same pose "
-                                     f"and time {image.time}")
-                by_index[t] = image
-        self._cameras = {camera.name: camera for camera in cameras}
-
-    def _camera_frames(self, camera: str) -> dict[int, _Image]:
-        try:
-            return self._frames[camera]
-        except KeyError:
-            raise KeyError(f"dnerf source {self.source} has no camera {camera!r}") from None
-
-    def present(self, camera: str) -> np.ndarray:
-        """True only at the frame indices where ``camera`` has an image."""
-        present = np.zeros(self.num_frames, dtype=bool)
-        present[list(self._camera_frames(camera))] = True
-        return present
-
-    def frame_times(self) -> np.ndarray:
-        """The distinct source times, read as seconds."""
-        return self._times.copy()
-
-    def frames(self, camera: str, indices: range) -> Iterator[RecordedFrame]:
-        """Decode ``camera``'s images at ``indices``: colour composited over black, mask from alpha."""
-        by_index = self._camera_frames(camera)
-        expected = (self._cameras[camera].height, self._cameras[camera].width)
-        for t in indices:
-            image = by_index.get(t)
-            if image is None:
-                continue
-            rgb, alpha = read_image(image.path)
-            if rgb.shape[:2] != expected:
-                raise InputError(f"image {image.path} is {rgb.shape[1]}×{rgb.shape[0]}, but the first image of "
-                                 f"{image.json.name} is {expected[1]}×{expected[0]}")
-            mask = None
-            if alpha is not None:
-                mask = alpha > 127
-                rgb = np.round(rgb * (alpha[:, :, None] / 255.0)).astype(np.uint8)
-            yield RecordedFrame(t=t, rgb=rgb, mask=mask)
-
-    def describe(self) -> dict[str, Any]:
-        """The format, the source and the conventions applied (see the module's documentation)."""
-        return {
-            "format": "dnerf",
-            "source": str(self.source),
-            "heldout_from": "transforms_val.json, transforms_test.json",
-            "principal_point": "image centre as Blender renders it: ((W-1)/2, (H-1)/2) with pixel centres at integers",
-            "rgb": "composited over black by alpha",
-            "mask": "alpha > 127",
-            "time": "source times read as seconds; fps = 1 / median spacing",
-        }

@@ -4,28 +4,37 @@ Layout: ``SOURCE/<camera>/*.{png,jpg,jpeg}`` or ``SOURCE/images/<camera>/…`` (
 has camera folders), matched to the calibration's cameras by name (see :mod:`mmcsplat.datasets.rig`);
 frame t of a camera is its t-th image in natural order (``frame2`` before ``frame10``). The calibration
 is found as for the ``videos`` format. Images carry no frame rate: ``fps`` gives it (30 by default).
+
+Masks the capture brings: ``SOURCE/masks/<camera>/`` holds a mask image per frame with the frame image's
+stem (``masks/cam_01/frame0012.png`` for ``cam_01/frame0012.jpg``; a missing one is an error listing
+them); else an image's alpha channel (RGBA PNGs) is its mask (alpha > 127), its colour kept as stored.
 """
 
 from __future__ import annotations
 
 import re
+import warnings
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 
 import attrs
 import numpy as np
 
+from mmcsplat.datasets.posed_images import ALPHA_THRESHOLD, MISSING_FRAMES_PARAMETER
 from mmcsplat.datasets.rig import (
     CAMERA_MAP_PARAMETER,
+    CAMERAS_PARAMETER,
+    MASKS_FOLDER,
     SIZE_MISMATCH_PARAMETER,
     RigRecording,
     common_length,
     find_calibration,
     fit_camera,
+    mask_folders,
 )
-from mmcsplat.plugin_api.errors import InputError, NotAFolderError
+from mmcsplat.plugin_api.errors import InputError, MissingFileError, NotAFolderError
 from mmcsplat.plugin_api.interfaces import Reader, RecordedFrame, Recording
-from mmcsplat.plugin_api.parameters import finite_positive, one_of, parameter
+from mmcsplat.plugin_api.parameters import finite_positive, parameter
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.calibration import read_calibration
 from mmcsplat.storage.camera_names import match_cameras, natural_key
@@ -56,17 +65,20 @@ def frames_by_number(files: dict[str, list[Path]], missing_frames: str, source: 
     first = min(min(found) for found in numbers.values())
     length = common_length({name: max(found) - first + 1 for name, found in numbers.items()}, "image folder", source)
     placed: dict[str, list[Path | None]] = {}
+    gaps: dict[str, list[int]] = {}
     for name, paths in files.items():
         slots: list[Path | None] = [None] * length
         for number, path in zip(numbers[name], paths, strict=True):
             if number - first < length:
                 slots[number - first] = path
-        gaps = [first + t for t, path in enumerate(slots) if path is None]
-        if gaps and missing_frames == "error":
-            shown = ", ".join(map(str, gaps[:5])) + (" …" if len(gaps) > 5 else "")
-            raise InputError(f"{source}: camera {name!r} has no image numbered {shown} (frames are matched by the number in their "
-                             f"file names; pass the reader option missing_frames='absent' to ingest the rest with those frames absent)")
+        gaps[name] = [first + t for t, path in enumerate(slots) if path is None]
         placed[name] = slots
+    listed = "; ".join(f"camera {name!r} has no image numbered {', '.join(map(str, absent))}" for name, absent in gaps.items() if absent)
+    if listed and missing_frames == "error":
+        raise InputError(f"{source}: {listed} (frames are matched by the number in their file names; pass --skip-missing to mmcsplat "
+                         "ingest, the reader option missing_frames=absent, to ingest the rest with those frames absent)")
+    if listed:
+        warnings.warn(f"{source}: {sum(map(len, gaps.values()))} frames absent: {listed}", stacklevel=3)
     return placed, length
 
 
@@ -88,8 +100,8 @@ class ImageSequenceReader(Reader):
     fps: float = parameter(30.0, doc="the capture's frame rate, frames per second", converter=float, validator=finite_positive)
     size_mismatch: str = SIZE_MISMATCH_PARAMETER
     camera_map: Mapping[str, str] | str | None = CAMERA_MAP_PARAMETER
-    missing_frames: str = parameter("error", doc="an image number missing in a camera's sequence: error, or absent (marked absent)",
-                                    validator=one_of("error", "absent"))
+    cameras: tuple[str, ...] | None = CAMERAS_PARAMETER
+    missing_frames: str = MISSING_FRAMES_PARAMETER
 
     def detect(self, source: Path) -> bool:
         source = Path(source)
@@ -101,30 +113,54 @@ class ImageSequenceReader(Reader):
         if not source.is_dir():
             raise NotAFolderError(f"images source {source} is not a folder")
         calibration = find_calibration(source, calibration)
-        calibrated = read_calibration(calibration, units)
+        calibrated = read_calibration(calibration, units, self.cameras)
         folders = match_cameras(calibrated, camera_folders(source), "image folder", source, self.camera_map)
         files, num_frames = frames_by_number({name: image_files(folder) for name, folder in folders.items()}, self.missing_frames, source)
-        cameras = []
+        cameras, alpha = [], []
         for camera in calibrated:
             path = next(path for path in files[camera.name] if path is not None)
-            first, _ = read_image(path)
+            first, first_alpha = read_image(path)
             cameras.append(fit_camera(camera, first.shape[1], first.shape[0], self.size_mismatch, f"image {path}"))
+            if first_alpha is not None:
+                alpha.append(camera.name)
+        masks = _frame_masks(source, calibrated, files, self.camera_map)
         provenance = {
             "calibration": str(calibration),
             "units": units,
             "folders": {name: str(folder) for name, folder in folders.items()},
             "size_mismatch": self.size_mismatch,
+            "masks": f"{source / MASKS_FOLDER}" if masks else "the images' alpha channel (alpha > 127)" if alpha else None,
         }
-        return ImageRecording(source, cameras, self.fps, num_frames, provenance, files)
+        return ImageRecording(source, cameras, self.fps, num_frames, provenance, files, masks, () if masks else alpha)
+
+
+def _frame_masks(source: Path, cameras: Sequence[Camera], files: dict[str, list[Path | None]],
+                 camera_map: Mapping[str, str] | str | None) -> dict[str, list[Path | None]]:
+    """Each camera's mask per frame from ``SOURCE/masks/<camera>/``, by the frame image's stem; empty without
+    that folder. Every present frame needs its mask."""
+    folders = mask_folders(source, cameras, camera_map)
+    masks: dict[str, list[Path | None]] = {}
+    lacking = []
+    for name, paths in folders.items():
+        by_stem = {path.stem: path for path in paths}
+        masks[name] = [None if image is None else by_stem.get(image.stem) for image in files[name]]
+        lacking += [f"{name}/{image.stem}" for image, mask in zip(files[name], masks[name]) if image is not None and mask is None]
+    if lacking:
+        raise MissingFileError(f"{source / MASKS_FOLDER}: no mask for {len(lacking)} frame(s): {', '.join(lacking)} (each frame's mask has "
+                               "its image's name)")
+    return masks
 
 
 class ImageRecording(RigRecording):
-    """Per-camera image sequences, decoded on demand."""
+    """Per-camera image sequences, decoded on demand; the cameras in ``alpha`` take their masks from the
+    images' alpha channel."""
 
     def __init__(self, source: Path, cameras: Sequence[Camera], fps: float, num_frames: int, provenance: dict,
-                 files: dict[str, list[Path | None]]) -> None:
-        super().__init__(source, cameras, fps, num_frames, provenance)
+                 files: dict[str, list[Path | None]], masks: dict[str, list[Path | None]] | None = None, alpha: Sequence[str] = ()) -> None:
+        super().__init__(source, cameras, fps, num_frames, provenance, masks)
         self._files = files
+        self._alpha = frozenset(alpha)
+        self.has_masks = self.has_masks or bool(self._alpha)
 
     def present(self, camera: str) -> np.ndarray:
         """The frames whose image exists (all, unless ingested with ``missing_frames="absent"``)."""
@@ -134,5 +170,6 @@ class ImageRecording(RigRecording):
         for t in indices:
             path = self._files[camera][t]
             if path is not None:
-                rgb, _ = read_image(path)
-                yield RecordedFrame(t=t, rgb=rgb)
+                rgb, alpha = read_image(path)
+                mask = alpha > ALPHA_THRESHOLD if camera in self._alpha and alpha is not None else None
+                yield RecordedFrame(t=t, rgb=rgb, mask=mask)

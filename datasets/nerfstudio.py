@@ -32,16 +32,19 @@ Conventions chosen here:
 - Images: RGB is read as stored (an alpha channel is dropped); ``mask_path`` gives a subject mask (values
   above half the range, or the ones of a 0/1 image); with any ``mask_path``, every frame needs one.
 - Held out: a camera whose images are all listed in ``val_filenames`` or ``test_filenames``.
+- Missing images (or masks): an error listing every one, or with ``missing_frames="absent"`` skipped
+  (:mod:`mmcsplat.datasets.posed_images`); frames are placed before skipping, so the others keep their
+  frame indices, and a camera left without images is left out.
 - A separate ``--calibration`` is refused: the file gives every pose.
 
-:class:`PosedImageRecording`, the recording of posed images at frame indices, is shared with the
-``colmap`` reader.
+:class:`~mmcsplat.datasets.posed_images.PosedImageRecording`, the recording of posed images at frame
+indices, is shared with the ``colmap``, ``dnerf`` and ``d3dgs`` readers.
 """
 
 from __future__ import annotations
 
 import os
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -49,13 +52,14 @@ import attrs
 import numpy as np
 
 from mmcsplat.datasets.dnerf import GL_TO_CV
+from mmcsplat.datasets.posed_images import MISSING_FRAMES_PARAMETER, PosedImage, PosedImageRecording, missing_files
 from mmcsplat.plugin_api.errors import InputError
-from mmcsplat.plugin_api.interfaces import Reader, RecordedFrame, Recording
+from mmcsplat.plugin_api.interfaces import Reader
 from mmcsplat.plugin_api.parameters import finite_positive, parameter
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.calibration import metres_per_unit
 from mmcsplat.storage.camera_names import natural_key
-from mmcsplat.storage.capture_files import read_image, read_json, read_mask, require_files
+from mmcsplat.storage.capture_files import read_json
 
 #: Where mmcsplat's pixel centre (u, v) lies in nerfstudio's (and COLMAP's) pixel coordinates.
 PIXEL_CENTRE = 0.5
@@ -63,69 +67,6 @@ _MODELS = ("OPENCV", "PINHOLE")
 _INTRINSICS = ("fl_x", "fl_y", "cx", "cy", "w", "h")
 _DISTORTION = ("k1", "k2", "k3", "k4", "p1", "p2")
 _DECIMALS = 9  # times, poses and intrinsics equal to this many decimals are the same
-
-
-@attrs.frozen
-class PosedImage:
-    """One image of a camera: its file, its mask file (if any) and where it was listed (for errors)."""
-
-    path: Path
-    mask: Path | None
-    listed: str
-
-
-class PosedImageRecording(Recording):
-    """Posed images placed at frame indices, decoded on demand: ``images[camera][t]`` is camera's image at
-    frame index ``t`` (absent where missing); ``times`` are the frame indices' seconds."""
-
-    def __init__(self, source: Path, cameras: Sequence[Camera], images: Mapping[str, Mapping[int, PosedImage]], times: np.ndarray,
-                 fps: float, heldout: Sequence[str] = (), provenance: Mapping[str, Any] | None = None) -> None:
-        self.source = source
-        self.cameras = list(cameras)
-        self.heldout = tuple(heldout)
-        self.num_frames = len(times)
-        self.fps = float(fps)
-        self.has_masks = any(image.mask is not None for by_index in images.values() for image in by_index.values())
-        self._times = np.asarray(times, dtype=np.float64)
-        self._images = {name: dict(by_index) for name, by_index in images.items()}
-        self._cameras = {camera.name: camera for camera in self.cameras}
-        self._provenance = dict(provenance or {})
-
-    def _camera_images(self, camera: str) -> dict[int, PosedImage]:
-        try:
-            return self._images[camera]
-        except KeyError:
-            raise KeyError(f"source {self.source} has no camera {camera!r}") from None
-
-    def present(self, camera: str) -> np.ndarray:
-        """True at the frame indices where ``camera`` has an image."""
-        present = np.zeros(self.num_frames, dtype=bool)
-        present[list(self._camera_images(camera))] = True
-        return present
-
-    def frame_times(self) -> np.ndarray:
-        """The seconds of each frame index."""
-        return self._times.copy()
-
-    def frames(self, camera: str, indices: range) -> Iterator[RecordedFrame]:
-        """Decode ``camera``'s images (and masks) at ``indices``; their size is checked against the camera's."""
-        by_index = self._camera_images(camera)
-        expected = (self._cameras[camera].height, self._cameras[camera].width)
-        for t in indices:
-            image = by_index.get(t)
-            if image is None:
-                continue
-            rgb, _ = read_image(image.path)
-            mask = read_mask(image.mask) if image.mask is not None else None
-            for what, array, file in (("image", rgb, image.path), ("mask", mask, image.mask)):
-                if array is not None and array.shape[:2] != expected:
-                    raise InputError(f"{what} {file} is {array.shape[1]}×{array.shape[0]}, but {image.listed} gives camera "
-                                     f"{camera!r} {expected[1]}×{expected[0]}")
-            yield RecordedFrame(t=t, rgb=rgb, mask=mask)
-
-    def describe(self) -> dict[str, Any]:
-        """The source and the conventions applied (see the reader's module)."""
-        return {"source": str(self.source), **self._provenance}
 
 
 @attrs.frozen
@@ -153,10 +94,12 @@ class _Frame:
 
 @attrs.frozen
 class NerfstudioReader(Reader):
-    """Reads nerfstudio's ``transforms.json``; ``fps`` is the frame rate when the frames carry no time."""
+    """Reads nerfstudio's ``transforms.json``; ``fps`` is the frame rate when the frames carry no time,
+    ``missing_frames`` what a listed image that is not on disk does."""
 
     fps: float = parameter(30.0, doc="the frame rate when frames carry no time or timestamp, frames per second",
                            converter=float, validator=finite_positive)
+    missing_frames: str = MISSING_FRAMES_PARAMETER
 
     def detect(self, source: Path) -> bool:
         """A folder with a ``transforms.json`` and no ``transforms_train.json`` (that is the dnerf layout)."""
@@ -164,7 +107,8 @@ class NerfstudioReader(Reader):
         return (source / "transforms.json").is_file() and not (source / "transforms_train.json").is_file()
 
     def open(self, source: Path, calibration: Path | None = None, units: str = "m") -> PosedImageRecording:
-        """Parse ``transforms.json`` and check that every image and mask exists. ``units`` is the unit of
+        """Parse ``transforms.json`` and check that every image and mask exists (or skip those that do not,
+        with ``missing_frames="absent"``). ``units`` is the unit of
         the poses' translations; a separate calibration cannot apply to per-frame poses and is refused."""
         source = Path(source)
         if calibration is not None:
@@ -177,16 +121,21 @@ class NerfstudioReader(Reader):
             raise InputError(f"{path}: 'frames' must be a non-empty list")
         applied = _applied_transform(path, document.get("applied_transform"))
         frames = [_parse_frame(path, source, document, index, entry) for index, entry in enumerate(entries)]
-        require_files([frame.image.path for frame in frames], f"image listed in {path}:")
         with_masks = [frame for frame in frames if frame.image.mask is not None]
         if with_masks and len(with_masks) != len(frames):
             lacking = next(frame for frame in frames if frame.image.mask is None)
             raise InputError(f"{lacking.where}: no 'mask_path', but other frames have masks (give every frame one, or none)")
-        require_files([frame.image.mask for frame in with_masks], f"mask listed in {path}:")
+        missing = missing_files([frame.image.path for frame in frames], f"images listed in {path}", self.missing_frames)
+        missing |= missing_files([frame.image.mask for frame in with_masks], f"masks listed in {path}", self.missing_frames)
         groups = _group_cameras(path, frames)
-        cameras = [_camera(name, group[0], scale) for name, group in groups.items()]
         images, times, fps = _place_frames(path, groups, self.fps)
         heldout = _heldout(path, document, groups)
+        images = {name: {t: image for t, image in by_index.items() if not {image.path, image.mask} & missing} for name, by_index in images.items()}
+        images = {name: by_index for name, by_index in images.items() if by_index}
+        if not images:
+            raise InputError(f"{path}: none of its images is on disk")
+        cameras = [_camera(name, group[0], scale) for name, group in groups.items() if name in images]
+        heldout = [name for name in heldout if name in images]
         provenance = {
             "format": "nerfstudio",
             "principal_point": "cx, cy minus 0.5: nerfstudio's pixel centres are at +0.5, mmcsplat's at integers",
@@ -195,6 +144,7 @@ class NerfstudioReader(Reader):
                     else f"none in the file: image k of each camera is frame k at {fps:g} fps",
             "applied_transform": None if applied is None else applied.tolist(),
             "applied_transform_use": "recorded only: the poses in the file already include it",
+            "missing_images_skipped": sorted(str(file) for file in missing),
         }
         return PosedImageRecording(source, cameras, images, times, fps, heldout, provenance)
 

@@ -1,6 +1,6 @@
 """What the readers of real-rig layouts (``videos``, ``images``) share: finding the calibration,
-reconciling decoded image sizes and frame counts, and the optional ``ground_truth.zarr`` the synthetic
-capture writes next to its videos. Files are matched to calibrated cameras by
+reconciling decoded image sizes and frame counts, subject masks shipped with the capture (a ``masks/``
+folder per camera), and the optional ``ground_truth.zarr`` the synthetic capture writes next to its videos. Files are matched to calibrated cameras by
 :func:`mmcsplat.storage.camera_names.match_cameras`.
 """
 
@@ -18,12 +18,17 @@ from mmcsplat.plugin_api.errors import InputError, MissingFileError
 from mmcsplat.plugin_api.interfaces import RecordedFrame, Recording
 from mmcsplat.plugin_api.parameters import one_of, parameter
 from mmcsplat.scene.camera import Camera
+from mmcsplat.storage.camera_names import match_cameras, natural_key
+from mmcsplat.storage.capture_files import read_mask
 
 #: How a decoded size that differs from the calibration's is reconciled (see :func:`fit_camera`).
 SIZE_MISMATCH_POLICIES = ("scale", "crop", "error")
 #: Above this relative difference between the horizontal and vertical factors, scaling K makes no sense.
 MAX_ANISOTROPY = 0.05
 GROUND_TRUTH = "ground_truth.zarr"
+#: Where a capture keeps its own subject masks: ``SOURCE/masks/<camera>/`` (see :func:`mask_folders`).
+MASKS_FOLDER = "masks"
+MASK_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 
 
 #: Where a rig's calibration is looked for, in order, under the source folder: the file, or the single
@@ -56,6 +61,10 @@ def find_calibration(source: Path, calibration: Path | None) -> Path:
 #: The ``camera_map`` parameter of the readers that match files to calibrated cameras.
 CAMERA_MAP_PARAMETER = parameter(None, doc="calibration camera name → its file's or folder's name, where the names differ; or "
                                              "\"order\": the calibration's cameras, in its order, to the files in name order")
+#: The ``cameras`` parameter of the readers that read a calibration: ingest's ``--cameras`` sets it, so a
+#: broken camera left out of the calibration (a copied table) is never read or checked.
+CAMERAS_PARAMETER = parameter(None, doc="only these calibrated cameras are read and checked (mmcsplat ingest/run --cameras sets it)",
+                              converter=lambda names: None if names is None else tuple(names))
 #: The ``size_mismatch`` parameter of the readers that decode images against a calibration.
 SIZE_MISMATCH_PARAMETER = parameter("scale", doc="a decoded size unlike the calibration's: scale K, crop, or error (fit_camera)",
                                     validator=one_of(*SIZE_MISMATCH_POLICIES))
@@ -85,6 +94,18 @@ def fit_camera(camera: Camera, width: int, height: int, policy: str, what: str) 
         raise InputError(f"{mismatch}: the aspect ratio differs too much to rescale K (rotated or wrong file?)")
     warnings.warn(f"{mismatch}; scaling K by ({sx:.5f}, {sy:.5f}) to match (size_mismatch='scale')", stacklevel=3)
     return camera.scaled(sx, sy)
+
+
+def mask_folders(source: Path, cameras: Sequence[Camera], camera_map: Mapping[str, str] | str | None) -> dict[str, list[Path]]:
+    """Each camera's mask images (natural order) in ``SOURCE/masks/<camera>/``, the folders matched to the
+    cameras by name like videos; empty when the capture has no ``masks/`` folder. With one, every camera
+    needs its folder (an error names the camera without one)."""
+    root = source / MASKS_FOLDER
+    if not root.is_dir():
+        return {}
+    folders = match_cameras(cameras, sorted(path for path in root.iterdir() if path.is_dir()), "mask folder", root, camera_map)
+    return {name: sorted((path for path in folder.iterdir() if path.is_file() and path.suffix.lower() in MASK_SUFFIXES),
+                         key=lambda path: natural_key(path.name)) for name, folder in folders.items()}
 
 
 def common_length(counts: Mapping[str, int], what: str, where: Path) -> int:
@@ -147,15 +168,18 @@ class GroundTruth:
 
 
 class RigRecording(Recording):
-    """A capture of calibrated cameras whose frames a subclass decodes; adds the ground truth if any."""
+    """A capture of calibrated cameras whose frames a subclass decodes; adds the capture's own masks
+    (``masks[camera][t]``, a file per frame) and the ground truth if any."""
 
-    def __init__(self, source: Path, cameras: Sequence[Camera], fps: float, num_frames: int, provenance: dict) -> None:
+    def __init__(self, source: Path, cameras: Sequence[Camera], fps: float, num_frames: int, provenance: dict,
+                 masks: Mapping[str, Sequence[Path | None]] | None = None) -> None:
         self.cameras = tuple(cameras)
         self.fps = fps
         self.num_frames = num_frames
         self._provenance = provenance
+        self._masks = dict(masks or {})
         self._ground_truth = GroundTruth.open(source, self.cameras, num_frames)
-        self.has_masks = bool(self._ground_truth and self._ground_truth.masks)
+        self.has_masks = bool(self._masks) or bool(self._ground_truth and self._ground_truth.masks)
         self.has_depth = bool(self._ground_truth and self._ground_truth.depth)
 
     @abstractmethod
@@ -175,7 +199,18 @@ class RigRecording(Recording):
                     f"camera {camera!r} frame {frame.t}: decoded shape {frame.rgb.shape}, expected "
                     f"({expected.height}, {expected.width}, 3) like its first frame"
                 )
-            yield self._ground_truth.attach(camera, frame) if self._ground_truth else frame
+            frame = self._ground_truth.attach(camera, frame) if self._ground_truth else frame
+            path = self._masks[camera][frame.t] if camera in self._masks else None
+            if path is not None:
+                mask = read_mask(path)
+                if mask.shape != frame.rgb.shape[:2]:
+                    raise InputError(f"mask {path} is {mask.shape[1]}×{mask.shape[0]}, but camera {camera!r}'s frames are "
+                                     f"{frame.rgb.shape[1]}×{frame.rgb.shape[0]}")
+                frame = attrs.evolve(frame, mask=mask)
+            yield frame
 
     def describe(self) -> dict:
-        return dict(self._provenance)
+        """The reader's provenance, with the ground truth's path where the capture has one (its masks are
+        the truth to score against, not masks the capture brings: ``mmcsplat run`` does not fit on them)."""
+        truth = {"ground_truth": str(self._ground_truth.path)} if self._ground_truth else {}
+        return {**self._provenance, **truth}

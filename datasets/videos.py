@@ -3,7 +3,9 @@
 Layout: ``SOURCE/*.{mp4,avi,mov,mkv}`` or ``SOURCE/videos/*.{…}`` (the sub-folder wins when it has
 videos), matched to the calibration's cameras by name (see :mod:`mmcsplat.datasets.rig`). The calibration
 is the ``calibration`` argument, else ``SOURCE/calibration.toml``, else the single ``SOURCE/*.toml``. A
-``SOURCE/ground_truth.zarr`` (written by ``mmcsplat synth``) adds per-frame masks and depth.
+``SOURCE/ground_truth.zarr`` (written by ``mmcsplat synth``) adds per-frame masks and depth. Masks the
+capture brings: ``SOURCE/masks/<camera>/`` holds one mask image per frame, the k-th in natural order
+(``0000.png``, ``0001.png``, …) being frame k; a camera with fewer masks than frames is an error.
 
 Frames are decoded lazily with OpenCV, one camera's decoder open at a time.
 """
@@ -17,7 +19,17 @@ from pathlib import Path
 import attrs
 import numpy as np
 
-from mmcsplat.datasets.rig import CAMERA_MAP_PARAMETER, SIZE_MISMATCH_PARAMETER, RigRecording, common_length, find_calibration, fit_camera
+from mmcsplat.datasets.rig import (
+    CAMERA_MAP_PARAMETER,
+    CAMERAS_PARAMETER,
+    MASKS_FOLDER,
+    SIZE_MISMATCH_PARAMETER,
+    RigRecording,
+    common_length,
+    find_calibration,
+    fit_camera,
+    mask_folders,
+)
 from mmcsplat.plugin_api.errors import InputError, NotAFolderError
 from mmcsplat.plugin_api.interfaces import Reader, RecordedFrame, Recording
 from mmcsplat.plugin_api.parameters import parameter
@@ -111,6 +123,7 @@ class VideoReader(Reader):
 
     size_mismatch: str = SIZE_MISMATCH_PARAMETER
     camera_map: Mapping[str, str] | str | None = CAMERA_MAP_PARAMETER
+    cameras: tuple[str, ...] | None = CAMERAS_PARAMETER
     verify: bool = parameter(True, doc="decode each video once with ffmpeg first: a damaged one is an error naming the frame")
 
     def detect(self, source: Path) -> bool:
@@ -121,7 +134,7 @@ class VideoReader(Reader):
         if not source.is_dir():
             raise NotAFolderError(f"videos source {source} is not a folder")
         calibration = find_calibration(source, calibration)
-        calibrated = read_calibration(calibration, units)
+        calibrated = read_calibration(calibration, units, self.cameras)
         matched = match_cameras(calibrated, video_files(source), "video", source, self.camera_map)
         paths = {name: camera_video(path) for name, path in matched.items()}
         infos = {camera.name: probe(paths[camera.name]) for camera in calibrated}
@@ -130,13 +143,20 @@ class VideoReader(Reader):
                 check_decodes(paths[camera.name])
         cameras = [fit_camera(c, infos[c.name].width, infos[c.name].height, self.size_mismatch, f"video {paths[c.name]}") for c in calibrated]
         num_frames = common_length({name: info.frames for name, info in infos.items()}, "video", source)
+        masks = mask_folders(source, calibrated, self.camera_map)
+        short = {name: len(files) for name, files in masks.items() if len(files) < num_frames}
+        if short:
+            detail = ", ".join(f"{name}: {count}" for name, count in short.items())
+            raise InputError(f"{source / MASKS_FOLDER}: fewer mask images than the {num_frames} frames ({detail}); give one per frame, in frame order")
         provenance = {
             "calibration": str(calibration),
             "units": units,
             "videos": {name: str(path) for name, path in paths.items()},
             "size_mismatch": self.size_mismatch,
+            "masks": str(source / MASKS_FOLDER) if masks else None,
         }
-        return VideoRecording(source, cameras, _frame_rate(infos.values(), source), num_frames, provenance, paths)
+        return VideoRecording(source, cameras, _frame_rate(infos.values(), source), num_frames, provenance, paths,
+                              {name: files[:num_frames] for name, files in masks.items()})
 
 
 def _frame_rate(infos: Iterable[VideoInfo], source: Path) -> float:
@@ -155,8 +175,9 @@ def _frame_rate(infos: Iterable[VideoInfo], source: Path) -> float:
 class VideoRecording(RigRecording):
     """Per-camera videos, decoded on demand."""
 
-    def __init__(self, source: Path, cameras: Sequence[Camera], fps: float, num_frames: int, provenance: dict, paths: dict[str, Path]) -> None:
-        super().__init__(source, cameras, fps, num_frames, provenance)
+    def __init__(self, source: Path, cameras: Sequence[Camera], fps: float, num_frames: int, provenance: dict, paths: dict[str, Path],
+                 masks: dict[str, list[Path]] | None = None) -> None:
+        super().__init__(source, cameras, fps, num_frames, provenance, masks)
         self._paths = paths
 
     def _decode(self, camera: str, indices: range) -> Iterator[RecordedFrame]:

@@ -87,5 +87,7 @@ def mmcsplat_landmarks() -> list[Registration]:
         Registration("openpose", "mmcsplat.plugins.landmarks.openpose:OpenPoseKeypoints",
                      "OpenPose JSON keypoints per camera (as Pose2Sim writes them), triangulated in the session's cameras"),
         Registration("deeplabcut", "mmcsplat.plugins.landmarks.deeplabcut:DeepLabCutKeypoints",
-                     "DeepLabCut CSV keypoints per camera (anipose's pose-2d), triangulated in the session's cameras"),
+                     "DeepLabCut CSV or HDF5 keypoints per camera (anipose's pose-2d), triangulated in the session's cameras"),
+        Registration("sleap", "mmcsplat.plugins.landmarks.sleap:SleapKeypoints",
+                     "SLEAP keypoints per camera (.analysis.h5 or .slp), triangulated in the session's cameras"),
     ]

@@ -177,7 +177,7 @@ def test_cli_reports_bad_input_and_succeeds_on_good(tmp_path: Path, capsys: pyte
     source = tmp_path / "capture"
     rig.make_capture(source, names=("x", "y"), frames=2)
     assert main(["ingest", str(source), str(tmp_path / "out.zarr"), "--cameras", "x,z"]) == 2
-    assert "--cameras: no camera named 'z'; cameras are x, y" in capsys.readouterr().err
+    assert "no camera named 'z'; cameras are x, y" in capsys.readouterr().err
     assert main(["ingest", str(source), str(tmp_path / "out.zarr"), "--holdout", "x,y"]) == 2
     assert "nothing is left to train on" in capsys.readouterr().err
     assert rig.no_session_left(tmp_path / "out.zarr")
@@ -399,3 +399,29 @@ def test_project_layouts_are_recognised_without_flags(tmp_path: Path, layout: st
     reader = SessionReader(out)
     assert reader.camera_names == ("cam_01", "cam_02", "cam_03", "cam_04") and reader.num_frames == 2
     assert reader.provenance["reader"]["calibration"] == str(source / "calibration" / calibration)
+
+
+def test_a_masks_folder_per_camera_is_ingested_as_the_captures_masks(tmp_path: Path) -> None:
+    source = tmp_path / "capture"
+    cameras = rig.make_capture(source, frames=3)
+    for camera in cameras:
+        folder = source / "masks" / camera.name
+        folder.mkdir(parents=True)
+        for t in range(3):
+            mask = np.zeros((camera.height, camera.width), np.uint8)
+            mask[20 + 5 * t : 70, 30:100] = 255
+            cv2.imwrite(str(folder / f"{t:04d}.png"), mask)
+    session = _ingest(source, tmp_path / "out.zarr")
+    assert all(session.has_source_mask(name) for name in session.camera_names)
+    # Undistorted like the frames: the band's top edge moves down 5 rows a frame.
+    tops = [np.flatnonzero(session.frame(t, "cam_a").mask.any(axis=1))[0] for t in range(3)]
+    assert tops[1] - tops[0] == pytest.approx(5, abs=1) and tops[2] - tops[1] == pytest.approx(5, abs=1)
+    (source / "masks" / "cam_b" / "0002.png").unlink()
+    with pytest.raises(ValueError, match=r"masks: fewer mask images than the 3 frames \(cam_b: 2\)"):
+        _ingest(source, tmp_path / "other.zarr")
+
+
+def test_skip_missing_on_videos_says_there_is_nothing_to_skip(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    rig.make_capture(tmp_path / "capture", frames=2)
+    assert main(["ingest", str(tmp_path / "capture"), str(tmp_path / "out.zarr"), "--skip-missing", "--no-progress"]) == 2
+    assert "--skip-missing: the videos reader has no missing_frames option" in capsys.readouterr().err

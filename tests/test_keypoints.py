@@ -127,3 +127,124 @@ def test_deeplabcut_csv_keypoints_triangulate_too(scene, tmp_path):
     (tmp_path / "trial-cam_0.csv").write_text("scorer,x\nbodyparts,nose\n")
     with pytest.raises(Exception, match="not a DeepLabCut CSV"):
         default_registry().create("landmarks", "deeplabcut", folder=str(tmp_path)).read(reader, range(FRAMES))
+
+
+def _figure_pixels(camera, t: int, parts: list[str]) -> np.ndarray:
+    """[L, 2] pixels of the figure's ``parts`` at frame ``t`` in ``camera``."""
+    return camera.project(figure_at(t)[[MODELS["BODY_25B"].index(p) for p in parts]])
+
+
+def _expected(parts: list[str]) -> np.ndarray:
+    return np.stack([figure_at(t)[[MODELS["BODY_25B"].index(p) for p in parts]] for t in range(FRAMES)])
+
+
+def test_deeplabcut_h5_keypoints_triangulate(scene, tmp_path):
+    """DeepLabCut's HDF5 as pandas writes it (table format): the records table and the pickled column labels."""
+    import pickle
+
+    import h5py
+
+    session, _ = scene
+    reader = SessionReader(session)
+    parts = list(FIGURE)
+    columns = [("DLC_resnet50", part, coord) for part in parts for coord in ("x", "y", "likelihood")]
+    for camera in reader.cameras:
+        values = np.array([[v for x, y in _figure_pixels(camera, t, parts) for v in (x, y, 0.95)] for t in range(FRAMES)])
+        values[1, 3:6] = np.nan  # the Head undetected at frame 1
+        records = np.zeros(FRAMES, dtype=[("index", "<i8"), ("values_block_0", "<f8", (len(columns),))])
+        records["index"], records["values_block_0"] = np.arange(FRAMES), values
+        with h5py.File(tmp_path / f"trial-{camera.name}DLC_resnet50.h5", "w") as file:
+            group = file.create_group("df_with_missing")
+            group.create_dataset("table", data=records)
+            group.attrs["non_index_axes"] = np.bytes_(pickle.dumps([(1, columns)], 0))
+    landmarks = default_registry().create("landmarks", "deeplabcut", folder=str(tmp_path)).read(reader, range(FRAMES))
+    expected = _expected(parts)
+    expected[1, 1] = np.nan
+    assert landmarks.names == tuple(parts)
+    np.testing.assert_allclose(landmarks.positions, expected, atol=1e-6)
+    # Column labels that would run code when unpickled are refused, not run.
+    with h5py.File(tmp_path / "trial-cam_0DLC_resnet50.h5", "a") as file:
+        file["df_with_missing"].attrs["non_index_axes"] = np.bytes_(b"cos\nsystem\n(S'true'\ntR.")
+    with pytest.raises(ValueError, match=r"trial-cam_0DLC_resnet50\.h5: its column labels .* refers to os\.system"):
+        default_registry().create("landmarks", "deeplabcut", folder=str(tmp_path)).read(reader, range(FRAMES))
+
+
+def test_sleap_analysis_h5_keypoints_triangulate(scene, tmp_path):
+    """SLEAP's analysis export: datasets column-major (h5py reads tracks as [tracks, 2, nodes, frames])."""
+    import h5py
+
+    session, _ = scene
+    reader = SessionReader(session)
+    parts = list(FIGURE)
+    for camera in reader.cameras:
+        xy = np.stack([_figure_pixels(camera, t, parts) for t in range(FRAMES)])  # [frames, nodes, 2]
+        other = xy + 30.0  # a second animal on track 1
+        xy[2, 0] = np.nan  # the Neck absent at frame 2
+        tracks = np.stack([xy, other]).transpose(0, 3, 2, 1)  # [tracks, 2, nodes, frames]
+        with h5py.File(tmp_path / f"{camera.name}.analysis.h5", "w") as file:
+            file["tracks"] = tracks
+            file["node_names"] = np.array([part.encode() for part in parts])
+            file["point_scores"] = np.full((2, len(parts), FRAMES), 0.9)
+            file["track_occupancy"] = np.ones((FRAMES, 2), dtype=np.uint8)
+    landmarks = default_registry().create("landmarks", "sleap", folder=str(tmp_path)).read(reader, range(FRAMES))
+    expected = _expected(parts)
+    expected[2, 0] = np.nan
+    assert landmarks.names == tuple(parts)
+    np.testing.assert_allclose(landmarks.positions, expected, atol=1e-6)
+    with pytest.raises(ValueError, match=r"cam_0\.analysis\.h5: no track 2 \(the file has 2\)"):
+        default_registry().create("landmarks", "sleap", folder=str(tmp_path), track=2).read(reader, range(FRAMES))
+
+
+def write_slp(path: Path, names: list[str], labelled: dict[int, list[tuple[int, int, np.ndarray, np.ndarray]]], format_id: float = 1.2) -> None:
+    """A SLEAP labels file: ``labelled[frame]`` lists (instance type, track, [L, 2] points, [L] scores) per instance."""
+    import h5py
+
+    frames, instances, points, predicted = [], [], [], []
+    for number, entries in labelled.items():
+        frames.append((len(frames), 0, number, len(instances), len(instances) + len(entries)))
+        for kind, track, xy, score in entries:
+            table = points if kind == 0 else predicted
+            instances.append((len(instances), kind, len(frames) - 1, 0, track, -1, 1.0, len(table), len(table) + len(xy), 0.0))
+            for (x, y), s in zip(xy, score):
+                table.append((x, y, bool(np.isfinite(x)), True) if kind == 0 else (x, y, bool(np.isfinite(x)), True, s))
+    point = [("x", "<f8"), ("y", "<f8"), ("visible", "?"), ("complete", "?")]
+    metadata = {"version": "2.0.0", "skeletons": [{"nodes": [{"id": k} for k in range(len(names))]}], "nodes": [{"name": n, "weight": 1.0} for n in names]}
+    with h5py.File(path, "w") as file:
+        file.create_group("metadata").attrs["json"] = np.bytes_(json.dumps(metadata).encode())
+        file["metadata"].attrs["format_id"] = format_id
+        file["frames"] = np.array(frames, dtype=[("frame_id", "<u8"), ("video", "<u4"), ("frame_idx", "<u8"), ("instance_id_start", "<u8"),
+                                                 ("instance_id_end", "<u8")])
+        file["instances"] = np.array(instances, dtype=[("instance_id", "<i8"), ("instance_type", "u1"), ("frame_id", "<u8"), ("skeleton", "<u4"),
+                                                       ("track", "<i4"), ("from_predicted", "<i8"), ("score", "<f4"), ("point_id_start", "<u8"),
+                                                       ("point_id_end", "<u8"), ("tracking_score", "<f4")])
+        file["points"] = np.array(points, dtype=point)
+        file["pred_points"] = np.array(predicted, dtype=[*point, ("score", "<f8")])
+
+
+def test_sleap_slp_keypoints_prefer_user_labels_and_triangulate(scene, tmp_path):
+    session, _ = scene
+    reader = SessionReader(session)
+    parts = list(FIGURE)
+    for camera in reader.cameras:
+        labelled = {}
+        for t in range(FRAMES):
+            xy = _figure_pixels(camera, t, parts)
+            wrong = xy + 25.0
+            scores = np.full(len(parts), 0.8)
+            # Frame 0: a prediction corrected by hand (the user instance wins); frame 1: predictions only, the Head
+            # scored too low to use; frame 2: not labelled in this file.
+            if t == 0:
+                labelled[t] = [(1, -1, wrong, scores), (0, -1, xy, scores)]
+            elif t == 1:
+                scores[1] = 0.1
+                labelled[t] = [(1, -1, xy, scores)]
+        # An old file (format 1.0): pixel centres at +0.5.
+        write_slp(tmp_path / f"{camera.name}.slp", parts, labelled, format_id=1.0 if camera.name == "cam_1" else 1.2)
+        if camera.name == "cam_1":
+            labelled = {t: [(kind, track, xy + 0.5, s) for kind, track, xy, s in entries] for t, entries in labelled.items()}
+            write_slp(tmp_path / f"{camera.name}.slp", parts, labelled, format_id=1.0)
+    landmarks = default_registry().create("landmarks", "sleap", folder=str(tmp_path)).read(reader, range(FRAMES))
+    expected = _expected(parts)
+    expected[1, 1] = np.nan
+    expected[2] = np.nan
+    np.testing.assert_allclose(landmarks.positions, expected, atol=1e-6)

@@ -211,7 +211,7 @@ def test_unsupported_model_names_file_and_model(tmp_path):
 def test_missing_image_names_the_model_file(tmp_path, kind):
     root = make_static(tmp_path, kind)
     (root / "images" / "shot_3.png").unlink()
-    with pytest.raises(FileNotFoundError, match=rf"image listed in .*images\.{kind}: .*shot_3\.png not found"):
+    with pytest.raises(FileNotFoundError, match=rf"images listed in .*images\.{kind}: 1 of \d+ not found: .*shot_3\.png"):
         ColmapReader().open(root)
 
 

@@ -144,7 +144,7 @@ def test_missing_key_names_file_and_key(tmp_path, key):
 def test_missing_image_and_mask_name_the_file(tmp_path):
     root = make_d3dgs(tmp_path)
     (root / "ims" / "2" / "000001.jpg").unlink()
-    with pytest.raises(FileNotFoundError, match=r"cam_02 .*ims/2/000001\.jpg"):
+    with pytest.raises(FileNotFoundError, match=r"test_meta\.json: 1 of 3 not found: .*ims/2/000001\.jpg"):
         D3DGSReader().open(root)
     root = make_d3dgs(tmp_path)
     (root / "seg" / "1" / "000002.png").unlink()
@@ -180,3 +180,13 @@ def test_ingest_auto_detects_and_stores_everything(tmp_path):
                 assert stored_frame.mask is None
             else:
                 np.testing.assert_array_equal(stored_frame.mask, _mask(frame.t, int(expected.name[4:])))
+
+
+def test_missing_images_skipped_on_request(tmp_path):
+    root = make_d3dgs(tmp_path)
+    (root / "ims" / "1" / "000001.jpg").unlink()
+    with pytest.warns(UserWarning, match=r"train_meta\.json: skipped 1 of 9 not found: .*ims/1/000001\.jpg"):
+        recording = D3DGSReader(missing_frames="absent").open(root)
+    assert recording.present("cam_01").tolist() == [True, False, True] and recording.present("cam_00").all()
+    frames = list(recording.frames("cam_01", range(T)))
+    assert [frame.t for frame in frames] == [0, 2] and all(frame.mask is not None for frame in frames)

@@ -152,7 +152,7 @@ def test_bad_frames_name_file_and_frame(tmp_path):
 def test_missing_image_and_calibration_are_refused_clearly(tmp_path):
     root = make_dnerf(tmp_path)
     (root / "train" / "r_002.png").unlink()
-    with pytest.raises(FileNotFoundError, match=r"transforms_train\.json: .*train/r_002\.png not found"):
+    with pytest.raises(FileNotFoundError, match=r"transforms_train\.json: 1 of 4 not found: .*train/r_002\.png"):
         DNeRFReader().open(root)
     with pytest.raises(ValueError, match="--calibration is not supported"):
         DNeRFReader().open(make_dnerf(tmp_path / "ok"), calibration=tmp_path / "calibration.toml")
@@ -178,3 +178,16 @@ def test_ingest_stores_the_sparse_monocular_capture(tmp_path):
         np.testing.assert_array_equal(session.frame(frame.t, expected.name).mask, frame.mask)
     with pytest.raises(AbsentFrameError):
         session.frame(0, "test_000")
+
+
+def test_missing_images_skipped_on_request_keep_the_frame_indices(tmp_path):
+    root = make_dnerf(tmp_path)
+    (root / "train" / "r_001.png").unlink()
+    with pytest.raises(FileNotFoundError, match=r"transforms_train\.json: 1 of 4 not found"):
+        DNeRFReader().open(root)
+    with pytest.warns(UserWarning, match=r"skipped 1 of 4 not found: .*train/r_001\.png"):
+        recording = DNeRFReader(missing_frames="absent").open(root)
+    # train_001 had one image: left out; the time of the skipped image still counts.
+    assert [camera.name for camera in recording.cameras] == ["train_000", "train_002", "train_003", "val_000", "test_000"]
+    assert recording.heldout == ("val_000", "test_000") and recording.num_frames == len(TIMES)
+    assert recording.present("train_002").tolist() == [False, False, False, True, False]

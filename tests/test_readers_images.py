@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import attrs
 import cv2
 import numpy as np
 import pytest
@@ -117,3 +118,70 @@ def test_reader_parameters_keep_their_defaults() -> None:
     assert registry.create("reader", "images", fps=25, size_mismatch="crop").size_mismatch == "crop"
     with pytest.raises(InputError, match="reader 'videos': size_mismatch must be one of 'scale', 'crop', 'error', got 'stretch'"):
         registry.create("reader", "videos", size_mismatch="stretch")
+
+
+def test_a_duplicated_camera_left_out_with_cameras_is_never_checked(tmp_path: Path, capsys) -> None:
+    from mmcsplat.cli import main
+    from mmcsplat.storage.session import SessionReader
+
+    source = tmp_path / "capture"
+    cameras = _capture(source)
+    # The anipose mouse case: a camera's table copied under another name (same pose), with its own video/images.
+    copy = attrs.evolve(cameras[2], name="c4")
+    write_calibration(source / "calibration.toml", [*cameras, copy])
+    rig.write_image_folders(source, [copy], 3)
+    assert main(["ingest", str(source), str(tmp_path / "all.zarr"), "--no-progress"]) == 2
+    assert "cameras 'c3' and 'c4' have the same pose (a copied table?): leave the copy out with --cameras" in capsys.readouterr().err
+    command = ["ingest", str(source), str(tmp_path / "s.zarr"), "--cameras", "c1,c2,c3", "--holdout", "c3", "--no-progress"]
+    assert main(command) == 0
+    session = SessionReader(tmp_path / "s.zarr")
+    assert session.camera_names == ("c1", "c2", "c3") and session.heldout == ("c3",)
+    with pytest.raises(InputError, match=r"no camera named 'c9'"):
+        ImageSequenceReader(cameras=["c1", "c9"]).open(source)
+
+
+def test_a_real_calibration_with_a_copied_table_reads_without_it(tmp_path: Path) -> None:
+    real = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "aniposelib_calibrations" / "allen_mouse_7cam.toml"
+    if not real.is_file():
+        pytest.skip(f"shared real data not found at {real}")
+    from mmcsplat.storage.calibration import read_calibration
+
+    names = [camera.name for camera in read_calibration(real, "mm")]
+    text = real.read_text()
+    first = text[text.index("[cam_0]") : text.index("[cam_1]")]
+    broken = tmp_path / "calibration.toml"
+    broken.write_text(text + "\n" + first.replace("[cam_0]", "[cam_7]").replace(f'name = "{names[0]}"', 'name = "copy"'))
+    with pytest.raises(InputError, match=f"cameras '{names[0]}' and 'copy' have the same pose"):
+        read_calibration(broken, "mm")
+    assert [camera.name for camera in read_calibration(broken, "mm", names)] == names
+
+
+def test_masks_folder_by_image_name_and_rgba_alpha(tmp_path: Path) -> None:
+    source = tmp_path / "capture"
+    cameras = _capture(source, names=("c1", "c2"), frames=2)
+    for camera in cameras:
+        (source / "masks" / camera.name).mkdir(parents=True)
+        for t in range(2):
+            mask = np.zeros((camera.height, camera.width), np.uint8)
+            mask[10 * (t + 1) :, :] = 255
+            cv2.imwrite(str(source / "masks" / camera.name / f"frame{t}.png"), mask)
+    recording = ImageSequenceReader().open(source)
+    assert recording.has_masks
+    frames = list(recording.frames("c2", range(2)))
+    assert [int(frame.mask.sum()) for frame in frames] == [(96 - 10) * 128, (96 - 20) * 128]
+    (source / "masks" / "c2" / "frame1.png").unlink()
+    with pytest.raises(FileNotFoundError, match=r"masks: no mask for 1 frame\(s\): c2/frame1"):
+        ImageSequenceReader().open(source)
+
+    # Without a masks folder, RGBA images carry their masks in alpha.
+    rgba = tmp_path / "rgba"
+    cameras = _capture(rgba, names=("c1", "c2"), frames=2)
+    for camera in cameras:
+        for t in range(2):
+            path = rgba / camera.name / f"frame{t}.png"
+            image = cv2.imread(str(path))
+            alpha = np.zeros(image.shape[:2], np.uint8)
+            alpha[:, 64:] = 255
+            cv2.imwrite(str(path), np.dstack([image, alpha]))
+    session = ingest(rgba, tmp_path / "rgba.zarr", progress=False)
+    assert session.has_source_mask("c1") and 0.3 < session.frame(1, "c1").mask.mean() < 0.7

@@ -13,6 +13,7 @@ from mmcsplat.configuration.registry import default_registry
 from mmcsplat.datasets.nerfstudio import NerfstudioReader
 from mmcsplat.pipeline.ingest import detect_format
 from mmcsplat.scene.camera import Camera, look_at
+from mmcsplat.storage.session import SessionReader
 
 W, H = 16, 12
 #: Known cameras (mmcsplat's conventions: OpenCV axes, pixel centres at integers), one distorted.
@@ -214,7 +215,7 @@ def test_unsupported_camera_model_names_file_and_frame(tmp_path, model):
 def test_missing_image_malformed_file_and_missing_intrinsics_name_the_file(tmp_path):
     root = make_nerfstudio(tmp_path)
     (root / "images" / "view1.png").unlink()
-    with pytest.raises(FileNotFoundError, match=r"transforms\.json: .*images/view1\.png not found"):
+    with pytest.raises(FileNotFoundError, match=r"transforms\.json: 1 of 3 not found: .*images/view1\.png"):
         NerfstudioReader().open(root)
     (root / "transforms.json").write_text('{"frames": [')
     with pytest.raises(ValueError, match=r"transforms\.json: not valid JSON"):
@@ -236,3 +237,32 @@ def test_image_of_the_wrong_size_names_the_image(tmp_path):
     cv2.imwrite(str(root / "images" / "view1.png"), np.zeros((H + 2, W, 3), np.uint8))
     with pytest.raises(ValueError, match=r"images/view1\.png is 16×14, but .*transforms\.json: frames\[1\] gives camera 'view1' 16×12"):
         list(NerfstudioReader().open(root).frames("view1", range(1)))
+
+
+def test_missing_images_are_all_listed_or_skipped_on_request(tmp_path):
+    root = make_nerfstudio(tmp_path, images_per_camera=3, extra={"val_filenames": ["images/view2_00.png", "images/view2_01.png",
+                                                                                  "images/view2_02.png"]})
+    for stem in ("view0_01", "view1_00", "view1_01", "view1_02"):
+        (root / "images" / f"{stem}.png").unlink()
+    with pytest.raises(FileNotFoundError, match=r"4 of 9 not found: .*view1_00\.png, .*view0_01\.png, .*view1_01\.png, .*view1_02\.png .*--skip-missing"):
+        NerfstudioReader().open(root)
+    with pytest.warns(UserWarning, match=r"skipped 4 of 9 not found"):
+        recording = NerfstudioReader(missing_frames="absent").open(root)
+    # view1 lost every image and is left out; view0 lacks its middle frame, which keeps its index.
+    assert [camera.name for camera in recording.cameras] == ["cam_000", "cam_002"]
+    assert recording.heldout == ("cam_002",)
+    assert recording.present("cam_000").tolist() == [True, False, True]
+    assert [frame.t for frame in recording.frames("cam_000", range(3))] == [0, 2]
+    assert len(recording.describe()["missing_images_skipped"]) == 4
+
+
+def test_ingest_skip_missing_flag(tmp_path, capsys):
+    from mmcsplat.cli import main
+
+    root = make_nerfstudio(tmp_path / "capture")
+    (root / "images" / "view1.png").unlink()
+    assert main(["ingest", str(root), str(tmp_path / "s.zarr"), "--no-progress"]) == 2
+    assert "1 of 3 not found" in capsys.readouterr().err and not (tmp_path / "s.zarr").exists()
+    assert main(["ingest", str(root), str(tmp_path / "s.zarr"), "--no-progress", "--skip-missing"]) == 0
+    assert "skipped 1 of 3 not found" in capsys.readouterr().err
+    assert [camera.name for camera in SessionReader(tmp_path / "s.zarr").cameras] == ["view0", "view2"]

@@ -29,6 +29,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="clean plates of the empty scene, one image per camera named after it (default: SOURCE/plates when it exists)")
     add_settings(parser, "a reader parameter (`mmcsplat plugins --show FORMAT`), read as TOML when it can be: fps=25, missing_frames=absent",
                  dest="options")
+    parser.add_argument("--skip-missing", action="store_true",
+                        help="ingest without the images the capture lists but lacks, saying how many (the reader option missing_frames=absent)")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing session at OUT (never anything but a session)")
     add_progress(parser)
 
@@ -52,6 +54,7 @@ def run(args: argparse.Namespace) -> int:
             overwrite=args.overwrite,
             plates=args.plates,
             reader_options=settings_table(args.options),
+            skip_missing=args.skip_missing,
             progress=not args.no_progress,
         )
     sizes = sorted({f"{camera.width}×{camera.height}" for camera in session.cameras})

@@ -26,6 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--units", choices=("m", "mm"), default="m", help="length unit of the calibration's translations (default m)")
     parser.add_argument("--scale", type=float, default=0.25, help="resize factor of the stored images (default 0.25)")
     add_frames(parser, "the frame indices to use (default: all)")
+    add_names(parser, "--cameras", "use only these cameras (default: all): leaves out a broken one, which is then never read or checked")
     add_names(parser, "--holdout", "cameras kept for evaluation (default: the capture format's, else none)")
     parser.add_argument("--keypoints", help="folder of OpenPose JSON per camera (default: CAPTURE/pose_2d when it exists)")
     parser.add_argument("--joints", help="TRC file of joints to carry as landmarks (default: the capture's single *.trc)")
@@ -39,7 +40,8 @@ def run(args: argparse.Namespace) -> int:
     from mmcsplat.jobs.capture import CaptureSettings, run_capture, summary
 
     frames = (args.frames.start, args.frames.stop, args.frames.step) if args.frames else (None, None, None)
-    settings = CaptureSettings(calibration=args.calibration, units=args.units, scale=args.scale, frames=frames, holdout=args.holdout or (),
+    settings = CaptureSettings(calibration=args.calibration, units=args.units, scale=args.scale, frames=frames, cameras=args.cameras or (),
+                               holdout=args.holdout or (),
                                keypoints=args.keypoints, joints=args.joints, config=args.config, overrides=args.overrides,
                                track_iterations=args.track_iterations)
     print(summary(run_capture(args.capture, args.out, settings, progress=not args.no_progress)))

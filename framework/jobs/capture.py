@@ -2,10 +2,12 @@
 rig (docs/real-data.md): ingest → masks → plates → masks refined against them → first-frame fit → track →
 evaluate → landmarks → renders → report.
 
-- Masks: with 2D keypoints (``--keypoints DIR``, default ``CAPTURE/pose_2d`` when it exists) the
-  skeleton-then-plate path of the ``keypoints`` segmenter; without, the ``background`` segmenter's
-  temporal median (a subject that never moves is then lost: keypoints, or a recorded plate, are better).
-  A capture ingested with recorded plates keeps them.
+- Masks: the capture's own when it brings them for every training camera (Dynamic3DGaussians ``seg/``,
+  a ``masks/`` folder per camera, RGBA alpha: whatever its reader ingests); else, with 2D keypoints
+  (``--keypoints DIR``, default ``CAPTURE/pose_2d`` when it exists) the skeleton-then-plate path of the
+  ``keypoints`` segmenter; without, the ``background`` segmenter's temporal median (a subject that never
+  moves is then lost: keypoints, or a recorded plate, are better). Which masks were used is printed and
+  recorded in ``DIR/masks.json``. A capture ingested with recorded plates keeps them.
 - Fit: ``visual-hull-plate`` with the start cube sized from the masks' visual hull (its reach from the
   rig centre plus 10 cm, never below the configuration's), so an adult or a mouse fits like an infant.
 - Landmarks: a TRC of joints (``--joints FILE``, default the single ``CAPTURE/*.trc``) bound at the
@@ -22,7 +24,7 @@ import json
 import os
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import attrs
 
@@ -30,7 +32,12 @@ from mmcsplat.jobs.demo import StepTime, fresh, run_step
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.storage.atomic import write_json_atomic
 
+if TYPE_CHECKING:
+    from mmcsplat.storage.session import SessionReader
+
 SETTINGS_FILE = "capture.json"
+#: Which masks the run used (see :func:`mask_choice`), written with the session.
+MASKS_FILE = "masks.json"
 DEFAULT_CONFIG = "visual-hull-plate"
 
 
@@ -42,6 +49,7 @@ class CaptureSettings:
     units: str = "m"
     scale: float = 0.25
     frames: tuple[int | None, int | None, int | None] = (None, None, None)
+    cameras: tuple[str, ...] = attrs.field(default=(), converter=tuple)
     holdout: tuple[str, ...] = attrs.field(default=(), converter=tuple)
     keypoints: str | None = None
     joints: str | None = None
@@ -111,15 +119,20 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
         # Into a hidden sibling renamed into place: a session half segmented is not a session.
         partial = session.with_name(f".{session.name}.partial")
         ingest(capture, partial, calibration=Path(settings.calibration) if settings.calibration else None, units=settings.units,
-               frames=slice(*settings.frames), scale=settings.scale, holdout=list(settings.holdout), overwrite=True, progress=progress)
+               frames=slice(*settings.frames), scale=settings.scale, cameras=list(settings.cameras) or None, holdout=list(settings.holdout),
+               overwrite=True, progress=progress)
         source = {"name": "openpose", "folder": str(keypoints)} if keypoints else None
         segmenter, first, refined = ("keypoints", {"source": source}, {"source": source, "refine": "plate"}) if source else \
             ("background", {"method": "median"}, {"method": "plate"})
+        choice = mask_choice(SessionReader(partial), segmenter)
         recorded = any(SessionReader(partial).plate(name) is not None for name in SessionReader(partial).camera_names)
-        if not recorded:
+        if choice["masks"] != "capture" and not recorded:
             segment_session(partial, segmenter, first, progress=progress)
+        if not recorded:
             estimate_plates(str(partial), None, progress=progress)
-        segment_session(partial, segmenter, refined, progress=progress)
+        if choice["masks"] != "capture":
+            segment_session(partial, segmenter, refined, progress=progress)
+        write_json_atomic(out / MASKS_FILE, choice)
         os.replace(partial, session)
 
     def fit() -> None:
@@ -134,6 +147,8 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
                         keypoint_params={"folder": str(keypoints)} if keypoints else None)
 
     step("ingest + masks + plates", session.exists(), prepare)
+    if (out / MASKS_FILE).exists():  # a session made before masks were recorded has none
+        log(f"run: masks: {json.loads((out / MASKS_FILE).read_text())['detail']}")
     step("first-frame fit", (run / RUN_INFO).exists() and json.loads((run / RUN_INFO).read_text())["status"] == "complete", fit)
     step("track (iterative)", fresh([run / "tracks.zarr", run / TRACK_INFO], [run / RUN_INFO]),
          lambda: track_run(run, dynamics="iterative", overrides=[f"dynamics.iterations={settings.track_iterations}"], progress=progress,
@@ -149,6 +164,30 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     step("report", fresh([run / "report.html"], [run / METRICS_FILE]), lambda: write_report(run))
     info = json.loads((run / LANDMARKS_INFO).read_text()) if (run / LANDMARKS_INFO).exists() else {}
     return CaptureResult(out, run, json.loads((run / METRICS_FILE).read_text()), info, tuple(steps))
+
+
+def mask_choice(session: SessionReader, segmenter: str) -> dict[str, Any]:
+    """Which masks ``run`` uses: ``{"masks": "capture", …}`` when every training camera of ``session`` has
+    masks from its capture (held-out ones without are scored against the training masks' hull), else
+    ``{"masks": segmenter, …}`` (the capture's masks of some cameras are then replaced, and said so). A
+    synthetic capture's ground-truth masks are never fitted on."""
+    reader = session.provenance.get("reader", {})
+    if reader.get("ground_truth") and not reader.get("masks"):  # a synthetic capture's truth scores the run; it does not fit it
+        return {"masks": segmenter, "cameras": list(session.camera_names),
+                "detail": f"made by the {segmenter} segmenter for every camera (the capture's masks are its ground truth, {reader['ground_truth']})"}
+    shipped = [name for name in session.camera_names if session.has_source_mask(name)]
+    training = [name for name in session.camera_names if name not in session.heldout]
+    if shipped and set(training) <= set(shipped):
+        detail = f"the capture's own, of {', '.join(shipped)}"
+        lacking = [name for name in session.camera_names if name not in shipped]
+        if lacking:
+            detail += f" (held out {', '.join(lacking)} has none: evaluated against the training masks' hull)"
+        return {"masks": "capture", "cameras": shipped, "detail": detail}
+    detail = f"made by the {segmenter} segmenter for every camera"
+    if shipped:
+        detail += (f"; the capture's own masks of {', '.join(shipped)} are not used, as training camera(s) "
+                   f"{', '.join(sorted(set(training) - set(shipped)))} have none")
+    return {"masks": segmenter, "cameras": list(session.camera_names), "detail": detail}
 
 
 def _made(folder: Path) -> Path:

@@ -189,6 +189,7 @@ def ingest(
     progress: bool = True,
     reader_options: dict | None = None,
     plates: Path | None = None,
+    skip_missing: bool = False,
 ) -> SessionReader:
     """Read ``source`` (``format`` or auto-detected), undistort and rescale its frames, and write the
     session at ``out``; returns it opened for reading.
@@ -196,8 +197,9 @@ def ingest(
     ``frames`` selects frame indices, ``cameras`` a subset of cameras (in that order), ``holdout`` cameras
     kept for evaluation (added to those the format itself holds out), ``reader_options`` parameters of
     the reader (e.g. ``{"size_mismatch": "crop"}`` for ``videos``), ``plates`` a folder of clean plates
-    (default: the capture's ``plates/`` folder when it has one; every selected camera needs a plate). The
-    session records ``source`` (and ``calibration``) as absolute paths.
+    (default: the capture's ``plates/`` folder when it has one; every selected camera needs a plate),
+    ``skip_missing`` ingests without the images the capture lists but lacks (the reader's
+    ``missing_frames="absent"``). The session records ``source`` (and ``calibration``) as absolute paths.
     """
     from tqdm import tqdm
 
@@ -215,6 +217,13 @@ def ingest(
     registry = default_registry()
     name = format or detect_format(source, registry)
     reader = registry.create("reader", name, **(reader_options or {}))
+    if skip_missing:
+        if not (attrs.has(type(reader)) and "missing_frames" in attrs.fields_dict(type(reader))):
+            raise InputError(f"--skip-missing: the {name} reader has no missing_frames option: it lists no image files that could be missing")
+        reader = attrs.evolve(reader, missing_frames="absent")
+    if cameras is not None and attrs.has(type(reader)) and "cameras" in attrs.fields_dict(type(reader)):
+        # A reader of a calibration reads and checks only the cameras asked for: a broken one left out stays out.
+        reader = attrs.evolve(reader, cameras=tuple(cameras))
     recording = reader.open(source, calibration, units)
     try:
         selected = _select(recording.cameras, cameras, "--cameras")

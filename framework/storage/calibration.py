@@ -42,10 +42,12 @@ def metres_per_unit(units: str) -> float:
         raise InputError(f"unknown calibration units {units!r}; choose one of {', '.join(UNITS)}") from None
 
 
-def read_calibration(path: Path, units: str = "m") -> list[Camera]:
+def read_calibration(path: Path, units: str = "m", cameras: Sequence[str] | None = None) -> list[Camera]:
     """The cameras of an anipose or Pose2Sim ``calibration.toml``, in metres.
 
-    ``units`` is the unit of the file's translations. Errors name the file and the table at fault.
+    ``units`` is the unit of the file's translations. ``cameras`` (names) keeps only those, in the file's
+    order, and checks only them: a broken camera left out (a copied table) does not stop the others.
+    Errors name the file and the table at fault.
     """
     path = Path(path)
     scale = metres_per_unit(units)
@@ -66,13 +68,20 @@ def read_calibration(path: Path, units: str = "m") -> list[Camera]:
     numbers = [_ANIPOSE_SECTION.fullmatch(key) for key in sections]
     if all(numbers):
         sections = [key for _, key in sorted(zip((int(m.group(1)) for m in numbers), sections))]
-    cameras = [_camera(path, key, document[key]).with_units(scale) for key in sections]
-    names = [camera.name for camera in cameras]
+    wanted = None if cameras is None else list(cameras)
+    if wanted is not None:
+        names = {key: document[key].get("name", key) for key in sections}
+        unknown = [name for name in wanted if name not in names.values()]
+        if unknown:
+            raise InputError(f"calibration {path}: no camera named {', '.join(map(repr, unknown))}; cameras are {', '.join(map(str, names.values()))}")
+        sections = [key for key in sections if names[key] in wanted]
+    read = [_camera(path, key, document[key]).with_units(scale) for key in sections]
+    names = [camera.name for camera in read]
     duplicates = sorted({name for name in names if names.count(name) > 1})
     if duplicates:
         raise InputError(f"calibration {path}: camera names {duplicates} appear more than once")
-    check_rig(cameras, f"calibration {path}", units)
-    return cameras
+    check_rig(read, f"calibration {path}", units)
+    return read
 
 
 def check_rig(cameras: Sequence[Camera], where: str, units: str) -> None:
@@ -89,7 +98,8 @@ def check_rig(cameras: Sequence[Camera], where: str, units: str) -> None:
     for index, first in enumerate(cameras):
         for second in cameras[index + 1:]:
             if np.allclose(first.R, second.R, atol=1e-9) and np.allclose(first.t, second.t, atol=1e-9):
-                raise InputError(f"{where}: cameras {first.name!r} and {second.name!r} have the same pose (a copied table?)")
+                raise InputError(f"{where}: cameras {first.name!r} and {second.name!r} have the same pose (a copied table?): leave the copy "
+                                 "out with --cameras (mmcsplat ingest and run), or delete its table from the file")
     if len(cameras) < 2:
         return
     centres = np.array([camera.center for camera in cameras])

@@ -1,12 +1,21 @@
-"""2D keypoints in DeepLabCut's CSV, as DeepLabCut writes them for anipose (``pose-2d``), triangulated in
-the session's cameras.
+"""2D keypoints in DeepLabCut's CSV or HDF5 files, as DeepLabCut writes them for anipose (``pose-2d``),
+triangulated in the session's cameras.
 
-Layout: one CSV per camera in ``folder`` (``vid-camA.csv``; matched to the session's cameras by name like
-videos, or by ``camera_map``). Each file has DeepLabCut's three header rows — ``scorer``, ``bodyparts``,
-``coords`` (``x, y, likelihood`` per body part) — then one row per frame of the video, its first cell
-the frame number. Multi-animal files (an ``individuals`` row) are read for their first individual.
-Likelihoods below ``min_confidence`` count as undetected. DeepLabCut's HDF5 files hold the same table:
-save CSV alongside (its ``save_as_csv``), as this machine reads no HDF5 without pandas' PyTables.
+Layout: one file per camera in ``folder`` (``vid-camA.csv`` or ``vid-camA.h5``; the CSVs when the folder
+has both), matched to the session's cameras by name like videos, or by ``camera_map``. Both hold one table:
+a column per (scorer, body part, coordinate) — ``x, y, likelihood`` per body part, with an
+``individuals`` level between scorer and body part in multi-animal files, read for their first
+individual — and a row per frame of the video, indexed by the frame number. Likelihoods below
+``min_confidence`` count as undetected.
+
+- CSV: the column levels are the first header rows (``scorer``, [``individuals``,] ``bodyparts``,
+  ``coords``), then one row per frame, its first cell the frame number.
+- HDF5: pandas' ``table`` format (``DataFrame.to_hdf(key="df_with_missing", format="table")``), read with
+  h5py, without pandas or PyTables: the group ``df_with_missing`` (or the file's only group) holds the
+  dataset ``table`` of records (``index``: the frame number; ``values_block_0``: the row's values), and
+  the group's attribute ``non_index_axes`` the column labels, as PyTables stores a Python object — a
+  pickle, read here by an unpickler that builds lists, tuples and strings only (a file asking for
+  anything else is refused, never run).
 
 The detections are mapped into the stored images and triangulated by :mod:`.triangulation`.
 """
@@ -14,94 +23,114 @@ The detections are mapped into the stored images and triangulated by :mod:`.tria
 from __future__ import annotations
 
 import csv
+import io
+import pickle
 from collections.abc import Sequence
 from pathlib import Path
 
 import attrs
 import numpy as np
 
-from mmcsplat.plugin_api.errors import InputError, MissingFileError
-from mmcsplat.plugin_api.interfaces import KeypointObservations
+from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.parameters import between, parameter
-from mmcsplat.storage.camera_names import match_cameras
-from mmcsplat.storage.session import SessionReader
 
-from .triangulation import TriangulatedKeypoints, recorded_cameras, to_session_pixels
+from .keypoint_tables import KeypointTable, TableKeypoints
+
+COORDS = ("x", "y", "likelihood")
+#: The key DeepLabCut writes its table under.
+HDF_KEY = "df_with_missing"
 
 
-def read_deeplabcut_csv(path: Path) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
+def keypoint_table(path: Path, columns: Sequence[tuple[str, ...]], frames: Sequence[int], values: np.ndarray) -> KeypointTable:
+    """The first individual's (body parts, frame numbers, [T, L, 3] x, y, likelihood) of a DeepLabCut table
+    whose columns are (scorer, [individual,] body part, coordinate) labels and ``values`` [T, columns]."""
+    if not columns or any(len(label) != len(columns[0]) or len(label) not in (3, 4) for label in columns):
+        raise InputError(f"{path}: not a DeepLabCut table (its columns need the levels scorer, [individuals,] bodyparts and coords)")
+    keep = [c for c, label in enumerate(columns) if len(label) == 3 or label[1] == columns[0][1]]
+    index = {(columns[c][-2], columns[c][-1]): c for c in keep}
+    names = tuple(dict.fromkeys(columns[c][-2] for c in keep))
+    missing = [(name, coord) for name in names for coord in COORDS if (name, coord) not in index]
+    if missing:
+        raise InputError(f"{path}: body part {missing[0][0]!r} lacks its {missing[0][1]!r} column")
+    table = np.stack([values[:, [index[(name, coord)] for coord in COORDS]] for name in names], axis=1)
+    return names, np.asarray(frames, dtype=np.int64), table.astype(np.float64)
+
+
+def read_deeplabcut_csv(path: Path) -> KeypointTable:
     """(body part names, frame numbers [T], table [T, L, 3] of x, y, likelihood; NaN where empty)."""
     try:
         with open(path, newline="", encoding="utf-8-sig") as handle:
             rows = list(csv.reader(handle))
     except OSError as error:
         raise InputError(f"{path}: cannot be read ({error})") from None
-    header = {row[0].strip().lower(): index for index, row in enumerate(rows[:4])
-              if row and row[0].strip().lower() in ("scorer", "individuals", "bodyparts", "coords")}
+    levels = ("scorer", "individuals", "bodyparts", "coords")
+    header = {row[0].strip().lower(): index for index, row in enumerate(rows[:4]) if row and row[0].strip().lower() in levels}
     if not {"scorer", "bodyparts", "coords"} <= set(header):
         raise InputError(f"{path}: not a DeepLabCut CSV (it needs the header rows scorer, bodyparts and coords)")
-    parts, coords = rows[header["bodyparts"]][1:], rows[header["coords"]][1:]
-    columns = range(len(coords))
-    if "individuals" in header:  # multi-animal: the first individual's columns
-        individuals = rows[header["individuals"]][1:]
-        columns = [c for c in columns if individuals[c] == individuals[0]]
-    names = tuple(dict.fromkeys(parts[c] for c in columns))
-    index = {(parts[c], coords[c]): c for c in columns}
-    missing = [(name, coord) for name in names for coord in ("x", "y", "likelihood") if (name, coord) not in index]
-    if missing:
-        raise InputError(f"{path}: body part {missing[0][0]!r} lacks its {missing[0][1]!r} column")
+    columns = list(zip(*(rows[header[level]][1:] for level in levels if level in header)))
     body = rows[max(header.values()) + 1 :]
-    frames, table = [], np.full((len(body), len(names), 3), np.nan)
+    frames, values = [], np.full((len(body), len(columns)), np.nan)
     for k, row in enumerate(body):
         try:
             frames.append(int(float(row[0])))
-            for j, name in enumerate(names):
-                for d, coord in enumerate(("x", "y", "likelihood")):
-                    cell = row[1 + index[(name, coord)]]
-                    table[k, j, d] = float(cell) if cell.strip() else np.nan
+            values[k] = [float(cell) if cell.strip() else np.nan for cell in row[1 : 1 + len(columns)]]
         except (ValueError, IndexError):
             raise InputError(f"{path}: line {max(header.values()) + 2 + k} is not a row of numbers for every column") from None
-    return names, np.asarray(frames, dtype=np.int64), table
+    return keypoint_table(path, columns, frames, values)
+
+
+class _PlainUnpickler(pickle.Unpickler):
+    """Builds lists, tuples, strings and numbers only: a pickle that names any class or function is refused."""
+
+    def find_class(self, module: str, name: str):
+        raise pickle.UnpicklingError(f"it refers to {module}.{name}")
+
+
+def read_deeplabcut_h5(path: Path) -> KeypointTable:
+    """A DeepLabCut HDF5 file (pandas' table format) as :func:`read_deeplabcut_csv` reads a CSV."""
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as file:
+            groups = [key for key in file if isinstance(file[key], h5py.Group)]
+            key = HDF_KEY if HDF_KEY in groups else groups[0] if len(groups) == 1 else None
+            if key is None or "table" not in file[key] or "non_index_axes" not in file[key].attrs:
+                raise InputError(f"{path}: not a DeepLabCut HDF5 table (no {HDF_KEY}/table with its column labels); "
+                                 "export it from DeepLabCut again, or as CSV")
+            records = file[key]["table"][()]
+            labels = file[key].attrs["non_index_axes"]
+    except OSError as error:
+        raise InputError(f"{path}: not a readable HDF5 file ({error})") from None
+    try:
+        axes = _PlainUnpickler(io.BytesIO(labels.tobytes() if isinstance(labels, np.ndarray) else bytes(labels))).load()
+        columns = [tuple(str(level) for level in label) for label in dict(axes)[1]]
+    except (pickle.UnpicklingError, EOFError, TypeError, ValueError, KeyError) as error:
+        raise InputError(f"{path}: its column labels (non_index_axes) are not DeepLabCut's ({error})") from None
+    blocks = sorted(name for name in records.dtype.names if name.startswith("values_block_"))
+    if "index" not in records.dtype.names or len(blocks) != 1:
+        raise InputError(f"{path}: its table has fields {records.dtype.names}, expected index and one values_block_0 of numbers")
+    values = np.asarray(records[blocks[0]], dtype=np.float64).reshape(len(records), -1)
+    if values.shape[1] != len(columns):
+        raise InputError(f"{path}: {values.shape[1]} values a row but {len(columns)} column labels")
+    return keypoint_table(path, columns, records["index"], values)
 
 
 @attrs.frozen
-class DeepLabCutKeypoints(TriangulatedKeypoints):
-    """DeepLabCut CSV keypoints per camera, triangulated (module docstring)."""
+class DeepLabCutKeypoints(TableKeypoints):
+    """DeepLabCut CSV or HDF5 keypoints per camera, triangulated (module docstring)."""
 
-    folder: str = parameter(doc="the folder of one DeepLabCut CSV per camera (anipose: pose-2d)", kw_only=True)
+    folder: str = parameter(doc="the folder of one DeepLabCut CSV or HDF5 file per camera (anipose: pose-2d)", kw_only=True)
     min_confidence: float = parameter(0.6, doc="detections of lower likelihood are not used (anipose's default score threshold)",
                                       validator=between(0, 1))
-    camera_map: dict | None = parameter(None, doc="session camera name → its CSV file's stem, where the names differ")
 
     @property
     def described(self) -> str:
         return f"DeepLabCut keypoints {self.folder}"
 
-    def observations(self, session: SessionReader, frames: Sequence[int]) -> list[KeypointObservations]:
-        """Every camera's detections at ``frames``, in the stored images' pixels (likelihood as confidence)."""
-        folder = Path(self.folder)
-        if not folder.is_dir():
-            raise MissingFileError(f"deeplabcut keypoints: folder {folder} does not exist")
-        cameras = [session.camera(name) for name in session.camera_names]
-        files = match_cameras(cameras, sorted(folder.glob("*.csv")), "keypoint file", folder, self.camera_map)
-        recorded = recorded_cameras(session)
-        capture = session.capture_frames(frames)
-        result, names = [], None
-        for camera in cameras:
-            parts, numbers, table = read_deeplabcut_csv(files[camera.name])
-            if names is not None and parts != names:
-                raise InputError(f"{files[camera.name]}: body parts {list(parts)} differ from the other cameras' {list(names)}")
-            names = parts
-            rows = {int(number): k for k, number in enumerate(numbers)}
-            pixels = np.zeros((len(frames), len(parts), 2))
-            confidence = np.zeros((len(frames), len(parts)))
-            for k, number in enumerate(capture):
-                if int(number) in rows:
-                    found = table[rows[int(number)]]
-                    known = np.all(np.isfinite(found), axis=1)
-                    pixels[k, known], confidence[k, known] = found[known, :2], found[known, 2]
-            if camera.name in recorded:
-                pixels = to_session_pixels(pixels, recorded[camera.name], camera)
-            confidence[confidence < self.min_confidence] = 0.0
-            result.append(KeypointObservations(camera.name, parts, frames, pixels, confidence))
-        return result
+    def files(self, folder: Path) -> dict[str, Path]:
+        """The folder's CSVs, else its ``.h5`` files, by stem."""
+        found = sorted(folder.glob("*.csv")) or sorted(folder.glob("*.h5"))
+        return {path.stem: path for path in found}
+
+    def read_table(self, path: Path) -> KeypointTable:
+        return read_deeplabcut_csv(path) if path.suffix.lower() == ".csv" else read_deeplabcut_h5(path)

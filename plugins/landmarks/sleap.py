@@ -1,0 +1,149 @@
+"""2D keypoints from SLEAP, one file per camera (anipose's layout), triangulated in the session's cameras.
+
+Files, read with h5py (``*.analysis.h5`` when the folder has any, else ``*.slp``), matched to the
+session's cameras by name (without ``.analysis.h5`` / ``.slp``) like videos, or by ``camera_map``:
+
+- ``.analysis.h5`` (SLEAP's analysis export): datasets stored column-major for MATLAB, so h5py reads them
+  transposed: ``tracks`` [tracks, 2, nodes, frames] (x, y; NaN where absent), ``point_scores`` [tracks,
+  nodes, frames] (optional), ``track_occupancy`` [frames, tracks] and ``node_names``. Row k is frame k of
+  the video (SLEAP exports from frame 0). The ``track`` parameter chooses the animal.
+- ``.slp`` (SLEAP's labels file, an HDF5 file): the ``metadata`` group's ``json`` attribute holds the
+  skeleton (its ``nodes`` list gives the node names; one skeleton only), ``frames`` the labelled frames
+  (``frame_idx``, ``instance_id_start``, ``instance_id_end``; one video only), ``instances`` their
+  instances (``instance_type`` 0 user-labelled, 1 predicted; ``track``; ``point_id_start``,
+  ``point_id_end``), and ``points`` / ``pred_points`` their points (``x``, ``y``, ``visible``, and
+  ``score`` for predictions). Per frame the user-labelled instance is taken over a prediction (hand-checked
+  labels win), the one on track ``track`` where instances are tracked. Confidence: 1 for a visible
+  user-labelled point, the score for a predicted one, 0 where not visible. Files older than format 1.1
+  put pixel centres at +0.5: their points are shifted by −0.5 to mmcsplat's (and OpenCV's) integer
+  centres.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import attrs
+import numpy as np
+
+from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.plugin_api.parameters import between, parameter
+
+from .keypoint_tables import KeypointTable, TableKeypoints
+
+ANALYSIS_SUFFIX = ".analysis.h5"
+LABELS_SUFFIX = ".slp"
+#: The .slp format version from which pixel centres are at integer coordinates.
+CENTRED_FORMAT = 1.1
+USER, PREDICTED = 0, 1
+
+
+def _names(raw: np.ndarray) -> tuple[str, ...]:
+    return tuple(name.decode() if isinstance(name, bytes) else str(name) for name in np.asarray(raw).ravel())
+
+
+def read_sleap_analysis(path: Path, track: int = 0) -> KeypointTable:
+    """(node names, frame numbers [T], [T, L, 3] x, y, score) of ``track`` in a SLEAP analysis HDF5 file."""
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as file:
+            missing = [key for key in ("tracks", "node_names") if key not in file]
+            if missing:
+                raise InputError(f"{path}: not a SLEAP analysis file (no {', '.join(missing)})")
+            tracks = np.asarray(file["tracks"][()], dtype=np.float64)
+            names = _names(file["node_names"][()])
+            scores = np.asarray(file["point_scores"][()], dtype=np.float64) if "point_scores" in file else None
+    except OSError as error:
+        raise InputError(f"{path}: not a readable HDF5 file ({error})") from None
+    if tracks.ndim != 4 or tracks.shape[1] != 2 or tracks.shape[2] != len(names):
+        raise InputError(f"{path}: 'tracks' has shape {tracks.shape}, expected [tracks, 2, {len(names)} nodes, frames] as SLEAP writes it")
+    if not 0 <= track < tracks.shape[0]:
+        raise InputError(f"{path}: no track {track} (the file has {tracks.shape[0]}); choose one with track=N")
+    xy = tracks[track].transpose(2, 1, 0)  # [frames, nodes, 2]
+    score = scores[track].T if scores is not None and scores.shape == (tracks.shape[0], len(names), tracks.shape[3]) else np.ones(xy.shape[:2])
+    score = np.where(np.all(np.isfinite(xy), axis=-1), np.nan_to_num(score, nan=1.0), np.nan)
+    return names, np.arange(xy.shape[0]), np.concatenate([xy, score[..., None]], axis=-1)
+
+
+def read_sleap_labels(path: Path, track: int = 0) -> KeypointTable:
+    """(node names, labelled frame numbers, [T, L, 3] x, y, confidence) of a SLEAP ``.slp`` file."""
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as file:
+            missing = [key for key in ("metadata", "frames", "instances", "points", "pred_points") if key not in file]
+            if missing:
+                raise InputError(f"{path}: not a SLEAP labels file (no {', '.join(missing)})")
+            metadata = json.loads(_text(file["metadata"].attrs["json"]))
+            version = float(file["metadata"].attrs.get("format_id", CENTRED_FORMAT))
+            frames, instances = file["frames"][()], file["instances"][()]
+            points, predicted = file["points"][()], file["pred_points"][()]
+    except (OSError, KeyError, ValueError) as error:
+        raise InputError(f"{path}: not a readable SLEAP labels file ({error})") from None
+    if len(metadata.get("skeletons", [])) > 1:
+        raise InputError(f"{path}: {len(metadata['skeletons'])} skeletons; mmcsplat reads files of one skeleton")
+    names = tuple(node["name"] for node in metadata.get("nodes", []))
+    if not names:
+        raise InputError(f"{path}: its metadata names no skeleton nodes")
+    if len(np.unique(frames["video"])) > 1:
+        raise InputError(f"{path}: labels of several videos; export one .slp (or .analysis.h5) per camera")
+    offset = 0.5 if version < CENTRED_FORMAT else 0.0
+    numbers, table = [], []
+    for frame in frames:
+        chosen = _instance(instances[frame["instance_id_start"] : frame["instance_id_end"]], track)
+        if chosen is None:
+            continue
+        user = chosen["instance_type"] == USER
+        rows = (points if user else predicted)[chosen["point_id_start"] : chosen["point_id_end"]]
+        if len(rows) != len(names):
+            raise InputError(f"{path}: frame {frame['frame_idx']}: an instance of {len(rows)} points, but the skeleton has {len(names)} nodes")
+        confidence = np.where(rows["visible"], 1.0 if user else rows["score"], np.nan)
+        xy = np.where(rows["visible"][:, None], np.column_stack([rows["x"], rows["y"]]) - offset, np.nan)
+        numbers.append(int(frame["frame_idx"]))
+        table.append(np.column_stack([xy, confidence]))
+    return names, np.asarray(numbers, dtype=np.int64), np.asarray(table, dtype=np.float64).reshape(len(numbers), len(names), 3)
+
+
+def _text(value) -> str:
+    return value.decode() if isinstance(value, bytes) else str(value)
+
+
+def _instance(instances: np.ndarray, track: int):
+    """The frame's user-labelled instance if any, else its prediction; on ``track`` where instances are tracked."""
+    for kind in (USER, PREDICTED):
+        candidates = instances[instances["instance_type"] == kind]
+        if len(candidates) == 0:
+            continue
+        tracked = candidates[candidates["track"] == track]
+        if len(tracked):
+            return tracked[0]
+        if np.all(candidates["track"] < 0):
+            return candidates[0]
+    return None
+
+
+@attrs.frozen
+class SleapKeypoints(TableKeypoints):
+    """SLEAP keypoints (``.analysis.h5`` or ``.slp``) per camera, triangulated (module docstring)."""
+
+    folder: str = parameter(doc="the folder of one SLEAP .analysis.h5 or .slp file per camera", kw_only=True)
+    min_confidence: float = parameter(0.3, doc="points of a lower score are not used (user-labelled visible points score 1)",
+                                      validator=between(0, 1))
+    track: int = parameter(0, doc="the track (animal) to read, where the files are tracked")
+
+    @property
+    def described(self) -> str:
+        return f"SLEAP keypoints {self.folder}"
+
+    def files(self, folder: Path) -> dict[str, Path]:
+        """The folder's ``*.analysis.h5``, else its ``*.slp``, by name without that suffix."""
+        for suffix in (ANALYSIS_SUFFIX, LABELS_SUFFIX):
+            found = sorted(path for path in folder.iterdir() if path.is_file() and path.name.endswith(suffix))
+            if found:
+                return {path.name[: -len(suffix)]: path for path in found}
+        return {}
+
+    def read_table(self, path: Path) -> KeypointTable:
+        return read_sleap_analysis(path, self.track) if path.name.endswith(ANALYSIS_SUFFIX) else read_sleap_labels(path, self.track)
