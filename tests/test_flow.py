@@ -45,6 +45,8 @@ def test_flow_follows_a_known_shift_and_is_stored(tmp_path, capsys):
     assert not SessionFlow(session).available
     assert main(["flow", str(session), "--no-progress"]) == 0
     assert "a: 3 pairs of frames" in capsys.readouterr().out
+    assert main(["flow", str(session), "--no-progress"]) == 0
+    assert "a: 3 pairs of frames already computed" in capsys.readouterr().out
     flow = SessionFlow(session)
     assert flow.available and flow.cameras_with_flow == ("a", "b")  # the held-out camera's images stay out
     assert flow.method == method_record("medium")
@@ -75,7 +77,7 @@ def test_an_interrupted_computation_resumes_and_is_invisible(tmp_path):
             raise KeyboardInterrupt
     assert not SessionFlow(session).available
     summaries = {summary.camera: summary for summary in compute_flow(session, progress=False)}
-    assert (summaries["a"].computed, summaries["a"].resumed) == (2, 1)
+    assert (summaries["a"].computed, summaries["a"].kept) == (2, 1)
     assert np.allclose(SessionFlow(session).pair(0, "a").forward, pair.forward, atol=0.01)
 
 

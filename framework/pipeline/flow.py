@@ -13,6 +13,7 @@ memory does not grow with the sequence; the result is stored in the session
 from __future__ import annotations
 
 import os
+import time
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
@@ -21,7 +22,7 @@ import numpy as np
 
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.storage.session import SessionReader
-from mmcsplat.storage.session.flow import FlowPair, FlowWriter, pair_present
+from mmcsplat.storage.session.flow import FlowPair, FlowWriter, SessionFlow, pair_present
 
 if TYPE_CHECKING:
     import cv2
@@ -36,13 +37,15 @@ DEFAULT_PRESET = "medium"
 
 @attrs.frozen
 class FlowSummary:
-    """What :func:`compute_flow` did: pairs computed now and kept from an interrupted run, per camera, and
-    the median forward confidence of the pairs computed now (``None`` when none was)."""
+    """What :func:`compute_flow` did for one camera: pairs computed now, pairs kept (from an interrupted run,
+    or a complete flow of the same method), the CPU seconds per pair computed now and the share of their
+    pixels with a forward confidence above one half (``None`` when none was computed)."""
 
     camera: str
     computed: int
-    resumed: int
-    median_confidence: float | None
+    kept: int
+    cpu_s_per_pair: float | None
+    confident_share: float | None
 
 
 def method_record(preset: str) -> dict:
@@ -94,7 +97,7 @@ def flow_pair(first: np.ndarray, second: np.ndarray, dis: cv2.DISOpticalFlow) ->
 def compute_flow(url: str | os.PathLike, cameras: Sequence[str] | None = None, preset: str = DEFAULT_PRESET, *,
                  progress: bool = True) -> list[FlowSummary]:
     """Compute and store the flow of ``cameras`` (default: the session's training cameras), resuming an
-    interrupted computation of the same preset; returns what was done per camera."""
+    interrupted computation of the same preset and keeping a complete one; returns what was done per camera."""
     from tqdm import tqdm
 
     dis = dis_flow(preset)
@@ -102,19 +105,23 @@ def compute_flow(url: str | os.PathLike, cameras: Sequence[str] | None = None, p
     names = tuple(cameras) if cameras else session.train_cameras
     for name in names:
         session.camera(name)
+    stored = SessionFlow(url)
+    if stored.method == method_record(preset) and stored.cameras_with_flow == names:
+        return [FlowSummary(name, 0, int(pair_present(session.present(name)).sum()), None, None) for name in names]
     summaries = []
     with FlowWriter(url, method=method_record(preset), cameras=names) as writer:
         for name in names:
             pairs = writer.missing(name)
-            resumed = int(pair_present(session.present(name)).sum()) - len(pairs)
-            confidences, previous = [], None
+            kept = int(pair_present(session.present(name)).sum()) - len(pairs)
+            confident, previous, began = [], None, time.process_time()
             for t in tqdm(pairs, desc=f"flow {name}", unit="pair", disable=not progress):
                 first = previous[1] if previous is not None and previous[0] == t else grey(session.frame(int(t), name).rgb)
                 second = grey(session.frame(int(t) + 1, name).rgb)
                 pair = flow_pair(first, second, dis)
                 writer.write(name, int(t), pair)
-                confidences.append(float(np.median(pair.forward_confidence)))
+                confident.append(float((pair.forward_confidence > 0.5).mean()))
                 previous = (t + 1, second)
-            summaries.append(FlowSummary(name, len(pairs), resumed, float(np.median(confidences)) if confidences else None))
+            cpu = (time.process_time() - began) / len(pairs) if len(pairs) else None
+            summaries.append(FlowSummary(name, len(pairs), kept, cpu, float(np.mean(confident)) if confident else None))
     return summaries
 
