@@ -32,8 +32,8 @@ REFINEMENTS = 3
 
 @attrs.frozen(eq=False)
 class LiftedMotion:
-    """``displacement`` [N, 3] metres (zero where not lifted) and ``lifted`` [N] bool: the points with enough
-    well-placed cameras."""
+    """``displacement`` [N, 3] float32 metres (zero where not lifted) and ``lifted`` [N] bool: the points with
+    enough well-placed cameras."""
 
     displacement: torch.Tensor
     lifted: torch.Tensor
@@ -88,7 +88,7 @@ def lift_flow(points: torch.Tensor, cameras: Sequence[Camera], flows: torch.Tens
         safe = torch.where(lifted[:, None, None], normal, identity)
         step = torch.linalg.solve(safe, rhs[..., None])[..., 0]
         displacement = displacement + torch.where(lifted[:, None], step, 0.0)
-    return LiftedMotion(displacement.to(flows.dtype if flows.is_floating_point() else torch.float32), lifted)
+    return LiftedMotion(displacement.to(torch.float32), lifted)
 
 
 def sample_field(field: np.ndarray, pixels: torch.Tensor) -> torch.Tensor:
