@@ -21,6 +21,7 @@ COMMANDS = {
     "synth": "synth",
     "ingest": "ingest",
     "plates": "plates",
+    "flow": "flow",
     "segment": "segment",
     "fit": "fit",
     "track": "track",

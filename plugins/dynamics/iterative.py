@@ -1,6 +1,7 @@
 """The ``iterative`` dynamics (Luiten et al. 2023, as the reference study used it): every frame is fitted
-from the previous one, moved ahead at constant velocity, with local-rigidity priors holding the
-foreground together.
+from the previous one, moved ahead — the foreground by the session's optical flow lifted to 3D where it has
+flow (:mod:`mmcsplat.training.flow_prediction`), everything else at constant velocity — with
+local-rigidity priors holding the foreground together.
 
 Per frame: ``iterations`` Adam steps, each on one training camera (a fresh random order per pass over
 the cameras present in that frame), of L_im + λ_seg·L_seg + λ_rigid·L_rigid + λ_rot·L_rot + λ_iso·L_iso.
@@ -11,6 +12,7 @@ frame. Only the current frame's images are held.
 
 from __future__ import annotations
 
+import logging
 import time
 from pathlib import Path
 from typing import Any, ClassVar
@@ -20,11 +22,12 @@ import numpy as np
 import torch
 
 from mmcsplat.plugin_api.interfaces import Dynamics, TrackingContext, TrainingView
-from mmcsplat.plugin_api.parameters import above, at_least, between, parameter
+from mmcsplat.plugin_api.parameters import above, at_least, between, one_of, parameter
 from mmcsplat.plugin_api.render_contract import RenderCameras
 from mmcsplat.scene.gaussian_table import GAUSSIAN_PARAMETERS
 from mmcsplat.storage.tracks import TrackWriter
 from mmcsplat.training.finite import NonFiniteError, check_finite
+from mmcsplat.training.flow_prediction import FlowGuidance, FlowPrediction
 from mmcsplat.training.model import GaussianModel
 from mmcsplat.training.objective import view_loss, view_psnr
 from mmcsplat.training.schedule import CameraSchedule
@@ -34,6 +37,8 @@ from .rigidity import NeighbourGraph, RigidityPrior
 FROZEN = ("opacity_logits", "log_scales")
 COLORS = ("color_logits", "seg_logits")
 RESET_EACH_FRAME = ("means", "quats")
+
+logger = logging.getLogger(__name__)
 
 
 @attrs.frozen
@@ -69,6 +74,9 @@ class IterativeDynamics(Dynamics):
     quats_lr: float | None = parameter(None, doc="learning rate of the rotations (none: the fit's)", validator=above(0))
     learn_colors: bool = parameter(True, doc="colours keep learning after the first frame (as Luiten et al.)")
     seed: int = parameter(0, doc="seed of the camera order")
+    predict: str = parameter("flow", doc="each frame's start: 'flow' moves the foreground by the session's optical flow lifted to 3D "
+                             "(constant velocity without flow), 'constant-velocity' moves everything by its last change",
+                             validator=one_of("flow", "constant-velocity"))
 
     # ------------------------------------------------------------------------------------------ setup
 
@@ -107,6 +115,7 @@ class IterativeDynamics(Dynamics):
         attributes = {"first_frame": context.frames.start, "foreground_gaussians": len(graph.foreground),
                       "neighbours": int(graph.neighbours.shape[1]), "lambda_w": self.lambda_w}
         results: list[FrameResult] = []
+        motion = self._flow_prediction(context, foreground)
         with TrackWriter(out, num_frames=len(context.frames), static=static, method="iterative", attrs=attributes,
                          overwrite=context.overwrite) as writer:
             writer.write_frame(0, **self._dynamic(model))
@@ -114,7 +123,7 @@ class IterativeDynamics(Dynamics):
             frames = tqdm(list(enumerate(context.frames))[1:], desc="track", unit="frame", disable=not context.progress)
             for k, t in frames:
                 prior.remember(params["means"], params["quats"])
-                previous = self._predict(model, previous)
+                previous = self._predict(model, previous, motion, context.frames[k - 1])
                 model.reset_moments(RESET_EACH_FRAME)
                 result = self._fit_frame(model, prior, context, cameras, t, generator)
                 results.append(result)
@@ -127,22 +136,41 @@ class IterativeDynamics(Dynamics):
             "foreground_gaussians": len(graph.foreground),
             "neighbour_distance_median_m": float(graph.distances.median()),
             "frames": [attrs.asdict(result) for result in results],
+            "prediction": "constant-velocity" if motion is None else "flow",
+            **({"flow_fallback_gaussians": motion.fallbacks} if motion is not None else {}),
         }
 
     @staticmethod
     def _unit(quats: torch.Tensor) -> torch.Tensor:
         return quats / quats.norm(dim=-1, keepdim=True)
 
-    def _predict(self, model: GaussianModel, previous: tuple[torch.Tensor, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
-        """Move means and rotations ahead by their last frame-to-frame change; returns the current state
-        (the "previous" of the next prediction)."""
+    def _flow_prediction(self, context: TrackingContext, foreground: torch.Tensor) -> FlowGuidance | None:
+        """The flow the foreground is predicted from, or ``None`` (constant velocity, with a note why)."""
+        if self.predict != "flow":
+            return None
+        if context.frames.step != 1:
+            logger.warning("iterative: frames step by %d; the flow links consecutive frames: constant-velocity prediction", context.frames.step)
+            return None
+        prediction = FlowPrediction.of_session(context.session.url, context.cameras, context.renderer)
+        if prediction is None:
+            logger.warning("iterative: %s has no optical flow in two training cameras (`mmcsplat flow` computes it): "
+                           "constant-velocity prediction", context.session.url)
+            return None
+        return FlowGuidance(prediction, foreground)
+
+    def _predict(self, model: GaussianModel, previous: tuple[torch.Tensor, torch.Tensor], motion: FlowGuidance | None = None,
+                 t: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
+        """Move means and rotations ahead by their last frame-to-frame change — the foreground's means by the
+        flow from session frame ``t`` instead, where ``motion`` lifts it; returns the current state (the
+        "previous" of the next prediction)."""
         params = model.params
         means, quats = params["means"].detach().clone(), self._unit(params["quats"].detach())
         prev_means, prev_quats = previous
         # q and −q are one rotation: take the previous one on the current one's side before extrapolating.
         prev_quats = torch.where((prev_quats * quats).sum(-1, keepdim=True) < 0, -prev_quats, prev_quats)
+        predicted = 2 * means - prev_means if motion is None else motion.predict(model.gaussians(), prev_means, t)
         with torch.no_grad():
-            params["means"].copy_(2 * means - prev_means)
+            params["means"].copy_(predicted)
             params["quats"].copy_(self._unit(2 * quats - prev_quats))
         return means, quats
 

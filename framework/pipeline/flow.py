@@ -1,0 +1,127 @@
+"""Dense optical flow between consecutive frames of every training camera, computed once per session.
+
+OpenCV's DIS flow (Kroeger et al. 2016) on the stored, undistorted images turned grey, forward (t → t+1)
+and backward (t+1 → t). Each pixel's confidence comes from forward–backward consistency: following the
+forward flow and then the backward flow from where it lands should return to the pixel; the confidence is
+exp(−|f + b|² / (0.01 (|f|² + |b|²) + 0.5)), the tolerance of Sundaram et al. (2010) that grows with the
+motion, and 0 where the forward flow leaves the image. The DIS preset was chosen by measurement
+(docs/dynamics.md, "Flow-guided prediction"). Frames stream through the session reader two at a time, so
+memory does not grow with the sequence; the result is stored in the session
+(:mod:`mmcsplat.storage.session.flow`), resumably.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
+import attrs
+import numpy as np
+
+from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.storage.session import SessionReader
+from mmcsplat.storage.session.flow import FlowPair, FlowWriter, SessionFlow, pair_present
+
+if TYPE_CHECKING:
+    import cv2
+
+#: OpenCV's DIS presets (``cv2.DISOPTICAL_FLOW_PRESET_<NAME>``); cv2 is imported only to compute, so that the
+#: command line starts without it.
+PRESETS = ("ultrafast", "fast", "medium")
+#: The default preset: of the three, its flow lifted to 3D predicts the Pose2Sim demo's triangulated joints
+#: best (1/4 scale: 10.6 mm median against 11.2–11.7 mm), at 0.06 CPU s per pair (docs/dynamics.md).
+DEFAULT_PRESET = "medium"
+
+
+@attrs.frozen
+class FlowSummary:
+    """What :func:`compute_flow` did for one camera: pairs computed now, pairs kept (from an interrupted run,
+    or a complete flow of the same method), the CPU seconds per pair computed now and the share of their
+    pixels with a forward confidence above one half (``None`` when none was computed)."""
+
+    camera: str
+    computed: int
+    kept: int
+    cpu_s_per_pair: float | None
+    confident_share: float | None
+
+
+def method_record(preset: str) -> dict:
+    """How the flow is made, as stored with it (a different record means recomputing)."""
+    import cv2
+
+    return {"name": "dis", "preset": preset, "opencv": cv2.__version__, "confidence": "forward-backward"}
+
+
+def grey(rgb: np.ndarray) -> np.ndarray:
+    """[H, W] uint8 luminance of [H, W, 3] RGB."""
+    import cv2
+
+    return cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2GRAY)
+
+
+def consistency(forward: np.ndarray, backward: np.ndarray) -> np.ndarray:
+    """[H, W] confidence of ``forward`` [H, W, 2] given ``backward`` [H, W, 2] of the other frame (module docstring)."""
+    import cv2
+
+    height, width = forward.shape[:2]
+    columns, rows = np.meshgrid(np.arange(width, dtype=np.float32), np.arange(height, dtype=np.float32))
+    landed_x, landed_y = columns + forward[..., 0], rows + forward[..., 1]
+    returned = cv2.remap(backward, landed_x, landed_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    error = np.sum((forward + returned) ** 2, axis=-1)
+    tolerance = 0.01 * (np.sum(forward**2, axis=-1) + np.sum(returned**2, axis=-1)) + 0.5
+    inside = (landed_x >= 0) & (landed_x <= width - 1) & (landed_y >= 0) & (landed_y <= height - 1)
+    return np.where(inside, np.exp(-error / tolerance), 0.0).astype(np.float32)
+
+
+def dis_flow(preset: str) -> cv2.DISOpticalFlow:
+    """OpenCV's DIS flow with ``preset`` (one of :data:`PRESETS`), single-threaded: the machine is shared
+    and flow is computed once per session."""
+    import cv2
+
+    if preset not in PRESETS:
+        raise InputError(f"unknown DIS preset {preset!r}: use one of {', '.join(PRESETS)}")
+    cv2.setNumThreads(1)
+    return cv2.DISOpticalFlow.create(getattr(cv2, f"DISOPTICAL_FLOW_PRESET_{preset.upper()}"))
+
+
+def flow_pair(first: np.ndarray, second: np.ndarray, dis: cv2.DISOpticalFlow) -> FlowPair:
+    """The forward and backward flow between two grey images, with their confidences."""
+    forward = dis.calc(first, second, None)
+    backward = dis.calc(second, first, None)
+    return FlowPair(forward, backward, consistency(forward, backward), consistency(backward, forward))
+
+
+def compute_flow(url: str | os.PathLike, cameras: Sequence[str] | None = None, preset: str = DEFAULT_PRESET, *,
+                 progress: bool = True) -> list[FlowSummary]:
+    """Compute and store the flow of ``cameras`` (default: the session's training cameras), resuming an
+    interrupted computation of the same preset and keeping a complete one; returns what was done per camera."""
+    from tqdm import tqdm
+
+    dis = dis_flow(preset)
+    session = SessionReader(url, cache_bytes=0)
+    names = tuple(cameras) if cameras else session.train_cameras
+    for name in names:
+        session.camera(name)
+    stored = SessionFlow(url)
+    if stored.method == method_record(preset) and stored.cameras_with_flow == names:
+        return [FlowSummary(name, 0, int(pair_present(session.present(name)).sum()), None, None) for name in names]
+    summaries = []
+    with FlowWriter(url, method=method_record(preset), cameras=names) as writer:
+        for name in names:
+            pairs = writer.missing(name)
+            kept = int(pair_present(session.present(name)).sum()) - len(pairs)
+            confident, previous, began = [], None, time.process_time()
+            for t in tqdm(pairs, desc=f"flow {name}", unit="pair", disable=not progress):
+                first = previous[1] if previous is not None and previous[0] == t else grey(session.frame(int(t), name).rgb)
+                second = grey(session.frame(int(t) + 1, name).rgb)
+                pair = flow_pair(first, second, dis)
+                writer.write(name, int(t), pair)
+                confident.append(float((pair.forward_confidence > 0.5).mean()))
+                previous = (t + 1, second)
+            cpu = (time.process_time() - began) / len(pairs) if len(pairs) else None
+            summaries.append(FlowSummary(name, len(pairs), kept, cpu, float(np.mean(confident)) if confident else None))
+    return summaries
+

@@ -1,0 +1,117 @@
+"""Optical flow per session: computed by `mmcsplat flow`, stored in the session, read pair by pair, resumed
+after an interruption, and replaced atomically."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from rig_fixtures import ring_cameras
+
+from mmcsplat.cli.main import main
+from mmcsplat.pipeline.flow import compute_flow, consistency, method_record
+from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.storage.session import SessionReader, SessionUpdater, SessionWriter
+from mmcsplat.storage.session.flow import FlowWriter, SessionFlow
+
+SHIFT = (3.0, -2.0)  # pixels per frame: (u, v)
+FRAMES = 4
+
+
+def texture(width: int, height: int) -> np.ndarray:
+    """Smooth random texture, larger than the frames, that DIS follows well."""
+    import cv2
+
+    noise = np.random.default_rng(0).random((height + 40, width + 40)).astype(np.float32)
+    smooth = cv2.GaussianBlur(noise, (0, 0), 2.0)
+    return (255 * (smooth - smooth.min()) / np.ptp(smooth)).astype(np.uint8)
+
+
+def write_session(path, absent=()):
+    cameras = ring_cameras(["a", "b", "c"], width=96, height=72, distortion=(0, 0, 0, 0, 0))
+    base = texture(96, 72)
+    with SessionWriter(path, cameras=cameras, num_frames=FRAMES, fps=30.0, heldout=["c"]) as writer:
+        for camera in cameras:
+            for t in range(FRAMES):
+                if (camera.name, t) in absent:
+                    continue
+                u, v = 20 - round(SHIFT[0] * t), 20 - round(SHIFT[1] * t)  # the content moves by +SHIFT
+                grey = base[v : v + 72, u : u + 96]
+                writer.write_frame(camera.name, t, np.repeat(grey[..., None], 3, axis=-1), mask=np.zeros((72, 96), bool))
+    return path
+
+
+def test_flow_follows_a_known_shift_and_is_stored(tmp_path, capsys):
+    session = write_session(tmp_path / "s.zarr")
+    assert not SessionFlow(session).available
+    assert main(["flow", str(session), "--no-progress"]) == 0
+    assert "a: 3 pairs of frames" in capsys.readouterr().out
+    assert main(["flow", str(session), "--no-progress"]) == 0
+    assert "a: 3 pairs of frames already computed" in capsys.readouterr().out
+    flow = SessionFlow(session)
+    assert flow.available and flow.cameras_with_flow == ("a", "b")  # the held-out camera's images stay out
+    assert flow.method == method_record("medium")
+    pair = flow.pair(1, "a")
+    inner = (slice(10, -10), slice(10, -10))
+    assert np.allclose(np.median(pair.forward[inner], axis=0), SHIFT, atol=0.2)
+    assert np.allclose(np.median(pair.backward[inner], axis=0), [-SHIFT[0], -SHIFT[1]], atol=0.2)
+    assert np.median(pair.forward_confidence[inner]) > 0.8
+    with pytest.raises(InputError, match="'c' has no optical flow"):
+        flow.pair(0, "c")
+    SessionReader(session).frame(0, "a")  # the session still reads
+
+
+def test_pairs_with_an_absent_frame_are_skipped(tmp_path):
+    session = write_session(tmp_path / "s.zarr", absent={("b", 2)})
+    summaries = {summary.camera: summary for summary in compute_flow(session, progress=False)}
+    assert summaries["a"].computed == 3 and summaries["b"].computed == 1
+    with pytest.raises(InputError, match="no flow from frame 1 to 2"):
+        SessionFlow(session).pair(1, "b")
+
+
+def test_an_interrupted_computation_resumes_and_is_invisible(tmp_path):
+    session = write_session(tmp_path / "s.zarr")
+    with pytest.raises(KeyboardInterrupt):
+        with FlowWriter(session, method=method_record("medium"), cameras=("a", "b")) as writer:
+            pair = compute_pair_of(session, 0)
+            writer.write("a", 0, pair)
+            raise KeyboardInterrupt
+    assert not SessionFlow(session).available
+    summaries = {summary.camera: summary for summary in compute_flow(session, progress=False)}
+    assert (summaries["a"].computed, summaries["a"].kept) == (2, 1)
+    assert np.allclose(SessionFlow(session).pair(0, "a").forward, pair.forward, atol=0.01)
+
+
+def test_another_preset_replaces_the_flow_and_updates_keep_it(tmp_path):
+    session = write_session(tmp_path / "s.zarr")
+    compute_flow(session, progress=False)
+    first = SessionFlow(session)._group_name
+    compute_flow(session, preset="ultrafast", progress=False)
+    flow = SessionFlow(session)
+    assert flow.method["preset"] == "ultrafast" and flow._group_name != first
+    assert first not in set(flow._group.group_keys())  # the replaced flow is deleted
+    with SessionUpdater(session) as updater:
+        for t in range(FRAMES):
+            updater.write("a", "mask", t, np.ones((72, 96), bool))
+    assert SessionFlow(session).available
+
+
+def test_an_incomplete_flow_is_refused(tmp_path):
+    session = write_session(tmp_path / "s.zarr")
+    with pytest.raises(InputError, match="the flow is incomplete"):
+        with FlowWriter(session, method=method_record("medium"), cameras=("a",)):
+            pass
+    assert not SessionFlow(session).available
+
+
+def test_confidence_drops_where_forward_and_backward_disagree():
+    forward = np.full((8, 8, 2), 1.0, np.float32)
+    assert consistency(forward, -forward)[2:6, 2:6].min() > 0.99
+    assert consistency(forward, forward)[2:6, 2:6].max() < 0.01
+    assert consistency(forward, -forward)[:, -1].max() == 0  # the flow leaves the image
+
+
+def compute_pair_of(session, t):
+    from mmcsplat.pipeline.flow import dis_flow, flow_pair, grey
+
+    reader = SessionReader(session)
+    return flow_pair(grey(reader.frame(t, "a").rgb), grey(reader.frame(t + 1, "a").rgb), dis_flow("medium"))

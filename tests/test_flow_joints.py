@@ -1,0 +1,51 @@
+"""Measuring flow against triangulated joints: exact flows at the joints' projections predict their next
+positions where constant velocity and standing still cannot."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from rig_fixtures import ring_cameras
+
+from mmcsplat.analysis.flow_joints import joint_prediction_errors
+from mmcsplat.storage.landmark_files import write_trc
+from mmcsplat.storage.session import SessionWriter
+from mmcsplat.storage.session.flow import FlowPair, FlowWriter
+from mmcsplat.training.flow_lifting import camera_matrices, project
+
+CAMERAS = ring_cameras(["a", "b", "c"], width=160, height=120, distortion=(0, 0, 0, 0, 0))
+FRAMES = 5
+START = np.array([[0.0, 0.0, 0.0], [0.3, 0.2, 0.1], [-0.3, 0.1, 0.2]])
+ACCELERATION = np.array([0.004, -0.002, 0.003])  # metres per frame²
+
+
+def positions(t: int) -> np.ndarray:
+    return START + ACCELERATION * t**2
+
+
+def test_exact_flow_predicts_accelerating_joints(tmp_path):
+    url = tmp_path / "s.zarr"
+    with SessionWriter(url, cameras=CAMERAS, num_frames=FRAMES, fps=30.0) as writer:
+        for camera in CAMERAS:
+            for t in range(FRAMES):
+                writer.write_frame(camera.name, t, np.zeros((120, 160, 3), np.uint8))
+    K, viewmats = camera_matrices(CAMERAS)
+    with FlowWriter(url, method={"name": "exact"}, cameras=[camera.name for camera in CAMERAS]) as writer:
+        for t in range(FRAMES - 1):
+            before, _, _ = project(torch.as_tensor(positions(t)), K, viewmats)
+            after, _, _ = project(torch.as_tensor(positions(t + 1)), K, viewmats)
+            for c, camera in enumerate(CAMERAS):
+                forward = np.zeros((120, 160, 2), np.float32)
+                for (u, v), shift in zip(before[c].numpy(), (after[c] - before[c]).numpy(), strict=True):
+                    forward[int(v) - 3 : int(v) + 4, int(u) - 3 : int(u) + 4] = shift  # each joint's neighbourhood moves with it
+                confidence = np.ones((120, 160), np.float32)
+                writer.write(camera.name, t, FlowPair(forward, -forward, confidence, confidence))
+    trc = tmp_path / "joints.trc"
+    write_trc(trc, ["hip", "knee", "ankle"], np.arange(FRAMES) / 30.0, np.stack([positions(t) for t in range(FRAMES)]), 30.0)
+    errors = joint_prediction_errors(url, trc)
+    assert errors.frames.tolist() == [1, 2, 3]
+    assert np.nanmax(errors.flow) < 1e-3  # float16 flow, exact otherwise
+    np.testing.assert_allclose(errors.constant_velocity, 2 * np.linalg.norm(ACCELERATION), rtol=1e-6)
+    assert (errors.still > 0.01).all()
+    summary = errors.summary()
+    assert summary["lifted_share"] == 1.0 and summary["moving_flow_median_mm"] < 1.0
