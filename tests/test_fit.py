@@ -16,6 +16,7 @@ from mmcsplat.pipeline.track import track_run
 from mmcsplat.storage.curves import read_curves
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.training.finite import NonFiniteError
+from mmcsplat.training.loop import TrainingLoop
 
 
 @pytest.fixture(scope="module")
@@ -43,18 +44,18 @@ def test_killed_run_resumes_to_the_same_parameters(session, tmp_path, monkeypatc
     config = load_config(write_config(tmp_path / "fit.toml", iterations=30, checkpoint_every=10))
     FirstFrameFit(session, config, tmp_path / "straight", progress=False).run()
 
-    original = FirstFrameFit._prune
+    original = TrainingLoop._prune
 
-    def killed_at_15(self, model, step):
-        original(self, model, step)
+    def killed_at_15(self, step):
+        original(self, step)
         if step == 14:
             raise KeyboardInterrupt  # as a kill between checkpoints
-    monkeypatch.setattr(FirstFrameFit, "_prune", killed_at_15)
+    monkeypatch.setattr(TrainingLoop, "_prune", killed_at_15)
     with pytest.raises(KeyboardInterrupt):
         FirstFrameFit(session, config, tmp_path / "resumed", progress=False).run()
     # Checkpointed at 10 iterations: in the middle of the third block of the 4 training cameras.
     assert torch.load(tmp_path / "resumed" / CHECKPOINT, weights_only=False)["step"] == 10
-    monkeypatch.setattr(FirstFrameFit, "_prune", original)
+    monkeypatch.setattr(TrainingLoop, "_prune", original)
     FirstFrameFit(session, config, tmp_path / "resumed", progress=False).run()
 
     straight = torch.load(tmp_path / "straight" / CHECKPOINT, weights_only=False)["model"]["params"]
@@ -77,14 +78,14 @@ def test_killed_run_resumes_to_the_same_parameters(session, tmp_path, monkeypatc
 
 def test_nan_stops_cleanly_keeping_the_last_good_checkpoint(session, tmp_path, monkeypatch):
     config = load_config(write_config(tmp_path / "fit.toml", iterations=40, checkpoint_every=10))
-    original = FirstFrameFit._prune
+    original = TrainingLoop._prune
 
-    def inject_nan(self, model, step):
-        original(self, model, step)
+    def inject_nan(self, step):
+        original(self, step)
         if step == 15:
             with torch.no_grad():
-                model.params["log_scales"][3, 0] = float("nan")
-    monkeypatch.setattr(FirstFrameFit, "_prune", inject_nan)
+                self.model.params["log_scales"][3, 0] = float("nan")
+    monkeypatch.setattr(TrainingLoop, "_prune", inject_nan)
     with pytest.raises(NonFiniteError, match=r"parameter of 'log_scales'.*1 Gaussian.*iteration 15"):
         FirstFrameFit(session, config, tmp_path / "run", progress=False).run()
     info = json.loads((tmp_path / "run" / "run.json").read_text())

@@ -192,13 +192,13 @@ def test_interrupted_study_skips_done_cells_and_resumes_the_cut_off_fit(scene, t
     write_config(tmp_path / "fit.toml", iterations=3, checkpoint_every=1)
     study = load_study(write_study(tmp_path, 'folds = ["cam_0", "cam_2"]\n' + variant("a"),
                                    session=f'path = "{scene / "scene.zarr"}"'))
-    original = FirstFrameFit._prune
+    original = FirstFrameFit._checkpoint
 
-    def killed(self, model, step):
-        original(self, model, step)
-        if self.heldout_cameras[0].name == "cam_2" and step == 1:  # after the checkpoint at 1 iteration
+    def killed(self, path, *state):
+        original(self, path, *state)
+        if self.heldout_cameras[0].name == "cam_2" and state[-2] == 1:  # after the checkpoint at 1 iteration
             raise KeyboardInterrupt
-    monkeypatch.setattr(FirstFrameFit, "_prune", killed)
+    monkeypatch.setattr(FirstFrameFit, "_checkpoint", killed)
     out = tmp_path / "out"
     with pytest.raises(KeyboardInterrupt):
         run_study(study, out, workers=0, progress=False)
@@ -206,7 +206,7 @@ def test_interrupted_study_skips_done_cells_and_resumes_the_cut_off_fit(scene, t
     assert (first / RESULT_FILE).exists() and not (second / RESULT_FILE).exists() and (second / CHECKPOINT).exists()
     finished_at = (first / RESULT_FILE).stat().st_mtime_ns
 
-    monkeypatch.setattr(FirstFrameFit, "_prune", original)
+    monkeypatch.setattr(FirstFrameFit, "_checkpoint", original)
     result = run_study(study, out, workers=0, progress=False)
     assert (result.ran, result.reused) == (1, 1)
     assert (first / RESULT_FILE).stat().st_mtime_ns == finished_at

@@ -34,9 +34,9 @@ from mmcsplat.storage.session import SessionReader
 from mmcsplat.training.backdrop import Background, camera_backdrop, parse_background
 from mmcsplat.training.checked_renderer import CheckedRenderer
 from mmcsplat.training.checkpoint import read_checkpoint, resume_checkpoint, save_checkpoint
-from mmcsplat.training.finite import FitError, check_finite
+from mmcsplat.training.finite import FitError
+from mmcsplat.training.loop import Sample, Step, TrainingLoop, initializer_pruning, initializer_terms
 from mmcsplat.training.model import GaussianModel
-from mmcsplat.training.objective import view_loss, view_psnr
 from mmcsplat.training.schedule import CameraSchedule
 from mmcsplat.training.settings import FitSettings
 from mmcsplat.training.supersampling import supersampled
@@ -182,8 +182,6 @@ class FirstFrameFit:
             return info
 
     def _train(self) -> RunInfo:
-        from tqdm import tqdm
-
         settings = self.settings
         generator = torch.Generator().manual_seed(settings.seed)
         model = self._initial_model(generator)
@@ -198,56 +196,32 @@ class FirstFrameFit:
             self.resumed_from = start
             logging.getLogger(__name__).info("resumed from the checkpoint at iteration %d", start)
         cameras = self._render_cameras()
-        bar = tqdm(range(start, settings.iterations), initial=start, total=settings.iterations, desc="fit", disable=not self.progress, unit="it")
+        loop = TrainingLoop(model, self.renderer, settings, terms=initializer_terms(self.initializers, self.scene),
+                            prune=initializer_pruning(self.initializers, self.scene), densifier=self.densifier, densify_state=densify_state)
         began = time.perf_counter() - elapsed
+
+        def sample(step: int) -> Sample:
+            view = self.views[schedule.next()]
+            return Sample(view, cameras[view.index], model.gaussians())
+
+        def log_block(step: Step) -> None:
+            block = record.add(step.loss.item(), step.psnr())
+            if block is not None:
+                curve.log(step=step.number + 1, frame=settings.frame, loss=block[0], psnr=block[1], gaussians=step.gaussians,
+                          elapsed_s=time.perf_counter() - began)
+
+        def save(done: int) -> None:
+            self._checkpoint(checkpoint, model, generator, schedule, record, curve, densify_state, done, time.perf_counter() - began)
+
         try:
-            for step in bar:
-                index = schedule.next()
-                view = self.views[index]
-                render = self.renderer.render(model.gaussians(), cameras[view.index])
-                loss, image = view_loss(model, view, render, settings)
-                for initializer in self.initializers:
-                    extra = initializer.extra_loss(step, render, view.camera, self.scene)
-                    if extra is not None:
-                        loss = loss + extra
-                if self.densifier:
-                    self.densifier.step_pre_backward(model, densify_state, step, render)
-                loss.backward()
-                check_finite(loss, model, step, "gradient")
-                model.step()
-                if self.densifier:
-                    self.densifier.step_post_backward(model, densify_state, step, render)
-                self._prune(model, step)
-                check_finite(loss, model, step, "parameter")
-                psnr = view_psnr(image, view)
-                done = step + 1
-                block = record.add(loss.item(), psnr)
-                if block is not None:
-                    curve.log(step=done, frame=settings.frame, loss=block[0], psnr=block[1], gaussians=model.count,
-                              elapsed_s=time.perf_counter() - began)
-                if step % 10 == 0:
-                    bar.set_postfix(loss=f"{loss.item():.4f}", psnr=f"{psnr:.2f}", n=model.count)
-                if done % settings.checkpoint_every == 0 or done == settings.iterations:
-                    self._checkpoint(checkpoint, model, generator, schedule, record, curve, densify_state, done, time.perf_counter() - began)
+            loop.run(range(start, settings.iterations), sample, record=log_block, checkpoint=save, checkpoint_every=settings.checkpoint_every,
+                     desc="fit", progress=self.progress)
         except FitError as error:
-            self._info(model, record, step, time.perf_counter() - began, DIVERGED, str(error)).write(self.out)
+            self._info(model, record, loop.step, time.perf_counter() - began, DIVERGED, str(error)).write(self.out)
             raise
-        finally:
-            bar.close()
         info = self._info(model, record, settings.iterations, time.perf_counter() - began, COMPLETE)
         info.write(self.out)
         return info
-
-    def _prune(self, model: GaussianModel, step: int) -> None:
-        remove = None
-        for initializer in self.initializers:
-            mask = initializer.prune_mask(step, model.gaussians(), self.scene)
-            if mask is not None:
-                remove = mask if remove is None else remove | mask
-        if remove is not None and remove.any():
-            if remove.all():
-                raise FitError(f"every Gaussian was pruned at iteration {step}: check the initializers' radius and the learning rates")
-            model.replace({}, keep=~remove)
 
     # -------------------------------------------------------------------------------- checkpointing
 

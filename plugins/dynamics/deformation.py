@@ -10,6 +10,11 @@ annealed linearly to zero at ``noise_until`` iterations — 20 000 of the study'
 ``iterations / 40 000`` for shorter runs so the last half always trains without noise; the MLP's learning
 rate decays exponentially from ``lr`` to ``lr_final``; densification continues in canonical space with the
 configured densifier (default: ``default``, no opacity reset, densifying until half-way).
+
+Each iteration is the fit's training step (:class:`~mmcsplat.training.loop.TrainingLoop`) on the deformed
+Gaussians, with the MLP's optimiser as an extra one. It leaves out the initializers' extra losses and
+pruning: they are defined on the first frame's scene (its depth maps, and a region tested against
+positions that here move with time), and the densifier prunes the canonical set.
 """
 
 from __future__ import annotations
@@ -30,9 +35,8 @@ from mmcsplat.plugin_api.render_contract import RenderCameras, gaussians_from_pa
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.storage.tracks import TrackWriter
 from mmcsplat.training.checkpoint import resume_checkpoint, save_checkpoint
-from mmcsplat.training.finite import check_finite
+from mmcsplat.training.loop import Sample, Step, TrainingLoop
 from mmcsplat.training.model import GaussianModel
-from mmcsplat.training.objective import view_loss, view_psnr
 from mmcsplat.training.views import load_view, require_masks
 
 from .deformation_field import DeformationField
@@ -146,45 +150,41 @@ class _Run:
 
     def train(self) -> None:
         """Run to ``settings.iterations``, checkpointing atomically every ``checkpoint_every``."""
-        from tqdm import tqdm
-
-        settings, context, model = self.settings, self.context, self.model
+        settings, context = self.settings, self.context
         checkpoint = self.out / CHECKPOINT
         if checkpoint.exists() and not context.overwrite:
             self._resume(checkpoint)
-        frames = len(context.frames)
-        bar = tqdm(range(self.step, settings.iterations), initial=self.step, total=settings.iterations, desc="deformation",
-                   unit="it", disable=not context.progress)
+        loop = TrainingLoop(self.model, context.renderer, context.settings, densifier=self.densifier, densify_state=self.densify_state,
+                            optimizers=[self._step_field])
         began = time.perf_counter() - self.elapsed
-        for step in bar:
-            k, index = self.pairs[int(torch.randint(len(self.pairs), (1,), generator=self.generator))].tolist()
-            view = load_view(self.session, context.frames[k], context.cameras[index], index, context.initializers, context.backdrops[index])
-            require_masks([view], context.settings, self.session, context.frames[k])
-            noise = float(torch.randn((), generator=self.generator)) * settings.noise_std(step, frames)
-            render = context.renderer.render(gaussians_from_params(self.deformed(k, noise)), self.cameras[index])
-            loss, image = view_loss(model, view, render, context.settings)
-            self.densifier.step_pre_backward(model, self.densify_state, step, render)
-            loss.backward()
-            check_finite(loss, model, step, "gradient")
-            for group in self.optimizer.param_groups:
-                group["lr"] = settings.mlp_lr(step)
-            self.optimizer.step()
-            self.optimizer.zero_grad(set_to_none=True)
-            model.step()
-            self.densifier.step_post_backward(model, self.densify_state, step, render)
-            check_finite(loss, model, step, "parameter")
-            if step % 10 == 0 or step >= settings.iterations - 100:
-                psnr = view_psnr(image, view)
-                self.recent = [*self.recent[-99:], (loss.item(), psnr)]
-                bar.set_postfix(loss=f"{loss.item():.4f}", psnr=f"{psnr:.2f}", n=model.count)
-            self.step = step + 1
+
+        def record(step: Step) -> None:
+            if step.number % 10 == 0 or step.number >= settings.iterations - 100:
+                self.recent = [*self.recent[-99:], (step.loss.item(), step.psnr())]
+            self.step = step.number + 1
             self.elapsed = time.perf_counter() - began
             if self.step % CURVE_EVERY == 0:  # the mean of the last 10 logged iterations, over random frames and cameras
                 loss_mean, psnr_mean = np.mean(self.recent[-10:], axis=0).tolist()
-                context.curve.log(step=self.step, frame=None, loss=loss_mean, psnr=psnr_mean, gaussians=model.count, elapsed_s=self.elapsed)
-            if self.step % settings.checkpoint_every == 0 or self.step == settings.iterations:
-                self._checkpoint(checkpoint)
-        bar.close()
+                context.curve.log(step=self.step, frame=None, loss=loss_mean, psnr=psnr_mean, gaussians=step.gaussians, elapsed_s=self.elapsed)
+
+        loop.run(range(self.step, settings.iterations), self._sample, record=record, checkpoint=lambda done: self._checkpoint(checkpoint),
+                 checkpoint_every=settings.checkpoint_every, desc="deformation", progress=context.progress)
+
+    def _sample(self, step: int) -> Sample:
+        """A random (frame, camera) image of the sequence and the Gaussians deformed to its (noised) time."""
+        context = self.context
+        k, index = self.pairs[int(torch.randint(len(self.pairs), (1,), generator=self.generator))].tolist()
+        view = load_view(self.session, context.frames[k], context.cameras[index], index, context.initializers, context.backdrops[index])
+        require_masks([view], context.settings, self.session, context.frames[k])
+        noise = float(torch.randn((), generator=self.generator)) * self.settings.noise_std(step, len(context.frames))
+        return Sample(view, self.cameras[index], gaussians_from_params(self.deformed(k, noise)))
+
+    def _step_field(self, step: int) -> None:
+        """The MLP's optimiser step at its decayed learning rate."""
+        for group in self.optimizer.param_groups:
+            group["lr"] = self.settings.mlp_lr(step)
+        self.optimizer.step()
+        self.optimizer.zero_grad(set_to_none=True)
 
     def _key(self) -> dict[str, Any]:
         """What a checkpoint must have been written with to be resumed."""

@@ -8,6 +8,11 @@ the cameras present in that frame), of L_im + λ_seg·L_seg + λ_rigid·L_rigid 
 After the first frame opacities, scales and the per-camera colour terms are frozen; means, rotations
 and (as Luiten's) colours keep learning, and Adam forgets the means' and rotations' moments at each new
 frame. Only the current frame's images are held.
+
+Each step is the fit's training step (:class:`~mmcsplat.training.loop.TrainingLoop`) with the priors as
+its extra loss term. It leaves out the initializers' extra losses and pruning: they are defined on the
+first frame's scene (its depth maps, its region), and pruning would change the set of Gaussians every
+frame of the tracks holds.
 """
 
 from __future__ import annotations
@@ -23,13 +28,12 @@ import torch
 
 from mmcsplat.plugin_api.interfaces import Dynamics, TrackingContext, TrainingView
 from mmcsplat.plugin_api.parameters import above, at_least, between, one_of, parameter
-from mmcsplat.plugin_api.render_contract import RenderCameras
+from mmcsplat.plugin_api.render_contract import RenderCameras, RenderOutput
 from mmcsplat.scene.gaussian_table import GAUSSIAN_PARAMETERS
 from mmcsplat.storage.tracks import TrackWriter
-from mmcsplat.training.finite import NonFiniteError, check_finite
 from mmcsplat.training.flow_prediction import FlowGuidance, FlowPrediction
+from mmcsplat.training.loop import LossTerm, Sample, Step, TrainingLoop
 from mmcsplat.training.model import GaussianModel
-from mmcsplat.training.objective import view_loss, view_psnr
 from mmcsplat.training.schedule import CameraSchedule
 
 from .rigidity import NeighbourGraph, RigidityPrior
@@ -109,6 +113,7 @@ class IterativeDynamics(Dynamics):
         foreground = torch.sigmoid(params["seg_logits"].detach()[:, 0]) > self.foreground
         graph = NeighbourGraph.build(params["means"], foreground, self.neighbours, self.lambda_w)
         prior = RigidityPrior(graph)
+        loop = TrainingLoop(model, context.renderer, context.settings, lambda_seg=self.lambda_seg, terms=[self._rigidity(prior, model)])
         cameras = RenderCameras.each(context.cameras)
         generator = torch.Generator().manual_seed(self.seed)
         static = {name: params[name].detach() for name in self._static_names()}
@@ -125,7 +130,7 @@ class IterativeDynamics(Dynamics):
                 prior.remember(params["means"], params["quats"])
                 previous = self._predict(model, previous, motion, context.frames[k - 1])
                 model.reset_moments(RESET_EACH_FRAME)
-                result = self._fit_frame(model, prior, context, cameras, t, generator)
+                result = self._fit_frame(loop, context, cameras, t, generator)
                 results.append(result)
                 writer.write_frame(k, **self._dynamic(model))
                 if result.loss is not None:
@@ -139,6 +144,13 @@ class IterativeDynamics(Dynamics):
             "prediction": "constant-velocity" if motion is None else "flow",
             **({"flow_fallback_gaussians": motion.fallbacks} if motion is not None else {}),
         }
+
+    def _rigidity(self, prior: RigidityPrior, model: GaussianModel) -> LossTerm:
+        """The weighted local-rigidity priors as one loss term."""
+        def term(step: int, render: RenderOutput, view: TrainingView) -> torch.Tensor:
+            rigid, rot, iso = prior.losses(model.params["means"], model.params["quats"])
+            return self.lambda_rigid * rigid + self.lambda_rot * rot + self.lambda_iso * iso
+        return term
 
     @staticmethod
     def _unit(quats: torch.Tensor) -> torch.Tensor:
@@ -174,35 +186,25 @@ class IterativeDynamics(Dynamics):
             params["quats"].copy_(self._unit(2 * quats - prev_quats))
         return means, quats
 
-    def _fit_frame(self, model: GaussianModel, prior: RigidityPrior, context: TrackingContext, cameras: tuple[RenderCameras, ...],
-                   t: int, generator: torch.Generator) -> FrameResult:
-        from tqdm import tqdm
-
+    def _fit_frame(self, loop: TrainingLoop, context: TrackingContext, cameras: tuple[RenderCameras, ...], t: int,
+                   generator: torch.Generator) -> FrameResult:
         began, cpu = time.perf_counter(), time.process_time()
         views = context.views(t)
         if not views:
             return FrameResult(t, None, None, 0, time.perf_counter() - began, time.process_time() - cpu)
         schedule = CameraSchedule(len(views), generator)
         recent: dict[int, tuple[float, float]] = {}
-        bar = tqdm(range(self.iterations), desc=f"frame {t}", unit="it", leave=False, disable=not context.progress)
-        for step in bar:
-            view: TrainingView = views[schedule.next()]
-            render = context.renderer.render(model.gaussians(), cameras[view.index])
-            loss, image = view_loss(model, view, render, context.settings, self.lambda_seg)
-            rigid, rot, iso = prior.losses(model.params["means"], model.params["quats"])
-            loss = loss + self.lambda_rigid * rigid + self.lambda_rot * rot + self.lambda_iso * iso
-            loss.backward()
-            try:
-                check_finite(loss, model, step, "gradient")
-                model.step()
-                check_finite(loss, model, step, "parameter")
-            except NonFiniteError as error:
-                raise NonFiniteError(f"frame {t}: {error}") from error
-            if step >= self.iterations - len(views) or step % 10 == 0:
-                psnr = view_psnr(image, view)
-                recent[view.index] = (float(loss.detach()), psnr)
-                bar.set_postfix(loss=f"{recent[view.index][0]:.4f}", psnr=f"{psnr:.2f}")
-        bar.close()
+
+        def sample(step: int) -> Sample:
+            view = views[schedule.next()]
+            return Sample(view, cameras[view.index], loop.model.gaussians())
+
+        def remember(step: Step) -> None:  # each camera's last loss and PSNR (from every 10th step on, all of the last pass)
+            if step.number >= self.iterations - len(views) or step.number % 10 == 0:
+                recent[step.view.index] = (step.loss.item(), step.psnr())
+
+        loop.run(range(self.iterations), sample, record=remember, where=f"frame {t}", desc=f"frame {t}", progress=context.progress,
+                 leave=False)
         last = np.array(list(recent.values())).reshape(-1, 2)
         mean = last.mean(axis=0).tolist() if len(last) else [None, None]
         return FrameResult(t, mean[0], mean[1], len(views), time.perf_counter() - began, time.process_time() - cpu)

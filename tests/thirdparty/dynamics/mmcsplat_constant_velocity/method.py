@@ -1,7 +1,7 @@
 """``constant-velocity``: a baseline dynamics method. The foreground Gaussians move together by one
 translation per frame, predicted from the last two frames at constant velocity, then refined by a few
-Adam steps of the first-frame fit's objective; the background stays where the fit left it. It cannot
-follow limbs that move against the trunk, which is what makes it a reference row: a method with local
+Adam steps of the first-frame fit's training step (mmcsplat.training.loop); the background stays where
+the fit left it. It cannot follow limbs that move against the trunk, which is what makes it a reference row: a method with local
 motion should beat it wherever the subject does more than drift.
 
 Imports only mmcsplat's public API (plugin_api, storage, training), as any third-party plugin must.
@@ -19,9 +19,8 @@ from mmcsplat.plugin_api.interfaces import Dynamics, TrackingContext
 from mmcsplat.plugin_api.parameters import above, at_least, between, parameter
 from mmcsplat.plugin_api.render_contract import RenderCameras, gaussians_from_params
 from mmcsplat.storage.tracks import TrackWriter
-from mmcsplat.training.finite import check_finite
+from mmcsplat.training.loop import Sample, Step, TrainingLoop
 from mmcsplat.training.model import GaussianModel
-from mmcsplat.training.objective import view_loss, view_psnr
 
 
 @attrs.frozen
@@ -51,18 +50,26 @@ class ConstantVelocityDynamics(Dynamics):
                 shift = (2 * shifts[-1] - shifts[-2]).clone().requires_grad_(True)
                 optimizer = torch.optim.Adam([shift], lr=self.lr)
                 views = context.views(t)
-                for step in range(self.iterations if views else 0):
+
+                def sample(step: int) -> Sample:
                     view = views[step % len(views)]
                     moved = gaussians_from_params(params | {"means": params["means"] + moving * shift})
-                    loss, image = view_loss(model, view, context.renderer.render(moved, cameras[view.index]), context.settings)
-                    optimizer.zero_grad()
-                    loss.backward()
-                    check_finite(loss, model, step, "gradient")
-                    optimizer.step()
-                    if step == self.iterations - 1:
-                        psnrs.append(view_psnr(image, view))
-                        context.curve.log(step=k * self.iterations, frame=t, loss=loss.item(), psnr=psnrs[-1])
+                    return Sample(view, cameras[view.index], moved)
+
+                def record(step: Step) -> None:
+                    if step.number == self.iterations - 1:
+                        psnrs.append(step.psnr())
+                        context.curve.log(step=k * self.iterations, frame=t, loss=step.loss.item(), psnr=psnrs[-1])
+
+                if views:  # the model's own parameters get no gradient: only the shift's optimiser steps
+                    loop = TrainingLoop(model, context.renderer, context.settings, optimizers=[lambda step: self._step(optimizer)])
+                    loop.run(range(self.iterations), sample, record=record, where=f"frame {t}", progress=False)
                 shifts.append(shift.detach())
                 writer.write_frame(k, means=params["means"] + moving * shifts[-1], quats=params["quats"])
         return {"iterations_per_frame": self.iterations, "moving_gaussians": int(moving.sum()),
                 "shifts_m": [s.tolist() for s in shifts[2:]], "last_psnr": psnrs}
+
+    @staticmethod
+    def _step(optimizer: torch.optim.Optimizer) -> None:
+        optimizer.step()
+        optimizer.zero_grad(set_to_none=True)
