@@ -14,8 +14,8 @@ import numpy as np
 
 from mmcsplat.analysis.movement import MEASURE_DESCRIPTIONS, limb_landmarks, movement_summary, speed, speed_spectrum
 from mmcsplat.outputs.report_html import command, esc, image, table, video
-from mmcsplat.pipeline.landmarks import LANDMARKS_CSV, LANDMARKS_INFO
 from mmcsplat.storage.landmark_files import read_landmark_csv
+from mmcsplat.storage.run import LANDMARKS_CSV, LANDMARKS_INFO
 
 #: Each measure's column heading and the factor from its SI unit to the one shown (centimetres read better
 #: for an infant's limbs).
