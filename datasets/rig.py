@@ -18,12 +18,12 @@ from mmcsplat.plugin_api.errors import InputError, MissingFileError
 from mmcsplat.plugin_api.interfaces import RecordedFrame, Recording
 from mmcsplat.plugin_api.parameters import one_of, parameter
 from mmcsplat.scene.camera import Camera
+from mmcsplat.storage.ground_truth import GROUND_TRUTH, GroundTruthReader
 
 #: How a decoded size that differs from the calibration's is reconciled (see :func:`fit_camera`).
 SIZE_MISMATCH_POLICIES = ("scale", "crop", "error")
 #: Above this relative difference between the horizontal and vertical factors, scaling K makes no sense.
 MAX_ANISOTROPY = 0.05
-GROUND_TRUTH = "ground_truth.zarr"
 
 
 #: Where a rig's calibration is looked for, in order, under the source folder: the file, or the single
@@ -114,12 +114,7 @@ class GroundTruth:
         path = source / GROUND_TRUTH
         if not path.exists():
             return None
-        import zarr
-
-        try:
-            group = zarr.open_group(str(path), mode="r")
-        except Exception as error:
-            raise InputError(f"{path}: not a readable zarr group: {error}") from error
+        group = GroundTruthReader(path).group
         fields: dict[str, dict[str, object]] = {}
         for field in ("masks", "depth"):
             if field not in group:
