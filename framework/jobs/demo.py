@@ -8,7 +8,8 @@ functions its own command calls.
 
 A rerun resumes: a step is skipped when its outputs exist and are newer than what they are made from.
 Every output appears atomically, so a half-done step never reads as done. ``OUT/demo.json`` records
-the settings; a rerun with other settings is refused rather than mixing two demos in one folder.
+the settings once a step has succeeded; a rerun with other settings is then refused rather than mixing
+two demos in one folder. The steps run through :mod:`mmcsplat.pipeline.steps`.
 """
 
 from __future__ import annotations
