@@ -20,12 +20,12 @@ from mmcsplat.plugin_api.parameters import one_of, parameter
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.camera_names import match_cameras, natural_key
 from mmcsplat.storage.capture_files import read_mask
+from mmcsplat.storage.ground_truth import GROUND_TRUTH, GroundTruthReader
 
 #: How a decoded size that differs from the calibration's is reconciled (see :func:`fit_camera`).
 SIZE_MISMATCH_POLICIES = ("scale", "crop", "error")
 #: Above this relative difference between the horizontal and vertical factors, scaling K makes no sense.
 MAX_ANISOTROPY = 0.05
-GROUND_TRUTH = "ground_truth.zarr"
 #: Where a capture keeps its own subject masks: ``SOURCE/masks/<camera>/`` (see :func:`mask_folders`).
 MASKS_FOLDER = "masks"
 MASK_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
@@ -135,12 +135,7 @@ class GroundTruth:
         path = source / GROUND_TRUTH
         if not path.exists():
             return None
-        import zarr
-
-        try:
-            group = zarr.open_group(str(path), mode="r")
-        except Exception as error:
-            raise InputError(f"{path}: not a readable zarr group: {error}") from error
+        group = GroundTruthReader(path).group
         fields: dict[str, dict[str, object]] = {}
         for field in ("masks", "depth"):
             if field not in group:

@@ -11,9 +11,10 @@ import torch
 from fitting_scene import write_config, write_session
 
 from mmcsplat.configuration.config import load_config
-from mmcsplat.pipeline.fit import FirstFrameFit, load_fitted
+from mmcsplat.pipeline.fit import FirstFrameFit
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.storage.tracks import TrackWriter
+from mmcsplat.training.fitted_run import FittedRun
 
 FRAMES = 6
 STATIC = ("log_scales", "opacity_logits", "color_logits", "seg_logits")
@@ -37,7 +38,7 @@ def fitted_run(root: Path, iterations: int = 3) -> Path:
 
 def add_tracks(run: Path, frames: int = FRAMES) -> Path:
     """Write ``run``/tracks.zarr: the fitted Gaussians moved by :func:`synthetic_means` over ``frames``."""
-    _, params, _, _ = load_fitted(run)
+    params = FittedRun.load(run).params
     with TrackWriter(run, num_frames=frames, static={name: params[name] for name in STATIC}, method="synthetic",
                      attrs={"first_frame": 0}) as writer:
         for t in range(frames):
@@ -47,5 +48,5 @@ def add_tracks(run: Path, frames: int = FRAMES) -> Path:
 
 def expected_means(run: Path, t: int) -> np.ndarray:
     """The means a reader of ``run``'s tracks must find at frame ``t``."""
-    _, params, _, _ = load_fitted(run)
+    params = FittedRun.load(run).params
     return synthetic_means(params["means"], t).numpy()

@@ -16,9 +16,9 @@ from render_fixtures import add_tracks, expected_means, fitted_run
 
 from mmcsplat.cli import main
 from mmcsplat.outputs.ply import FULL_PROPERTIES, PROPERTIES, SH_C0
-from mmcsplat.pipeline.fit import load_fitted
 from mmcsplat.storage.run_info import RunInfo
 from mmcsplat.storage.session import SessionReader
+from mmcsplat.training.fitted_run import FittedRun
 
 FRAMES = 3
 
@@ -51,7 +51,7 @@ def test_ply_round_trip(runs, tmp_path):
     out = tmp_path / "ply"
     assert main(["export", str(runs[0]), "--ply", str(out), "--no-progress"]) == 0
     assert sorted(path.name for path in out.iterdir()) == [f"frame_{t:04d}.ply" for t in range(FRAMES)]
-    _, params, _, _ = load_fitted(runs[0])
+    params = FittedRun.load(runs[0]).params
     for t in range(FRAMES):
         header, vertices = read_ply(out / f"frame_{t:04d}.ply")
         assert tuple(vertices) == PROPERTIES and header[2] == f"element vertex {len(params['means'])}"
@@ -68,7 +68,7 @@ def test_ply_round_trip(runs, tmp_path):
 def test_a_run_without_tracks_exports_its_first_frame(runs, tmp_path):
     assert main(["export", str(runs[1]), "--ply", str(tmp_path), "--no-progress"]) == 0
     assert [path.name for path in tmp_path.iterdir()] == ["frame_0000.ply"]
-    _, params, _, _ = load_fitted(runs[1])
+    params = FittedRun.load(runs[1]).params
     _, vertices = read_ply(tmp_path / "frame_0000.ply")
     np.testing.assert_allclose(vertices["x"], params["means"][:, 0].numpy(), atol=1e-6)
 
@@ -110,7 +110,7 @@ def check_vertices(vertices, params, means, full):
 def test_both_layouts_read_back_through_plyfile(runs, tmp_path, full):
     out = tmp_path / "ply"
     assert main(["export", str(runs[0]), "--ply", str(out), "--no-progress", *(["--full-sh"] if full else [])]) == 0
-    _, params, _, _ = load_fitted(runs[0])
+    params = FittedRun.load(runs[0]).params
     for t in range(FRAMES):
         check_vertices(plyfile_vertices(out / f"frame_{t:04d}.ply"), params, expected_means(runs[0], t), full)
 
@@ -125,7 +125,7 @@ def test_inria_model_folder(runs, tmp_path):
     assert sorted(str(path.relative_to(out)) for path in out.rglob("*") if path.is_file()) == [
         "cameras.json", "cfg_args", f"point_cloud/iteration_{info.iterations}/point_cloud.ply"]
     assert not [path for path in tmp_path.iterdir() if path.name.startswith(".")], "the temporary folder is left behind"
-    _, params, _, _ = load_fitted(runs[0])
+    params = FittedRun.load(runs[0]).params
     check_vertices(plyfile_vertices(out / f"point_cloud/iteration_{info.iterations}/point_cloud.ply"), params, expected_means(runs[0], 2), True)
 
     text = (out / "cfg_args").read_text()
@@ -155,7 +155,7 @@ def test_inria_export_of_a_run_without_tracks_is_its_fit(runs, tmp_path):
     out = tmp_path / "model"
     out.mkdir()  # an empty directory is fine
     assert main(["export", str(runs[1]), "--inria", str(out)]) == 0
-    _, params, _, _ = load_fitted(runs[1])
+    params = FittedRun.load(runs[1]).params
     ply = next(out.glob("point_cloud/iteration_*/point_cloud.ply"))
     check_vertices(plyfile_vertices(ply), params, params["means"].numpy(), True)
 

@@ -8,7 +8,7 @@ import torch
 from rig_fixtures import ring_cameras
 
 from mmcsplat.analysis.flow_joints import joint_prediction_errors
-from mmcsplat.storage.landmark_files import write_trc
+from mmcsplat.storage.landmark_formats import write_trc
 from mmcsplat.storage.session import SessionWriter
 from mmcsplat.storage.session.flow import FlowPair, FlowWriter
 from mmcsplat.training.flow_lifting import camera_matrices, project

@@ -193,7 +193,7 @@ def test_cli_reports_bad_input_and_succeeds_on_good(tmp_path: Path, capsys: pyte
 def test_a_relative_source_is_recorded_as_an_absolute_path(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     import zarr
 
-    from mmcsplat.analysis.trajectory_error import find_ground_truth
+    from mmcsplat.storage.ground_truth import ground_truth_beside
 
     source = (tmp_path / "capture").resolve()
     rig.make_capture(source, frames=2)
@@ -204,7 +204,7 @@ def test_a_relative_source_is_recorded_as_an_absolute_path(tmp_path: Path, monke
     session = SessionReader(tmp_path / "out.zarr")
     assert session.source == str(source)
     assert session.provenance["reader"]["calibration"] == str(source / "calibration.toml")
-    assert find_ground_truth(session) == source / "ground_truth.zarr"
+    assert ground_truth_beside(session) == source / "ground_truth.zarr"
 
 
 def test_interrupted_ingest_leaves_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

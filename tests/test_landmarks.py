@@ -16,10 +16,10 @@ from scipy.spatial.transform import Rotation
 
 from mmcsplat.analysis.movement import flexion
 from mmcsplat.cli import main
-from mmcsplat.pipeline.fit import load_fitted
 from mmcsplat.storage.landmark_formats import read_c3d, read_landmark_csv, read_trc, write_landmark_csv
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.storage.tracks import TrackWriter
+from mmcsplat.training.fitted_run import FittedRun
 
 FRAMES = 5
 NAMES = ("LWrist", "RWrist", "LAnkle", "RAnkle", "LHip", "LKnee", "far")
@@ -37,7 +37,7 @@ def scene(tmp_path_factory):
     root = tmp_path_factory.mktemp("landmarks")
     session = write_session(root / "session.zarr", frames=FRAMES)
     run = write_fitted_run(root / "run", session)
-    _, params, _, _ = load_fitted(run)
+    params = FittedRun.load(run).params
     means, quats = params["means"].double().numpy(), params["quats"].double().numpy()
     with TrackWriter(run, num_frames=FRAMES, static={k: params[k] for k in ("log_scales", "opacity_logits", "color_logits", "seg_logits")},
                      method="rigid", attrs={"first_frame": 0}) as writer:
@@ -102,7 +102,7 @@ def test_exports_read_back(scene, tmp_path):
     files = {suffix: tmp_path / f"joints.{suffix}" for suffix in ("trc", "csv", "c3d")}
     assert main(["export", str(run), *(f"--{suffix}={file}" for suffix, file in files.items())]) == 0
     trc = read_trc(files["trc"])
-    assert trc.names == NAMES and trc.rate == SessionReader(load_fitted(run)[0].session).fps
+    assert trc.names == NAMES and trc.rate == SessionReader(FittedRun.load(run).info.session).fps
     np.testing.assert_allclose(trc.positions[:, :CARRIED], truth[:, :CARRIED], atol=2e-6)
     names, positions, _ = read_c3d(files["c3d"])
     np.testing.assert_allclose(positions[:, :CARRIED], truth[:, :CARRIED], atol=1e-5)  # float32 millimetres

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import uuid
 
+import attrs
 import fsspec
 import numpy as np
 import pytest
@@ -402,3 +403,21 @@ def test_updater_failures_leave_the_session_as_it_was(url):
 
     names = {name for name, _ in zarr.open_group(url, mode="r")["cameras/left"].members()}
     assert names == {"rgb", "present", "mask", "depth", "labels"}  # no temporary arrays left behind
+
+
+def test_updater_keeps_only_the_cameras_it_is_told_recalibrated(url):
+    import zarr
+
+    left, right = write_session(url)
+    moved = attrs.evolve(right, t=np.array([0.2, 0.0, 2.0]))
+    with SessionUpdater(url) as updater:
+        with pytest.raises(ValueError, match="no camera 'middle' to keep"):
+            updater.keep_cameras([Camera("middle", 4, 4, np.eye(3), np.eye(3), [0, 0, 1.0])])
+        updater.keep_cameras([moved])
+        assert SessionReader(url).camera_names == ("left", "right")  # until the commit
+    reader = SessionReader(url)
+    assert reader.camera_names == ("right",) and reader.heldout == ("right",)
+    np.testing.assert_array_equal(reader.camera("right").t, [0.2, 0.0, 2.0])
+    np.testing.assert_array_equal(reader.frame(3, "right").rgb, fields_of(right, 3)["rgb"])
+    group = zarr.open_group(url, mode="r")
+    assert "left" not in group["cameras"] and list(group.attrs["fields"]) == ["right"]

@@ -12,15 +12,8 @@ import zarr
 from fitting_scene import ring_camera
 
 from mmcsplat.analysis.drift import off_subject
-from mmcsplat.analysis.trajectory_error import (
-    GROUND_TRUTH_DIR,
-    NothingFollowedError,
-    evaluate_tracks,
-    find_ground_truth,
-    follower_weights,
-    read_surface_points,
-    tracking_accuracy,
-)
+from mmcsplat.analysis.trajectory_error import NothingFollowedError, evaluate_tracks, follower_weights, tracking_accuracy
+from mmcsplat.storage.ground_truth import GROUND_TRUTH, GroundTruthReader, ground_truth_beside
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.storage.tracks import TrackReader, TrackWriter
 
@@ -96,10 +89,10 @@ def test_evaluate_reports_why_nothing_was_followed_instead_of_failing(tmp_path):
 
 def test_ground_truth_location_and_frame_mapping(tmp_path):
     source = tmp_path / "capture"
-    (source / GROUND_TRUTH_DIR).mkdir(parents=True)
-    assert find_ground_truth(SimpleNamespace(source=str(source))) == source / GROUND_TRUTH_DIR
-    assert find_ground_truth(SimpleNamespace(source=str(tmp_path))) is None
-    assert find_ground_truth(SimpleNamespace(source="")) is None
+    (source / GROUND_TRUTH).mkdir(parents=True)
+    assert ground_truth_beside(SimpleNamespace(source=str(source))) == source / GROUND_TRUTH
+    assert ground_truth_beside(SimpleNamespace(source=str(tmp_path))) is None
+    assert ground_truth_beside(SimpleNamespace(source="")) is None
     # ingest --frames 2:10:2 made session frame k capture frame 2 + 2k.
     capture_frames = SessionReader.capture_frames
     assert capture_frames(SimpleNamespace(provenance={"frames": [2, 10, 2]}), range(1, 4)).tolist() == [4, 6, 8]
@@ -110,12 +103,12 @@ def test_read_surface_points(tmp_path):
     truth = ground_truth().astype(np.float32)
     path = tmp_path / "truth.zarr"
     zarr.open_group(str(path), mode="w", zarr_format=3).create_array("surface_points", data=truth)
-    np.testing.assert_allclose(read_surface_points(path, np.array([1, 3])), truth[[1, 3]])
+    np.testing.assert_allclose(GroundTruthReader(path).points("surface_points", np.array([1, 3])), truth[[1, 3]])
     with pytest.raises(ValueError, match="has 4 frames, the tracks need frame 7"):
-        read_surface_points(path, np.array([0, 7]))
+        GroundTruthReader(path).points("surface_points", np.array([0, 7]), "the tracks need frame")
     zarr.open_group(str(tmp_path / "other.zarr"), mode="w", zarr_format=3)
     with pytest.raises(ValueError, match="other.zarr: not a ground truth"):
-        read_surface_points(tmp_path / "other.zarr", np.array([0]))
+        GroundTruthReader(tmp_path / "other.zarr").points("surface_points", np.array([0]))
 
 
 def test_off_subject_is_judged_by_the_views_that_see_a_point():

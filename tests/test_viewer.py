@@ -19,8 +19,8 @@ from render_fixtures import add_tracks, expected_means, fitted_run
 
 from mmcsplat.outputs.renders import TRAIL_FRAMES
 from mmcsplat.outputs.viewer import RunViewer, camera_pose, splat_arrays
-from mmcsplat.pipeline.fit import load_fitted
 from mmcsplat.storage.session import SessionReader
+from mmcsplat.training.fitted_run import FittedRun
 
 FRAMES = 4
 CHROMIUM = Path("/usr/bin/chromium")
@@ -45,7 +45,7 @@ def viewer(run):
 
 
 def test_splats_are_the_run_gaussians(run):
-    _, params, _, _ = load_fitted(run)
+    params = FittedRun.load(run).params
     arrays = splat_arrays(params)
     eigenvalues = np.sort(np.linalg.eigvalsh(arrays["covariances"]), axis=1)
     np.testing.assert_allclose(eigenvalues, np.sort(torch.exp(2 * params["log_scales"]).numpy(), axis=1), rtol=1e-4, atol=1e-12)
@@ -56,7 +56,7 @@ def test_splats_are_the_run_gaussians(run):
 def test_frusta_sit_where_the_cameras_look(run):
     import viser.transforms as transforms
 
-    session = SessionReader(load_fitted(run)[0].session)
+    session = SessionReader(FittedRun.load(run).info.session)
     for camera in session.cameras:
         wxyz, position = camera_pose(camera)
         np.testing.assert_allclose(position, camera.center, atol=1e-9)

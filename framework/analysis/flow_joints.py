@@ -17,7 +17,7 @@ import numpy as np
 import torch
 
 from mmcsplat.plugin_api.errors import InputError
-from mmcsplat.storage.landmark_files import read_trc
+from mmcsplat.storage.landmark_formats import read_trc
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.storage.session.flow import SessionFlow, pair_present
 from mmcsplat.training.flow_lifting import camera_matrices, lift_flow, project, sample_field

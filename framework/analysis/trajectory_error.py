@@ -4,7 +4,7 @@ surface points, and the held-out camera's masked PSNR at every frame.
 Ground truth is a zarr group holding ``surface_points`` [T, P, 3] float (world metres, the session's
 world frame, indexed by the capture's frame numbers) — what ``mmcsplat synth`` writes as
 ``ground_truth.zarr`` beside its videos. The core reads that array itself (it knows no dataset plugin):
-a path given explicitly wins; otherwise :func:`find_ground_truth` looks beside the session's source
+a path given explicitly wins; otherwise :func:`~mmcsplat.storage.ground_truth.ground_truth_beside` looks beside the session's source
 folder. Session frames map to capture frames through the ingest provenance (``frames`` start/step).
 
 For every ground-truth point, the Gaussians within :data:`FOLLOW_RADIUS` of it at the first tracked
@@ -26,11 +26,11 @@ from scipy.spatial import cKDTree
 from mmcsplat.analysis.rendered_views import render_over
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.scene.camera import Camera
+from mmcsplat.storage.ground_truth import GroundTruthReader, ground_truth_beside
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.storage.tracks import TrackReader
 from mmcsplat.training.backdrop import Background, camera_backdrop
 
-GROUND_TRUTH_DIR = "ground_truth.zarr"
 FOLLOW_RADIUS = 0.01  # metres
 
 
@@ -53,30 +53,6 @@ class TrackingAccuracy:
     per_frame_median_mm: list[float]
     followed_points: int
     total_points: int
-
-
-def find_ground_truth(session: SessionReader) -> Path | None:
-    """``SOURCE/ground_truth.zarr`` when the session was ingested from a capture that ships one."""
-    if not session.source:
-        return None
-    candidate = Path(session.source) / GROUND_TRUTH_DIR
-    return candidate if candidate.is_dir() else None
-
-
-def read_surface_points(path: str | Path, frames: np.ndarray) -> np.ndarray:
-    """[len(frames), P, 3] ground-truth surface points (metres) at capture ``frames``."""
-    import zarr
-
-    path = Path(path)
-    try:
-        points = zarr.open_group(str(path), mode="r")["surface_points"]
-    except Exception as error:
-        raise InputError(f"{path}: not a ground truth with a surface_points array ({error})") from error
-    if points.ndim != 3 or points.shape[2] != 3:
-        raise InputError(f"{path}: surface_points must be [T, P, 3], got {list(points.shape)}")
-    if len(frames) and frames.max() >= points.shape[0]:
-        raise InputError(f"{path}: ground truth has {points.shape[0]} frames, the tracks need frame {int(frames.max())}")
-    return np.asarray(points.oindex[frames.tolist()], dtype=np.float64)
 
 
 def follower_weights(first_means: np.ndarray, points: np.ndarray, radius: float = FOLLOW_RADIUS) -> tuple[scipy.sparse.csr_matrix, np.ndarray]:
@@ -167,11 +143,11 @@ def evaluate_tracks(run: Path, session: SessionReader, heldout: list[str], groun
     metrics["per_frame_val_masked_psnr"] = per_frame
     scored = [value for value in per_frame if value is not None]
     metrics["tracked_val_masked_psnr"] = float(np.mean(scored)) if scored else None
-    path = Path(ground_truth) if ground_truth is not None else find_ground_truth(session)
+    path = Path(ground_truth) if ground_truth is not None else ground_truth_beside(session)
     if path is None:
         metrics.update(tracking_median_mm=None, tracking_p90_mm=None, tracking_2d_median_px=None)
         return metrics
-    truth = read_surface_points(path, session.capture_frames(frames))
+    truth = GroundTruthReader(path).points("surface_points", session.capture_frames(frames), "the tracks need frame")
     metrics.update(tracking_ground_truth=str(path), tracking_ground_truth_points=int(truth.shape[1]))
     try:
         accuracy = tracking_accuracy(tracks, truth, session.camera(heldout[0]) if heldout else None)

@@ -32,7 +32,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from mmcsplat.cli.main import CommandError
-    from mmcsplat.pipeline.landmarks import LANDMARKS_CSV, MOVEMENT_CSV, MOVEMENT_JSON, track_landmarks
+    from mmcsplat.pipeline.landmarks import track_landmarks
+    from mmcsplat.storage.run import LANDMARKS_CSV, MOVEMENT_CSV, MOVEMENT_JSON
 
     if args.anchors < 1 or not args.max_distance > 0:
         raise CommandError(f"--anchors must be ≥ 1 and --max-distance > 0, got {args.anchors} and {args.max_distance}")

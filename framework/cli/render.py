@@ -15,6 +15,7 @@ import argparse
 from pathlib import Path
 
 from mmcsplat.cli.options import add_progress
+from mmcsplat.storage.run import RENDERS_DIR
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -44,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
     states = RunStates(args.run)
     if args.trajectories or args.depth or args.landmarks:
         states.camera(args.camera)  # an unknown camera fails before anything is rendered
-    out = args.out or args.run / "renders"
+    out = args.out or args.run / RENDERS_DIR
     out.mkdir(parents=True, exist_ok=True)
     renderer = RunRenderer(states, backend=args.backend, scale=args.scale, progress=not args.no_progress)
     if states.tracks is None:

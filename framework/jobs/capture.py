@@ -14,23 +14,24 @@ evaluate → landmarks → renders → report.
   fitted frame, scored against its later frames and against the keypoints in every camera.
 
 Every step writes atomically and is skipped on a rerun when its outputs are newer than its inputs, as in
-the demo; ``DIR/run.json`` is not this file — the settings are recorded in ``DIR/capture.json`` and a
-rerun with other settings is refused.
+the demo; ``DIR/run.json`` is not this file — the settings are recorded in ``DIR/capture.json`` once a
+step has succeeded, and a rerun with other settings is then refused (a first run that fails before any
+step is done leaves DIR free for corrected settings).
 """
 
 from __future__ import annotations
 
 import json
-import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import attrs
 
-from mmcsplat.jobs.demo import StepTime, fresh, run_step
+from mmcsplat.pipeline.steps import SettingsRecord, Step, StepTime, fit_complete, fresh, made_in_place, run_steps
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.storage.atomic import write_json_atomic
+from mmcsplat.storage.run import LANDMARKS_CSV, LANDMARKS_INFO, METRICS_FILE, MOVEMENT_JSON, RENDERS_DIR, REPORT_FILE, RUN_INFO, TRACK_INFO, TRACKS_DIR
 
 if TYPE_CHECKING:
     from mmcsplat.storage.session import SessionReader
@@ -89,16 +90,15 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     from mmcsplat.outputs.landmark_video import render_landmarks
     from mmcsplat.outputs.renders import RunRenderer, render_trajectories
     from mmcsplat.outputs.report import write_report
-    from mmcsplat.pipeline.evaluate import METRICS_FILE, evaluate
+    from mmcsplat.pipeline.evaluate import evaluate
     from mmcsplat.pipeline.fit import FirstFrameFit
     from mmcsplat.pipeline.ingest import ingest
-    from mmcsplat.pipeline.landmarks import LANDMARKS_CSV, LANDMARKS_INFO, MOVEMENT_JSON, track_landmarks
+    from mmcsplat.pipeline.landmarks import track_landmarks
     from mmcsplat.pipeline.plates import estimate_plates
     from mmcsplat.pipeline.regions import region_overrides
     from mmcsplat.pipeline.run_frames import RunStates
     from mmcsplat.pipeline.segment import segment_session
-    from mmcsplat.pipeline.track import TRACK_INFO, track_run
-    from mmcsplat.storage.run_info import RUN_INFO
+    from mmcsplat.pipeline.track import track_run
     from mmcsplat.storage.session import SessionReader
 
     capture, out = Path(capture).resolve(), Path(out).resolve()
@@ -108,16 +108,9 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     joints = found(capture, settings.joints, "*.trc", "joints TRC file")
     load_config(settings.config, settings.overrides)  # a bad configuration fails before anything runs
     out.mkdir(parents=True, exist_ok=True)
-    _check_settings(out, settings)
     session, run = out / "session.zarr", out / "run"
-    steps: list[StepTime] = []
 
-    def step(name: str, done: bool, action: Callable[[], object]) -> None:
-        steps.append(run_step("run", name, done, action, log))
-
-    def prepare() -> None:
-        # Into a hidden sibling renamed into place: a session half segmented is not a session.
-        partial = session.with_name(f".{session.name}.partial")
+    def prepare(partial: Path) -> None:
         ingest(capture, partial, calibration=Path(settings.calibration) if settings.calibration else None, units=settings.units,
                frames=slice(*settings.frames), scale=settings.scale, cameras=list(settings.cameras) or None, holdout=list(settings.holdout),
                overwrite=True, progress=progress)
@@ -133,7 +126,7 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
         if choice["masks"] != "capture":
             segment_session(partial, segmenter, refined, progress=progress)
         write_json_atomic(out / MASKS_FILE, choice)
-        os.replace(partial, session)
+        log(f"run: masks: {choice['detail']}")
 
     def fit() -> None:
         reader = SessionReader(session)
@@ -146,24 +139,34 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
         track_landmarks(run, "trc", {"path": str(joints)}, keypoints="openpose" if keypoints else None,
                         keypoint_params={"folder": str(keypoints)} if keypoints else None)
 
-    step("ingest + masks + plates", session.exists(), prepare)
-    if (out / MASKS_FILE).exists():  # a session made before masks were recorded has none
-        log(f"run: masks: {json.loads((out / MASKS_FILE).read_text())['detail']}")
-    step("first-frame fit", (run / RUN_INFO).exists() and json.loads((run / RUN_INFO).read_text())["status"] == "complete", fit)
-    step("track (iterative)", fresh([run / "tracks.zarr", run / TRACK_INFO], [run / RUN_INFO]),
-         lambda: track_run(run, dynamics="iterative", overrides=[f"dynamics.iterations={settings.track_iterations}"], progress=progress,
-                           overwrite=True))
-    step("evaluate", fresh([run / METRICS_FILE], [run / TRACK_INFO]), lambda: evaluate(run))
-    renders = run / "renders"
+    renders = run / RENDERS_DIR
+
+    def rendered(pattern: str) -> list[Path]:
+        return list(renders.glob(pattern))
+
+    steps = [
+        # Into a hidden sibling renamed into place: a session half segmented is not a session.
+        Step("ingest + masks + plates", session.exists, lambda: made_in_place(session, prepare)),
+        Step("first-frame fit", lambda: fit_complete(run), fit),
+        Step("track (iterative)", lambda: fresh([run / TRACKS_DIR, run / TRACK_INFO], [run / RUN_INFO]),
+             lambda: track_run(run, dynamics="iterative", overrides=[f"dynamics.iterations={settings.track_iterations}"], progress=progress,
+                               overwrite=True)),
+        Step("evaluate", lambda: fresh([run / METRICS_FILE], [run / TRACK_INFO]), lambda: evaluate(run)),
+    ]
     if joints is not None:
-        step("landmarks", fresh([run / LANDMARKS_CSV, run / LANDMARKS_INFO, run / MOVEMENT_JSON], [run / TRACK_INFO]), landmarks)
-        step("render landmarks", fresh(renders.glob("landmarks_*.mp4"), [run / LANDMARKS_CSV]) and any(renders.glob("landmarks_*.mp4")),
-             lambda: render_landmarks(run, _made(renders), progress=progress))
-    step("render trajectories", any(renders.glob("trajectories_*.png")) and fresh(renders.glob("trajectories_*.png"), [run / TRACK_INFO]),
-         lambda: render_trajectories(RunRenderer(RunStates(run), progress=progress), _made(renders)))
-    step("report", fresh([run / "report.html"], [run / METRICS_FILE]), lambda: write_report(run))
+        steps += [
+            Step("landmarks", lambda: fresh([run / LANDMARKS_CSV, run / LANDMARKS_INFO, run / MOVEMENT_JSON], [run / TRACK_INFO]), landmarks),
+            Step("render landmarks", lambda: bool(rendered("landmarks_*.mp4")) and fresh(rendered("landmarks_*.mp4"), [run / LANDMARKS_CSV]),
+                 lambda: render_landmarks(run, _made(renders), progress=progress)),
+        ]
+    steps += [
+        Step("render trajectories", lambda: bool(rendered("trajectories_*.png")) and fresh(rendered("trajectories_*.png"), [run / TRACK_INFO]),
+             lambda: render_trajectories(RunRenderer(RunStates(run), progress=progress), _made(renders))),
+        Step("report", lambda: fresh([run / REPORT_FILE], [run / METRICS_FILE]), lambda: write_report(run)),
+    ]
+    times = run_steps("run", steps, log, SettingsRecord.of(out / SETTINGS_FILE, settings))
     info = json.loads((run / LANDMARKS_INFO).read_text()) if (run / LANDMARKS_INFO).exists() else {}
-    return CaptureResult(out, run, json.loads((run / METRICS_FILE).read_text()), info, tuple(steps))
+    return CaptureResult(out, run, json.loads((run / METRICS_FILE).read_text()), info, times)
 
 
 def mask_choice(session: SessionReader, segmenter: str) -> dict[str, Any]:
@@ -195,24 +198,11 @@ def _made(folder: Path) -> Path:
     return folder
 
 
-def _check_settings(out: Path, settings: CaptureSettings) -> None:
-    """Record ``settings`` in OUT/capture.json, or refuse when OUT was made with other settings."""
-    record = out / SETTINGS_FILE
-    wanted = json.loads(json.dumps(attrs.asdict(settings)))
-    if record.exists():
-        recorded = json.loads(record.read_text())
-        if recorded != wanted:
-            changed = sorted(key for key in wanted if recorded.get(key) != wanted[key])
-            raise InputError(f"{out} was made with other settings ({', '.join(changed)} differ): use another --out, or the same settings to resume")
-        return
-    write_json_atomic(record, wanted)
-
-
 def summary(result: CaptureResult) -> str:
     """The closing text of ``mmcsplat run``: outputs, headline figures, warnings, each step's time."""
     metrics = result.metrics
     lines = [f"\nmmcsplat run finished: its steps took {sum(step.seconds for step in result.steps):.0f} s",
-             f"  run folder  {result.run}", f"  report      {result.run / 'report.html'}",
+             f"  run folder  {result.run}", f"  report      {result.run / REPORT_FILE}",
              f"  held-out {', '.join(metrics['heldout_cameras']) or '(none)'}: masked PSNR "
              f"{'n/a' if metrics.get('val_masked_psnr') is None else format(metrics['val_masked_psnr'], '.2f') + ' dB'}, "
              f"training views {'n/a' if metrics.get('train_masked_psnr') is None else format(metrics['train_masked_psnr'], '.2f') + ' dB'}; "

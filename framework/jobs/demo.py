@@ -8,24 +8,35 @@ functions its own command calls.
 
 A rerun resumes: a step is skipped when its outputs exist and are newer than what they are made from.
 Every output appears atomically, so a half-done step never reads as done. ``OUT/demo.json`` records
-the settings; a rerun with other settings is refused rather than mixing two demos in one folder.
+the settings once a step has succeeded; a rerun with other settings is then refused rather than mixing
+two demos in one folder. The steps run through :mod:`mmcsplat.pipeline.steps`.
 """
 
 from __future__ import annotations
 
 import json
-import os
-import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 import attrs
 
 from mmcsplat.configuration.config import Config, load_config
+from mmcsplat.pipeline.steps import SettingsRecord, Step, StepTime, fit_complete, fresh, made_in_place, run_steps
 from mmcsplat.plugin_api.errors import InputError
-from mmcsplat.storage.atomic import write_json_atomic
-from mmcsplat.studies.spec import SYNTHETIC_HELDOUT, SYNTHETIC_SEGMENTER
+from mmcsplat.storage.run import (
+    LANDMARKS_CSV,
+    LANDMARKS_INFO,
+    LANDMARKS_TRC,
+    METRICS_FILE,
+    MOVEMENT_JSON,
+    NOVEL_VIDEO,
+    RENDERS_DIR,
+    REPORT_FILE,
+    RUN_INFO,
+    TRACK_INFO,
+    TRACKS_DIR,
+)
 
 #: Iterations per frame of the ``iterative`` method when the configuration has no [dynamics] table. One
 #: iteration of the default demo (256×192, the 8 400 Gaussians of its first-frame fit) measured 0.09 CPU
@@ -75,28 +86,15 @@ class DemoPaths:
     @classmethod
     def under(cls, out: Path) -> DemoPaths:
         """The paths in ``out``: the run is OUT/first-frame, its renders and report where the commands put them."""
-        from mmcsplat.outputs.report import RENDERS_DIR, REPORT_FILE
-        from mmcsplat.pipeline.evaluate import METRICS_FILE
-        from mmcsplat.pipeline.landmarks import LANDMARKS_CSV, LANDMARKS_INFO, MOVEMENT_JSON
-        from mmcsplat.pipeline.track import TRACK_INFO
-        from mmcsplat.storage.tracks import TRACKS_DIR
+        from mmcsplat.synthetic.defaults import SYNTHETIC_HELDOUT
 
         run = out / "first-frame"
         renders = run / RENDERS_DIR
         trajectories = renders / f"trajectories_{SYNTHETIC_HELDOUT[0]}"
         return cls(out, out / "capture", out / "session.zarr", run, run / TRACKS_DIR, run / TRACK_INFO, run / METRICS_FILE,
-                   run / LANDMARKS_CSV, run / LANDMARKS_INFO, run / "landmarks.trc", run / MOVEMENT_JSON, renders, trajectories.with_suffix(".mp4"),
-                   trajectories.with_suffix(".png"), renders / f"landmarks_{SYNTHETIC_HELDOUT[0]}.mp4", renders / "novel.mp4",
+                   run / LANDMARKS_CSV, run / LANDMARKS_INFO, run / LANDMARKS_TRC, run / MOVEMENT_JSON, renders, trajectories.with_suffix(".mp4"),
+                   trajectories.with_suffix(".png"), renders / f"landmarks_{SYNTHETIC_HELDOUT[0]}.mp4", renders / NOVEL_VIDEO,
                    run / REPORT_FILE)
-
-
-@attrs.frozen
-class StepTime:
-    """One step's wall time; ``reused`` when its outputs were already there."""
-
-    name: str
-    seconds: float
-    reused: bool
 
 
 @attrs.frozen
@@ -111,16 +109,6 @@ class DemoResult:
     steps: tuple[StepTime, ...]
 
 
-def run_step(job: str, name: str, done: bool, action: Callable[[], object], log: Callable[[str], None]) -> StepTime:
-    """Run ``action`` unless the step is ``done``; log ``[job] name done (… s)`` and return its time."""
-    began = time.perf_counter()
-    if not done:
-        action()
-    timed = StepTime(name, time.perf_counter() - began, done)
-    log(f"[{job}] {name} {'already done' if done else 'done'} ({timed.seconds:.1f} s)")
-    return timed
-
-
 def tracking_choice(config: Config, iterations: int | None) -> tuple[str, list[str]]:
     """(dynamics method, tracking overrides): the method the configuration's [dynamics] table names, else
     ``iterative``; for ``iterative``, ``iterations`` per frame when given, else the table's, else
@@ -133,30 +121,6 @@ def tracking_choice(config: Config, iterations: int | None) -> tuple[str, list[s
                              f"but its [dynamics] table chooses {method!r}: set dynamics.KEY values instead")
         return method, []
     return method, [f"dynamics.iterations={iterations if iterations is not None else table.get('iterations', TRACK_ITERATIONS)}"]
-
-
-def fresh(outputs: Iterable[Path], inputs: Iterable[Path] = ()) -> bool:
-    """Whether every output exists and none is older than any input (a step made from them is done)."""
-    outputs = list(outputs)
-    if not all(path.exists() for path in outputs):
-        return False
-    newest = max((path.stat().st_mtime_ns for path in inputs), default=0)
-    return all(path.stat().st_mtime_ns >= newest for path in outputs)
-
-
-def check_settings(paths: DemoPaths, settings: DemoSettings) -> None:
-    """Record ``settings`` in OUT/demo.json, or refuse when OUT was made with other settings."""
-    record = paths.out / SETTINGS_FILE
-    wanted = json.loads(json.dumps(attrs.asdict(settings)))  # as JSON reads it back
-    if record.exists():
-        made = json.loads(record.read_text())
-        changed = sorted(key for key in wanted.keys() | made.keys() if made.get(key) != wanted.get(key))
-        if changed:
-            raise InputError(f"{paths.out} was made with other settings ({record}: "
-                             + ", ".join(f"{key} {made.get(key)!r}, now {wanted.get(key)!r}" for key in changed)
-                             + "): use another --out or delete it")
-        return
-    write_json_atomic(record, wanted)
 
 
 def run_demo(out: Path, settings: DemoSettings = DemoSettings(), progress: bool = True,
@@ -174,8 +138,8 @@ def run_demo(out: Path, settings: DemoSettings = DemoSettings(), progress: bool 
     from mmcsplat.pipeline.run_frames import RunStates
     from mmcsplat.pipeline.segment import segment_session
     from mmcsplat.pipeline.track import track_run
-    from mmcsplat.storage.run_info import RUN_INFO
     from mmcsplat.storage.session import SessionReader
+    from mmcsplat.synthetic.defaults import SYNTHETIC_HELDOUT, SYNTHETIC_SEGMENTER
     from mmcsplat.synthetic.synthesize import SynthConfig, synthesize
 
     if settings.frames < 2:
@@ -185,49 +149,46 @@ def run_demo(out: Path, settings: DemoSettings = DemoSettings(), progress: bool 
     synth = SynthConfig(frames=settings.frames, width=settings.width, height=settings.height)
     method, track_overrides = tracking_choice(config, settings.track_iterations)
     paths.out.mkdir(parents=True, exist_ok=True)
-    check_settings(paths, settings)
     run, fitted = paths.run, paths.run / RUN_INFO
-    steps: list[StepTime] = []
 
-    def step(name: str, done: bool, action: Callable[[], object]) -> None:
-        steps.append(run_step("demo", name, done, action, log))
-
-    def ingest_and_segment() -> None:
-        # Both into a hidden sibling renamed into place: an interrupted segmentation is not a session.
-        partial = paths.session.with_name(f".{paths.session.name}.partial")
+    def ingest_and_segment(partial: Path) -> None:
         ingest(paths.capture, partial, holdout=list(SYNTHETIC_HELDOUT), overwrite=True, progress=progress)
         # The synthetic capture ships subject masks; segmenting keeps their central component per view.
         segment_session(partial, SYNTHETIC_SEGMENTER, progress=progress)
-        os.replace(partial, paths.session)
 
     def renderer() -> RunRenderer:
         return RunRenderer(RunStates(run), backend=settings.backend, progress=progress)
-
-    step("synthesize", (paths.capture / "calibration.toml").exists(), lambda: synthesize(paths.capture, synth, progress=progress))
-    step("ingest + segment", paths.session.exists(), ingest_and_segment)
-    step("first-frame fit", fitted.exists() and json.loads(fitted.read_text())["status"] == "complete",
-         lambda: FirstFrameFit(SessionReader(paths.session), config, run, backend=settings.backend, progress=progress).run())
-    step(f"track ({method})", fresh([paths.tracks, paths.track_info], [fitted]),
-         lambda: track_run(run, dynamics=method, overrides=track_overrides, backend=settings.backend, progress=progress, overwrite=True))
-    step("evaluate", fresh([paths.metrics], [paths.track_info]), lambda: evaluate(run, backend=settings.backend))
 
     def landmarks() -> None:
         track_landmarks(run, "synthetic")
         export_landmarks(run, trc=paths.landmarks_trc)
 
-    step("landmarks", fresh([paths.landmarks_csv, paths.landmarks_info, paths.landmarks_trc, paths.movement], [paths.track_info]), landmarks)
-    paths.renders.mkdir(exist_ok=True)
-    step("render trajectories", fresh([paths.trajectories_video, paths.trajectories_strip], [paths.track_info]),
-         lambda: render_trajectories(renderer(), paths.renders, SYNTHETIC_HELDOUT[0]))
-    step("render landmarks", fresh([paths.landmarks_video], [paths.landmarks_csv]),
-         lambda: render_landmarks(run, paths.renders, SYNTHETIC_HELDOUT[0], progress=progress))
-    step("render novel view", fresh([paths.novel], [paths.track_info]), lambda: render_novel(renderer(), paths.renders))
-    step("report", fresh([paths.report], [paths.metrics, paths.landmarks_info, paths.movement, paths.trajectories_video, paths.trajectories_strip,
-                                          paths.landmarks_video, paths.novel]),
-         lambda: write_report(run, paths.report, backend=settings.backend))
+    def render_trajectories_step() -> None:
+        paths.renders.mkdir(exist_ok=True)
+        render_trajectories(renderer(), paths.renders, SYNTHETIC_HELDOUT[0])
+
+    steps = [
+        Step("synthesize", lambda: (paths.capture / "calibration.toml").exists(), lambda: synthesize(paths.capture, synth, progress=progress)),
+        # Into a hidden sibling renamed into place: an interrupted segmentation is not a session.
+        Step("ingest + segment", paths.session.exists, lambda: made_in_place(paths.session, ingest_and_segment)),
+        Step("first-frame fit", lambda: fit_complete(run),
+             lambda: FirstFrameFit(SessionReader(paths.session), config, run, backend=settings.backend, progress=progress).run()),
+        Step(f"track ({method})", lambda: fresh([paths.tracks, paths.track_info], [fitted]),
+             lambda: track_run(run, dynamics=method, overrides=track_overrides, backend=settings.backend, progress=progress, overwrite=True)),
+        Step("evaluate", lambda: fresh([paths.metrics], [paths.track_info]), lambda: evaluate(run, backend=settings.backend)),
+        Step("landmarks", lambda: fresh([paths.landmarks_csv, paths.landmarks_info, paths.landmarks_trc, paths.movement], [paths.track_info]),
+             landmarks),
+        Step("render trajectories", lambda: fresh([paths.trajectories_video, paths.trajectories_strip], [paths.track_info]), render_trajectories_step),
+        Step("render landmarks", lambda: fresh([paths.landmarks_video], [paths.landmarks_csv]),
+             lambda: render_landmarks(run, paths.renders, SYNTHETIC_HELDOUT[0], progress=progress)),
+        Step("render novel view", lambda: fresh([paths.novel], [paths.track_info]), lambda: render_novel(renderer(), paths.renders)),
+        Step("report", lambda: fresh([paths.report], [paths.metrics, paths.landmarks_info, paths.movement, paths.trajectories_video,
+                                                      paths.trajectories_strip, paths.landmarks_video, paths.novel]),
+             lambda: write_report(run, paths.report, backend=settings.backend)),
+    ]
+    times = run_steps("demo", steps, log, SettingsRecord.of(paths.out / SETTINGS_FILE, settings))
     iterations = json.loads(paths.track_info.read_text())["params"].get("iterations")
-    return DemoResult(paths, method, iterations, json.loads(paths.metrics.read_text()), json.loads(paths.landmarks_info.read_text()),
-                      tuple(steps))
+    return DemoResult(paths, method, iterations, json.loads(paths.metrics.read_text()), json.loads(paths.landmarks_info.read_text()), times)
 
 
 def _number(value: float | None, unit: str, digits: int = 2) -> str:

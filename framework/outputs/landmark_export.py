@@ -6,10 +6,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from mmcsplat.pipeline.landmarks import LANDMARKS_CSV
 from mmcsplat.pipeline.run_frames import RunStates
 from mmcsplat.plugin_api.errors import MissingFileError
 from mmcsplat.storage.landmark_formats import read_landmark_csv, write_c3d, write_landmark_csv, write_trc
+from mmcsplat.storage.run import LANDMARKS_CSV
 
 
 def export_landmarks(run: str | Path, trc: str | Path | None = None, csv: str | Path | None = None, c3d: str | Path | None = None) -> list[Path]:

@@ -16,10 +16,10 @@ import numpy as np
 
 from mmcsplat.outputs.renders import TRAIL_FRAMES, draw_trails, project_visible, trajectory_colors
 from mmcsplat.outputs.video import write_video
-from mmcsplat.pipeline.landmarks import LANDMARKS_CSV
 from mmcsplat.pipeline.run_frames import RunStates
 from mmcsplat.plugin_api.errors import MissingFileError
 from mmcsplat.storage.landmark_formats import read_landmark_csv
+from mmcsplat.storage.run import LANDMARKS_CSV
 
 MIN_SHORT_SIDE = 480  # pixels
 MARGIN = 0.25  # of the landmarks' box, added on each side

@@ -26,6 +26,7 @@ from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.interfaces import Renderer
 from mmcsplat.plugin_api.render_contract import NEAR_PLANE, RenderCameras, RenderOutput
 from mmcsplat.scene.camera import Camera
+from mmcsplat.storage.run import NOVEL_VIDEO
 from mmcsplat.training.supersampling import run_renderer
 
 MIN_FRAMES_PER_SEGMENT = 15
@@ -90,7 +91,7 @@ def render_novel(renderer: RunRenderer, out: Path, frames_per_segment: int | Non
         for j in renderer.frames("novel view", len(path)):
             yield to_uint8(renderer.render(j % states.num_frames, path[j]).rgb[0])
 
-    target = out / "novel.mp4"
+    target = out / NOVEL_VIDEO
     write_video(target, frames(), states.session.fps)
     return target
 

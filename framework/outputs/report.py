@@ -19,26 +19,22 @@ import numpy as np
 from mmcsplat.configuration.registry import Registry
 from mmcsplat.outputs.report_html import command, esc, image, markdown_html, page, table, video
 from mmcsplat.outputs.video import encode_png
-from mmcsplat.pipeline.evaluate import METRICS_FILE
-from mmcsplat.pipeline.fit import CHECKPOINT
 from mmcsplat.plugin_api.errors import InputError, MissingFileError
 from mmcsplat.storage.atomic import write_text_atomic
-from mmcsplat.storage.curves import CURVES_FILE, STAGES, read_curves
-from mmcsplat.storage.run_info import RUN_INFO
+from mmcsplat.storage.curves import STAGES, read_curves
+from mmcsplat.storage.run import CHECKPOINT, CURVES_FILE, METRICS_FILE, NOVEL_VIDEO, RENDERS_DIR, REPORT_FILE, RUN_INFO
 
 if TYPE_CHECKING:  # torch-heavy modules are imported only when a run is reported
     from mmcsplat.outputs.renders import RunRenderer
     from mmcsplat.pipeline.run_frames import RunStates
     from mmcsplat.storage.session import SessionReader
 
-REPORT_FILE = "report.html"
-RENDERS_DIR = "renders"
 STUDY_FILES = ("results.json", "results.md")
 #: What ``mmcsplat render`` writes into RUN/renders/ (file pattern, caption, the option that makes it).
 RENDER_OUTPUTS = (
     ("trajectories_*.png", "Tracking figure, a strip of five frames", "--trajectories"),
     ("trajectories_*.mp4", "Tracking figure", "--trajectories"),
-    ("novel.mp4", "Novel view around the rig", "--novel"),
+    (NOVEL_VIDEO, "Novel view around the rig", "--novel"),
     ("depth_*.mp4", "Expected depth", "--depth"),
 )
 RUN_METRICS = (  # (metrics.json key, label)

@@ -16,8 +16,8 @@ import numpy as np
 
 from mmcsplat.analysis.movement import limb_landmarks, movement_summary, speed, speed_spectrum
 from mmcsplat.outputs.report_html import command, esc, image, table, video
-from mmcsplat.pipeline.landmarks import LANDMARKS_CSV, LANDMARKS_INFO, MOVEMENT_JSON
 from mmcsplat.storage.landmark_formats import read_landmark_csv
+from mmcsplat.storage.run import LANDMARKS_CSV, LANDMARKS_INFO, MOVEMENT_JSON
 
 #: The unit shown for a measure's SI unit, and the factor between them (centimetres read better for an
 #: infant's limbs); other units are shown as they are.

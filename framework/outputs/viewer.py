@@ -26,11 +26,11 @@ import numpy as np
 import torch
 
 from mmcsplat.outputs.renders import TRAIL_FRAMES, trajectory_colors, trajectory_gaussians
-from mmcsplat.pipeline.landmarks import LANDMARKS_CSV
 from mmcsplat.pipeline.run_frames import RunStates
 from mmcsplat.scene.camera import Camera
 from mmcsplat.scene.quaternions import quat_to_rotmat
 from mmcsplat.storage.landmark_formats import read_landmark_csv
+from mmcsplat.storage.run import LANDMARKS_CSV
 
 #: Longest side, in pixels, of the image drawn in a camera's frustum.
 FRUSTUM_IMAGE_SIZE = 160

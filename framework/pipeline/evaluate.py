@@ -14,18 +14,16 @@ from mmcsplat.analysis.rendered_views import render_over
 from mmcsplat.analysis.trajectory_error import evaluate_tracks
 from mmcsplat.analysis.visual_hull import FLOATER_MARGIN_PX, dilated, eroded, floater_share, mask_agreement, projected_hull_mask
 from mmcsplat.configuration.registry import Registry, default_registry
-from mmcsplat.pipeline.fit import fitted_background, load_fitted
 from mmcsplat.plugin_api.errors import MissingFileError
 from mmcsplat.plugin_api.render_contract import gaussians_from_params
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.atomic import write_json_atomic
-from mmcsplat.storage.run_info import RUN_INFO
+from mmcsplat.storage.run import METRICS_FILE, RUN_INFO, TRACKS_DIR
 from mmcsplat.storage.session import SessionReader
-from mmcsplat.storage.tracks import TRACKS_DIR, TrackReader
-from mmcsplat.training.backdrop import camera_backdrop
+from mmcsplat.storage.tracks import TrackReader
+from mmcsplat.training.fitted_run import FittedRun
 from mmcsplat.training.supersampling import run_renderer
 
-METRICS_FILE = "metrics.json"
 #: Above this share of the opacity outside the masks' visual hull, a fit is mostly floaters (the reference
 #: study's failure mode; the demo's fits hold 2–5 %).
 FLOATER_WARNING = 0.3
@@ -86,9 +84,10 @@ def failure_signals(floaters: float | None, agreement: dict[str, float]) -> list
 
 def fit_signals(run: Path) -> list[str]:
     """:func:`failure_signals` of a fitted run, from its Gaussians and the session's masks (no rendering)."""
-    info, params, _, _ = load_fitted(run)
-    views = _mask_views(SessionReader(info.session), info.frame)
-    return failure_signals(_floater_share(views, params), _mask_agreement(views, np.asarray(info.scene_center), info.scene_scale))
+    fitted = FittedRun.load(run)
+    info = fitted.info
+    views = _mask_views(fitted.session, info.frame)
+    return failure_signals(_floater_share(views, fitted.params), _mask_agreement(views, np.asarray(info.scene_center), info.scene_scale))
 
 
 def evaluate_run(run: Path, registry: Registry | None = None, backend: str | None = None, ground_truth: Path | None = None) -> dict[str, Any]:
@@ -99,15 +98,15 @@ def evaluate_run(run: Path, registry: Registry | None = None, backend: str | Non
     session's masks at the fitted frame, ``mask_agreement`` per camera the share of its mask on the hull
     of the other cameras' masks (:mod:`mmcsplat.analysis.visual_hull`; low for a camera with wrong extrinsics)."""
     registry = registry or default_registry()
-    info, params, camera_scale, camera_offset = load_fitted(run)
-    session = SessionReader(info.session)
+    fitted = FittedRun.load(run)
+    info, params, session = fitted.info, fitted.params, fitted.session
     renderer = run_renderer(info, registry, backend)
     psnr = registry.create("metric", "psnr")
     ssim = registry.create("metric", "ssim")
     gaussians = gaussians_from_params(params)
     frame = info.frame
     views = _mask_views(session, frame)
-    background = fitted_background(info)
+    background = fitted.background
     scores: dict[str, dict[str, list[float]]] = {"val": {}, "train": {}}
     per_camera = {}
     # A moving camera's poses are cameras present at one frame each: only those imaging the fitted frame are scored.
@@ -115,10 +114,10 @@ def evaluate_run(run: Path, registry: Registry | None = None, backend: str | Non
     for name in names:
         split = "train" if name in info.train_cameras else "val"
         data = session.frame(frame, name)
-        rgb = render_over(renderer, gaussians, session.camera(name), camera_backdrop(background, session, name))
+        rgb = render_over(renderer, gaussians, session.camera(name), fitted.backdrop(name))
         if split == "train":  # training views are scored through their learnt colour correction
             index = info.train_cameras.index(name)
-            rgb = rgb * camera_scale[index] + camera_offset[index]
+            rgb = rgb * fitted.camera_scale[index] + fitted.camera_offset[index]
         prediction = rgb.clamp(0, 1).double().numpy()
         target = data.rgb.astype(np.float64) / 255.0
         camera_scores = {"psnr": psnr(prediction, target), "ssim": ssim(prediction, target)}

@@ -21,19 +21,20 @@ import torch
 
 from mmcsplat.configuration.config import Config
 from mmcsplat.configuration.registry import Registry, default_registry
-from mmcsplat.plugin_api.errors import InputError, MissingFileError
+from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.interfaces import Densifier, Initializer, Renderer, SceneContext, TrainingView
 from mmcsplat.plugin_api.render_contract import RenderCameras
 from mmcsplat.scene.camera import Camera
 from mmcsplat.scene.rig import rig_center, rig_scale
 from mmcsplat.storage.curves import TrainingCurve
 from mmcsplat.storage.locking import run_lock
-from mmcsplat.storage.run_info import COMPLETE, DIVERGED, RUN_INFO, RUNNING, RunInfo
+from mmcsplat.storage.run import CHECKPOINT
+from mmcsplat.storage.run_info import COMPLETE, DIVERGED, RUNNING, RunInfo
 from mmcsplat.storage.run_log import run_log
 from mmcsplat.storage.session import SessionReader
-from mmcsplat.training.backdrop import Background, camera_backdrop, parse_background
+from mmcsplat.training.backdrop import camera_backdrop
 from mmcsplat.training.checked_renderer import CheckedRenderer
-from mmcsplat.training.checkpoint import read_checkpoint, resume_checkpoint, save_checkpoint
+from mmcsplat.training.checkpoint import resume_checkpoint, save_checkpoint
 from mmcsplat.training.finite import FitError
 from mmcsplat.training.loop import Sample, Step, TrainingLoop, initializer_pruning, initializer_terms
 from mmcsplat.training.model import GaussianModel
@@ -41,8 +42,6 @@ from mmcsplat.training.schedule import CameraSchedule
 from mmcsplat.training.settings import FitSettings
 from mmcsplat.training.supersampling import supersampled
 from mmcsplat.training.views import first_fit_images, load_view, require_masks, subject_warnings
-
-CHECKPOINT = "checkpoint.pt"
 
 
 @attrs.define
@@ -278,18 +277,3 @@ class FirstFrameFit:
             resumed_from=self.resumed_from,
         )
 
-
-def load_fitted(out: Path) -> tuple[RunInfo, dict[str, torch.Tensor], torch.Tensor, torch.Tensor]:
-    """(run.json's record, final parameters, camera colour scale, offset) of a run directory."""
-    out = Path(out)
-    checkpoint = out / CHECKPOINT
-    if not (out / RUN_INFO).exists() or not checkpoint.exists():
-        raise MissingFileError(f"{out} is not a fit run directory (needs {RUN_INFO} and {CHECKPOINT})")
-    info = RunInfo.read(out)
-    model = read_checkpoint(checkpoint)["model"]
-    return info, model["params"], model["camera_scale"], model["camera_offset"]
-
-
-def fitted_background(info: RunInfo) -> Background:
-    """The ``fit.background`` a run was fitted with."""
-    return parse_background(info.background_value)

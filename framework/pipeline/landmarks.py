@@ -30,13 +30,10 @@ from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.atomic import write_json_atomic, write_text_atomic
 from mmcsplat.storage.landmark_formats import write_landmark_csv
 from mmcsplat.storage.locking import run_lock
+from mmcsplat.storage.run import LANDMARKS_CSV, LANDMARKS_INFO, MOVEMENT_CSV, MOVEMENT_JSON
 from mmcsplat.storage.run_log import run_log
 from mmcsplat.storage.session import SessionReader
 
-LANDMARKS_CSV = "landmarks.csv"
-LANDMARKS_INFO = "landmarks.json"
-MOVEMENT_JSON = "movement.json"
-MOVEMENT_CSV = "movement.csv"
 MIN_KEYPOINT_CONFIDENCE = 0.3  # detections below it are not scored (OpenPose's own cut-off for a visible keypoint)
 SUBJECT_OPACITY = 0.1  # Gaussians fainter than this carry no landmark: they are too easily floaters
 

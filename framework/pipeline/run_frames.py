@@ -4,19 +4,19 @@ read runs through this."""
 
 from __future__ import annotations
 
-from functools import cached_property
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from mmcsplat.pipeline.fit import fitted_background, load_fitted
 from mmcsplat.plugin_api.errors import InputError, MissingFileError
 from mmcsplat.plugin_api.render_contract import Gaussians, gaussians_from_params
 from mmcsplat.scene.camera import Camera
+from mmcsplat.storage.run import TRACKS_DIR
 from mmcsplat.storage.session import SessionReader
-from mmcsplat.storage.tracks import TRACKS_DIR, TrackReader
+from mmcsplat.storage.tracks import TrackReader
 from mmcsplat.training.backdrop import PLATE
+from mmcsplat.training.fitted_run import FittedRun
 
 FOREGROUND = 0.5  # segmentation colour above which a Gaussian belongs to the subject
 
@@ -28,9 +28,10 @@ class RunStates:
         self.run = Path(run)
         if not self.run.is_dir():
             raise MissingFileError(f"run directory {self.run} does not exist")
-        self.info, fitted, _, _ = load_fitted(self.run)
+        self.fitted = FittedRun.load(self.run)
+        self.info = self.fitted.info
         self.tracks = TrackReader(self.run) if (self.run / TRACKS_DIR).exists() else None
-        self._fitted = None if self.tracks is not None else {name: value.detach().float() for name, value in fitted.items()}
+        self._fitted = None if self.tracks is not None else {name: value.detach().float() for name, value in self.fitted.params.items()}
         first = self.tracks.attrs.get("first_frame", self.info.frame) if self.tracks is not None else self.info.frame
         self.first_frame = int(first)
 
@@ -38,13 +39,10 @@ class RunStates:
     def num_frames(self) -> int:
         return self.tracks.num_frames if self.tracks is not None else 1
 
-    @cached_property
+    @property
     def session(self) -> SessionReader:
         """The session the run was fitted on (opened on first use: export does not need it)."""
-        try:
-            return SessionReader(self.info.session)
-        except FileNotFoundError as error:
-            raise MissingFileError(f"{self.run}: its session {self.info.session} cannot be opened ({error})") from error
+        return self.fitted.session
 
     def params(self, k: int) -> dict[str, torch.Tensor]:
         """Every ``GAUSSIAN_PARAMETERS`` tensor at frame ``k``."""
@@ -71,7 +69,7 @@ class RunStates:
     def background(self) -> tuple[float, float, float]:
         """The background colour renders are shown over: the run's, or black for a run fitted over clean
         plates (a viewpoint between the cameras has no plate)."""
-        background = fitted_background(self.info)
+        background = self.fitted.background
         return (0.0, 0.0, 0.0) if background == PLATE else background
 
     @property

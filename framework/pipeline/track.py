@@ -18,21 +18,19 @@ import numpy as np
 
 from mmcsplat.configuration.config import Config, PluginChoice, apply_override, load_config
 from mmcsplat.configuration.registry import Registry, default_registry
-from mmcsplat.pipeline.fit import load_fitted
 from mmcsplat.plugin_api.errors import InputError, OutputExistsError
 from mmcsplat.plugin_api.interfaces import Dynamics, TrackingContext
 from mmcsplat.storage.atomic import write_json_atomic
 from mmcsplat.storage.locking import run_lock
-from mmcsplat.storage.run_info import RUN_INFO, RunInfo
+from mmcsplat.storage.run import RUN_INFO, TRACK_INFO, TRACKS_DIR
+from mmcsplat.storage.run_info import RunInfo
 from mmcsplat.storage.run_log import run_log
 from mmcsplat.storage.session import SessionReader
-from mmcsplat.storage.tracks import TRACKS_DIR
 from mmcsplat.training.backdrop import camera_backdrop
+from mmcsplat.training.fitted_run import FittedRun
 from mmcsplat.training.settings import FitSettings
 from mmcsplat.training.supersampling import run_renderer
 from mmcsplat.training.views import load_views
-
-TRACK_INFO = "track.json"
 
 
 def tracking_config(
@@ -85,14 +83,14 @@ def track_run(
     RUN/tracks.zarr and RUN/track.json (returned)."""
     run = Path(run)
     registry = registry or default_registry()
-    info, params, camera_scale, camera_offset = load_fitted(run)
-    if not info.complete:
-        raise InputError(f"{run / RUN_INFO}: the first-frame fit is {info.status!r}, not complete: finish it with `mmcsplat fit` first")
+    fitted = FittedRun.load(run)
+    fitted.require_complete()
+    info = fitted.info
     if (run / TRACKS_DIR).exists() and not overwrite:
         raise OutputExistsError(f"{run / TRACKS_DIR} already exists (use --overwrite to replace it)")
     loaded, choice = tracking_config(run, info, config, overrides, dynamics)
     method: Dynamics = choice.build(registry)
-    session = SessionReader(info.session)
+    session = fitted.session
     settings = FitSettings.from_config(loaded)
     first = info.frame
     frames = frames or slice(None)
@@ -113,9 +111,9 @@ def track_run(
         cameras=cameras,
         heldout=tuple(session.camera(name) for name in info.heldout_cameras),
         frames=range(first, stop),
-        params=params,
-        camera_scale=camera_scale,
-        camera_offset=camera_offset,
+        params=fitted.params,
+        camera_scale=fitted.camera_scale,
+        camera_offset=fitted.camera_offset,
         renderer=run_renderer(info, registry, renderer_name),
         settings=settings,
         initializers=initializers,

@@ -18,8 +18,8 @@ import attrs
 
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.storage.atomic import write_text_atomic
+from mmcsplat.storage.run import CURVES_FILE
 
-CURVES_FILE = "curves.csv"
 COLUMNS = ("stage", "step", "frame", "loss", "psnr", "gaussians", "elapsed_s")
 STAGES = ("fit", "track")
 

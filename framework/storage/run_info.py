@@ -23,9 +23,9 @@ import attrs
 
 from mmcsplat.plugin_api.errors import InputError, MissingFileError
 from mmcsplat.storage.atomic import write_json_atomic
+from mmcsplat.storage.run import RUN_INFO
 from mmcsplat.storage.session.format import local_path
 
-RUN_INFO = "run.json"
 RUN_INFO_VERSION = 2
 RUNNING, COMPLETE, DIVERGED = "running", "complete", "diverged"
 

@@ -12,7 +12,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-LOG_FILE = "log.txt"
+from mmcsplat.storage.run import LOG_FILE
+
 LOGGER = "mmcsplat"
 FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
 

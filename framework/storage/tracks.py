@@ -31,9 +31,9 @@ from mmcsplat.plugin_api.render_contract import Gaussians, gaussians_from_params
 from mmcsplat.scene.gaussian_table import GAUSSIAN_PARAMETERS, PARAMETER_SHAPES
 from mmcsplat.storage.atomic import remove_leftovers, remove_local_tree
 from mmcsplat.storage.chunks import open_stored, read_stored
+from mmcsplat.storage.run import TRACKS_DIR
 from mmcsplat.storage.transaction import Transaction
 
-TRACKS_DIR = "tracks.zarr"
 FORMAT_VERSION = 1
 #: Parameters every frame must carry.
 REQUIRED_DYNAMIC = ("means", "quats")

@@ -15,8 +15,10 @@ from typing import Any
 
 import attrs
 
+from mmcsplat.pipeline.steps import Step, fit_complete, run_steps
 from mmcsplat.storage.atomic import write_json_atomic
-from mmcsplat.storage.run_info import RUN_INFO, RunInfo
+from mmcsplat.storage.run import TRACK_INFO, TRACKS_DIR
+from mmcsplat.storage.run_info import RunInfo
 from mmcsplat.studies.spec import CellSpec
 
 CELL_FILE = "cell.json"
@@ -113,10 +115,27 @@ def run_cell(spec: CellSpec, cell_dir: str | Path) -> CellOutcome:
 
 
 def _run(spec: CellSpec, cell_dir: Path) -> dict[str, Any]:
+    """The cell's steps — its first-frame fit (resumed from its checkpoint) unless complete, its tracking
+    unless done (a ``tracks.zarr`` without its ``track.json`` was cut short between the two and is
+    replaced) — then its evaluation and landmarks, and the fields of its outcome."""
     from mmcsplat.pipeline.evaluate import evaluate_run
+    from mmcsplat.pipeline.fit import FirstFrameFit
+    from mmcsplat.pipeline.track import track_run
+    from mmcsplat.storage.session import SessionReader
 
-    info, resumed_at = _fit(spec, cell_dir)
-    track = _track(cell_dir) if spec.has_dynamics else {}
+    resumed_at: int | None = None  # the iteration a fit run by this call went on from
+
+    def fit() -> None:
+        nonlocal resumed_at
+        resumed_at = FirstFrameFit(SessionReader(spec.session_url), spec.config, cell_dir, holdout=spec.holdout, progress=False).run().resumed_from
+
+    steps = [Step("first-frame fit", lambda: fit_complete(cell_dir), fit)]
+    if spec.has_dynamics:
+        steps.append(Step("track", (cell_dir / TRACK_INFO).exists,
+                          lambda: track_run(cell_dir, progress=False, overwrite=(cell_dir / TRACKS_DIR).exists())))
+    run_steps("cell", steps)
+    info = RunInfo.read(cell_dir)
+    track = json.loads((cell_dir / TRACK_INFO).read_text()) if spec.has_dynamics else {}
     metrics = evaluate_run(cell_dir, ground_truth=Path(spec.ground_truth) if spec.ground_truth else None)
     landmarks = _landmarks(spec, cell_dir) if spec.has_dynamics else {}
     wall = info.wall_s
@@ -163,27 +182,3 @@ def _landmarks(spec: CellSpec, cell_dir: Path) -> dict[str, float | None]:
     return {"landmark_median_mm": accuracy.get("median_mm"), "landmark_moving_median_mm": accuracy.get("moving_median_mm"),
             "landmark_still_moving_median_mm": accuracy.get("still_moving_median_mm"),
             "joint_angle_median_error_deg": angles.get("median_deg"), "joint_angle_p90_error_deg": angles.get("p90_deg"), **ranges}
-
-
-def _fit(spec: CellSpec, cell_dir: Path) -> tuple[RunInfo, int | None]:
-    """(run.json's record, the iteration resumed from) of the cell's first-frame fit, trained unless complete."""
-    from mmcsplat.pipeline.fit import FirstFrameFit
-    from mmcsplat.storage.session import SessionReader
-
-    previous = RunInfo.read(cell_dir) if (cell_dir / RUN_INFO).exists() else None
-    if previous is not None and previous.complete:
-        return previous, None
-    fit = FirstFrameFit(SessionReader(spec.session_url), spec.config, cell_dir, holdout=spec.holdout, progress=False)
-    info = fit.run()
-    return info, info.resumed_from
-
-
-def _track(cell_dir: Path) -> dict[str, Any]:
-    """track.json of the cell's dynamics step, run unless done (a ``tracks.zarr`` without its
-    ``track.json`` was cut short between the two and is replaced)."""
-    from mmcsplat.pipeline.track import TRACK_INFO, track_run
-    from mmcsplat.storage.tracks import TRACKS_DIR
-
-    if (cell_dir / TRACK_INFO).exists():
-        return json.loads((cell_dir / TRACK_INFO).read_text())
-    return track_run(cell_dir, progress=False, overwrite=(cell_dir / TRACKS_DIR).exists())

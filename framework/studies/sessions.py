@@ -6,7 +6,6 @@ study reuses them; every output appears atomically."""
 from __future__ import annotations
 
 import json
-import os
 import shutil
 from pathlib import Path
 
@@ -16,7 +15,7 @@ import numpy as np
 from mmcsplat.configuration.config import PluginChoice
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.atomic import write_json_atomic
-from mmcsplat.storage.session import IncompleteSessionError, SessionReader
+from mmcsplat.storage.session import IncompleteSessionError, SessionReader, SessionUpdater
 from mmcsplat.studies.spec import SessionPlan, SessionSpec, StudyError
 
 #: Written beside a prepared session once it is complete: the identity it was made from.
@@ -62,47 +61,36 @@ def _prepared_copy(source: Path, target: Path, spec: SessionSpec, segmenter: Plu
     """``source`` copied, modified as ``spec`` says, segmented by ``segmenter`` (if any) and renamed into
     place as ``target``."""
     from mmcsplat.pipeline.segment import segment_session
+    from mmcsplat.pipeline.steps import made_in_place
 
     if not _complete(source):
         raise StudyError(f"{source} is not a complete session store")
-    partial = target.with_name(f".{target.name}.partial")
-    shutil.rmtree(partial, ignore_errors=True)
+
+    def make(partial: Path) -> None:
+        shutil.copytree(source, partial)
+        if spec.modifications:
+            _modify(partial, spec)
+        if segmenter is not None:
+            segment_session(partial, segmenter.name, segmenter.params, progress=progress)
+
     shutil.rmtree(target, ignore_errors=True)  # a copy whose identity file was never written
-    shutil.copytree(source, partial)
-    if spec.modifications:
-        _modify(partial, spec)
-    if segmenter is not None:
-        segment_session(partial, segmenter.name, segmenter.params, progress=progress)
-    os.replace(partial, target)
+    made_in_place(target, make)
 
 
 def _modify(path: Path, spec: SessionSpec) -> None:
     """Keep only ``spec.cameras`` (and only those held out) and perturb ``spec.perturb``'s camera, in
-    the session copy at ``path``; the arrays of dropped cameras are deleted."""
-    import zarr
-
-    group = zarr.open_group(str(path), mode="r+")
-    attributes = group.attrs.asdict()
-    cameras = [Camera.from_dict(data) for data in attributes["cameras"]]
-    names = [camera.name for camera in cameras]
-    keep = list(spec.cameras) if spec.cameras is not None else names
-    named = keep + ([spec.perturb.camera] if spec.perturb is not None else [])
-    unknown = [name for name in named if name not in names]
-    if unknown:
-        raise StudyError(f"session {spec.name!r}: no camera {unknown[0]!r} to keep or perturb; its cameras: {names}")
-    if spec.perturb is not None and spec.perturb.camera not in keep:
-        raise StudyError(f"session {spec.name!r}: perturbs camera {spec.perturb.camera!r}, which its 'cameras' drop")
-    kept = [perturbed(camera, spec.perturb.degrees) if spec.perturb is not None and camera.name == spec.perturb.camera else camera
-            for camera in cameras if camera.name in keep]
-    group.attrs.update({
-        "cameras": [camera.to_dict() for camera in kept],
-        "heldout": [name for name in attributes["heldout"] if name in keep],
-        "fields": {name: fields for name, fields in attributes["fields"].items() if name in keep},
-        "plates": [name for name in attributes.get("plates", ()) if name in keep],
-    })
-    for name in names:
-        if name not in keep:
-            del group[f"cameras/{name}"]
+    the session copy at ``path``, through the session updater; the arrays of dropped cameras are deleted."""
+    with SessionUpdater(path) as updater:  # an error below aborts it: the copy is left as it was
+        names = list(updater.camera_names)
+        keep = list(spec.cameras) if spec.cameras is not None else names
+        named = keep + ([spec.perturb.camera] if spec.perturb is not None else [])
+        unknown = [name for name in named if name not in names]
+        if unknown:
+            raise StudyError(f"session {spec.name!r}: no camera {unknown[0]!r} to keep or perturb; its cameras: {names}")
+        if spec.perturb is not None and spec.perturb.camera not in keep:
+            raise StudyError(f"session {spec.name!r}: perturbs camera {spec.perturb.camera!r}, which its 'cameras' drop")
+        updater.keep_cameras([perturbed(camera, spec.perturb.degrees) if spec.perturb is not None and camera.name == spec.perturb.camera else camera
+                              for camera in updater.cameras if camera.name in keep])
 
 
 def perturbed(camera: Camera, degrees: float) -> Camera:

@@ -26,6 +26,7 @@ import attrs
 from mmcsplat.configuration.config import Config, ConfigError, PluginChoice, load_config, set_value
 from mmcsplat.configuration.registry import PluginError, Registry, default_registry
 from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.synthetic.defaults import SYNTHETIC_HELDOUT, SYNTHETIC_SEGMENTER
 
 #: Bump when the meaning of a key's payload changes: every cell then runs again.
 KEY_VERSION = 1
@@ -35,9 +36,6 @@ STUDY_KEYS = {"study", "sessions", "variant"}
 HEADER_KEYS = {"name", "description", "folds", "seeds", "backends", "set"}
 SESSION_KEYS = {"path", "synthetic", "segmenter", "heldout", "folds", "ground_truth", "cameras", "perturb"}
 VARIANT_KEYS = {"name", "config", "set", "grid", "segmenter", *VARIANT_PLUGIN_TABLES}
-#: A synthetic session's default: the masks it ships, central component kept (as ``mmcsplat demo`` does).
-SYNTHETIC_SEGMENTER = "precomputed"
-SYNTHETIC_HELDOUT = ("cam_0",)
 #: Synthesis settings added after studies were first keyed: left out of identities at these defaults,
 #: so that existing study directories keep their cells.
 LATER_SYNTHETIC_DEFAULTS = {"slide": 0.0}

@@ -3,44 +3,31 @@ depth maps, and which surface points a camera sees — what a tracking evaluatio
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
-from mmcsplat.plugin_api.errors import InputError, MissingFileError
 from mmcsplat.scene.camera import Camera
-from mmcsplat.synthetic.writer import CALIBRATION, GROUND_TRUTH
+from mmcsplat.storage.ground_truth import Frames, GroundTruthReader
+from mmcsplat.synthetic.writer import CALIBRATION
 
-Frames = int | slice | Sequence[int]
 
-
-class SynthGroundTruth:
-    """The ground truth of a capture written by :func:`~.synthesize.synthesize`, read lazily.
+class SynthGroundTruth(GroundTruthReader):
+    """The ground truth of a capture written by :func:`~.synthesize.synthesize`, opened from the capture
+    folder or its ``ground_truth.zarr`` (:class:`~mmcsplat.storage.ground_truth.GroundTruthReader`), with
+    the capture's cameras and what each sees.
 
     ``surface_points(frames)`` [..., P, 3] and ``joints(frames)`` [..., J, 3] are world positions in
     metres; ``frames`` is a frame index (→ [P, 3]), a slice or a sequence of indices (→ [T', P, 3]).
     """
 
     def __init__(self, path: str | Path) -> None:
-        """Open ``path``: the capture folder or its ``ground_truth.zarr``."""
-        import zarr
-
-        path = Path(path)
-        self.path = path if path.name == GROUND_TRUTH else path / GROUND_TRUTH
-        if not self.path.exists():
-            raise MissingFileError(f"synthetic ground truth {self.path} not found")
-        try:
-            self.group = zarr.open_group(str(self.path), mode="r")
-            self._points = self.group["surface_points"]
-            self._joints = self.group["joints"]
-        except Exception as error:
-            raise InputError(f"{self.path}: not a synthetic ground truth ({error})") from error
-        self.fps = float(self.group.attrs["fps"])
-        self.num_frames = int(self.group.attrs["num_frames"])
-        self.seed = int(self.group.attrs["seed"])
-        self.surface_point_parts: list[str] = list(self._points.attrs["surface_point_parts"])
-        self.joint_names: list[str] = list(self._joints.attrs["joint_names"])
+        super().__init__(path)
+        self.fps = float(self.attribute("fps"))
+        self.num_frames = int(self.attribute("num_frames"))
+        self.seed = int(self.attribute("seed"))
+        self.surface_point_parts = self.names("surface_points")
+        self.joint_names = self.names("joints")
 
     def cameras(self) -> list[Camera]:
         """The capture's calibrated (distorted) cameras, from the calibration.toml beside it."""
@@ -50,11 +37,11 @@ class SynthGroundTruth:
 
     def surface_points(self, frames: Frames = slice(None)) -> np.ndarray:
         """World positions of the labelled surface points at ``frames``."""
-        return self._read(self._points, frames)
+        return self.points("surface_points", frames)
 
     def joints(self, frames: Frames = slice(None)) -> np.ndarray:
         """World positions of the joint centres at ``frames``."""
-        return self._read(self._joints, frames)
+        return self.points("joints", frames)
 
     def mask(self, camera: str, t: int) -> np.ndarray:
         """[H, W] bool: the infant in ``camera``'s (distorted) frame ``t``."""
@@ -85,11 +72,3 @@ class SynthGroundTruth:
             return self.group[field][camera]
         except KeyError:
             raise KeyError(f"{self.path}: no {field} for camera {camera!r}") from None
-
-    def _read(self, array, frames: Frames) -> np.ndarray:
-        if isinstance(frames, (int, np.integer)):
-            return np.asarray(array[self._check(int(frames))])
-        if isinstance(frames, slice):
-            return np.asarray(array[frames])
-        indices = [self._check(int(t)) for t in frames]
-        return np.asarray(array.oindex[indices]) if indices else np.zeros((0, *array.shape[1:]), array.dtype)

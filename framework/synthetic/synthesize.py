@@ -11,12 +11,13 @@ import numpy as np
 
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.scene.camera import Camera
+from mmcsplat.storage.ground_truth import GROUND_TRUTH
 from mmcsplat.synthetic.body import BodyPose, Part, forward_kinematics, infant_parts, surface_points
 from mmcsplat.synthetic.cameras import RING_HEIGHT, RING_RADIUS, ring_cameras
 from mmcsplat.synthetic.motion import FREQUENCY_RANGE, RANGES, Motion
 from mmcsplat.synthetic.scene import AMBIENT, DIFFUSE, LIGHT, AdultLeg, ViewRenderer
 from mmcsplat.synthetic.textures import MAT_HALF_SIZE
-from mmcsplat.synthetic.writer import CALIBRATION, GROUND_TRUTH, VIDEOS, CaptureWriter
+from mmcsplat.synthetic.writer import CALIBRATION, VIDEOS, CaptureWriter
 
 
 def _at_least(minimum: int):

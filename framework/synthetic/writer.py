@@ -13,11 +13,11 @@ import numpy as np
 
 from mmcsplat.plugin_api.errors import OutputExistsError
 from mmcsplat.scene.camera import Camera
+from mmcsplat.storage.ground_truth import GROUND_TRUTH
 from mmcsplat.synthetic.scene import Image
 
 VIDEOS = "videos"
 CALIBRATION = "calibration.toml"
-GROUND_TRUTH = "ground_truth.zarr"
 PLATES = "plates"
 #: Lossless H.264 in RGB (4:4:4): the videos hold exactly the rendered frames. Measured on the default
 #: capture, OpenCV's 'mp4v' reached 30 dB PSNR (26 dB inside the infant) and even lossless 4:2:0 H.264

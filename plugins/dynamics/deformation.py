@@ -32,6 +32,7 @@ import torch
 from mmcsplat.plugin_api.interfaces import Densifier, Dynamics, TrackingContext
 from mmcsplat.plugin_api.parameters import above, at_least, parameter
 from mmcsplat.plugin_api.render_contract import RenderCameras, gaussians_from_params
+from mmcsplat.storage.run import DEFORMATION_CHECKPOINT
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.storage.tracks import TrackWriter
 from mmcsplat.training.checkpoint import resume_checkpoint, save_checkpoint
@@ -44,7 +45,7 @@ from .deformation_field import DeformationField
 #: The study's sequence length and the iteration by which its time noise had faded.
 REFERENCE_ITERATIONS = 40_000
 #: The run's training state, kept after the run (the field can be evaluated at any time later).
-CHECKPOINT = "deformation.pt"
+CHECKPOINT = DEFORMATION_CHECKPOINT
 #: Deformed parameters; the others are static over the sequence.
 DEFORMED = ("means", "quats", "log_scales")
 STATIC = ("opacity_logits", "color_logits", "seg_logits")

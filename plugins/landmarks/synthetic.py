@@ -7,14 +7,12 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import attrs
-import numpy as np
 
 from mmcsplat.plugin_api.errors import InputError, MissingFileError
 from mmcsplat.plugin_api.interfaces import Landmarks, LandmarkSource
 from mmcsplat.plugin_api.parameters import parameter
+from mmcsplat.storage.ground_truth import GROUND_TRUTH, GroundTruthReader
 from mmcsplat.storage.session import SessionReader
-
-GROUND_TRUTH = "ground_truth.zarr"
 
 
 @attrs.frozen
@@ -32,18 +30,9 @@ class SyntheticJoints(LandmarkSource):
 
     def read(self, session: SessionReader, frames: Sequence[int]) -> Landmarks:
         """The joints at session ``frames`` (through the capture's frame numbers: ingest may have subsampled)."""
-        import zarr
-
         path = self._path(session)
         if not path.exists():
             raise MissingFileError(f"synthetic joints: {path} does not exist (a synthetic capture's ground truth)")
-        try:
-            joints = zarr.open_group(str(path), mode="r")["joints"]
-            names = tuple(joints.attrs["joint_names"])
-        except Exception as error:
-            raise InputError(f"{path}: not a synthetic ground truth with joints ({error})") from error
-        capture = session.capture_frames(frames)
-        if len(capture) and capture.max() >= joints.shape[0]:
-            raise InputError(f"{path}: {joints.shape[0]} frames of joints, the session needs capture frame {int(capture.max())}")
-        positions = np.asarray(joints.oindex[capture.tolist()], dtype=np.float64)
-        return Landmarks(names, frames, positions, source=f"synthetic joints {path}")
+        truth = GroundTruthReader(path)
+        positions = truth.points("joints", session.capture_frames(frames), "the session needs capture frame")
+        return Landmarks(tuple(truth.names("joints")), frames, positions, source=f"synthetic joints {path}")

@@ -1,14 +1,17 @@
-"""Replacing fields of a session (masks, labels, plates) atomically, as segmenters do."""
+"""Replacing fields of a session (masks, labels, plates) atomically, as segmenters do, and keeping only some of
+its cameras (recalibrated or not), as a study's modified sessions do."""
 
 from __future__ import annotations
 
 import os
 import uuid
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
 from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.locking import session_lock
 from mmcsplat.storage.transaction import Transaction
 
@@ -48,6 +51,7 @@ class SessionUpdater(SessionBase, Transaction):
         self._token = uuid.uuid4().hex[:8]
         self._new: dict[tuple[str, str], tuple[Any, np.ndarray]] = {}  # (camera, field) -> (array, written)
         self._new_plates: dict[str, dict[str, Any]] = {}  # camera -> its plate's source record
+        self._kept: tuple[Camera, ...] | None = None  # the cameras left after the commit (None: all, unchanged)
 
     def _remove_orphans(self) -> None:
         """Delete the ``<field>.<token>`` arrays of updaters killed before their commit (no field names them)."""
@@ -94,6 +98,15 @@ class SessionUpdater(SessionBase, Transaction):
         self._group.create_array(f"cameras/{camera}/{PLATE}.{self._token}", data=plate, config={"write_empty_chunks": True})
         self._new_plates[camera] = dict(source)
 
+    def keep_cameras(self, cameras: Sequence[Camera]) -> None:
+        """Keep only ``cameras`` — the session's, by name, in this order; one with another calibration (a
+        perturbed pose) replaces the stored one — from the commit on; every array of the others is deleted then."""
+        self._check_open()
+        unknown = [camera.name for camera in cameras if camera.name not in self.camera_names]
+        if unknown:
+            raise InputError(f"{self.url}: no camera {unknown[0]!r} to keep; the session has {list(self.camera_names)}")
+        self._kept = tuple(cameras)
+
     def commit(self) -> None:
         """Swap every written field and plate in at once. On failure the session is left as it was."""
         self._check_open()
@@ -121,8 +134,20 @@ class SessionUpdater(SessionBase, Transaction):
                 replaced.append(f"cameras/{camera}/{plate_arrays.get(camera, PLATE)}")
             plate_arrays[camera], plate_sources[camera] = f"{PLATE}.{self._token}", source
         plates = sorted({*self._plates, *self._new_plates}, key=self.camera_names.index)
-        self._group.attrs.update({"fields": fields, "plates": plates, "plate_arrays": plate_arrays, "plate_sources": plate_sources})
-        self._field_names = fields
+        update: dict[str, Any] = {"fields": fields, "plates": plates, "plate_arrays": plate_arrays, "plate_sources": plate_sources}
+        if self._kept is not None:
+            kept = [camera.name for camera in self._kept]
+            replaced += [f"cameras/{name}" for name in self.camera_names if name not in kept]  # after their own arrays
+            update = {
+                "cameras": [camera.to_dict() for camera in self._kept],
+                "heldout": [name for name in self._attributes["heldout"] if name in kept],
+                "fields": {name: names for name, names in fields.items() if name in kept},
+                "plates": [name for name in plates if name in kept],
+                "plate_arrays": {name: array for name, array in plate_arrays.items() if name in kept},
+                "plate_sources": {name: source for name, source in plate_sources.items() if name in kept},
+            }
+        self._group.attrs.update(update)
+        self._field_names = update["fields"]
         self._done = True
         try:
             for path in replaced:

@@ -1,0 +1,117 @@
+"""The step runner of the jobs that chain the pipeline — the demo, ``mmcsplat run`` and a study's cells: a
+list of steps run in order, each skipped when its outputs are already there, so a rerun resumes; the
+settings a folder was made with, recorded so that a rerun with others is refused rather than mixing two
+jobs in one folder; a store made in a hidden sibling and renamed into place, so a half-made one never
+reads as made. It sits in ``pipeline`` so that ``studies`` (below ``jobs``) runs its cells with it too.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import time
+from collections.abc import Callable, Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+import attrs
+
+from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.storage.atomic import write_json_atomic
+from mmcsplat.storage.run import RUN_INFO
+
+
+@attrs.frozen
+class Step:
+    """One step: ``action`` runs unless ``done()`` — asked when the step's turn comes, after the steps
+    before it have made their outputs."""
+
+    name: str
+    done: Callable[[], bool]
+    action: Callable[[], object]
+
+
+@attrs.frozen
+class StepTime:
+    """One step's wall time; ``reused`` when its outputs were already there."""
+
+    name: str
+    seconds: float
+    reused: bool
+
+
+@attrs.frozen
+class SettingsRecord:
+    """``path`` (e.g. OUT/demo.json) records the ``settings`` a job's folder is made with. It is written only
+    once a step has succeeded, so a first run that fails before making anything does not tie its folder to
+    its settings (a rerun with corrected ones goes ahead)."""
+
+    path: Path
+    settings: dict[str, Any]
+
+    @classmethod
+    def of(cls, path: Path, settings: Any) -> SettingsRecord:
+        """The record at ``path`` of the attrs instance ``settings``, as JSON reads it back."""
+        return cls(Path(path), json.loads(json.dumps(attrs.asdict(settings))))
+
+    def check(self) -> None:
+        """Refuse when the folder was made with other settings, naming each that differs."""
+        if not self.path.exists():
+            return
+        made = json.loads(self.path.read_text())
+        changed = sorted(key for key in self.settings.keys() | made.keys() if made.get(key) != self.settings.get(key))
+        if changed:
+            raise InputError(f"{self.path.parent} was made with other settings ({self.path}: "
+                             + ", ".join(f"{key} {made.get(key)!r}, now {self.settings.get(key)!r}" for key in changed)
+                             + "): use another --out, the same settings to resume, or delete it")
+
+    def write(self) -> None:
+        """Record the settings, unless already recorded."""
+        if not self.path.exists():
+            write_json_atomic(self.path, self.settings)
+
+
+def run_steps(job: str, steps: Sequence[Step], log: Callable[[str], None] | None = None, record: SettingsRecord | None = None) -> tuple[StepTime, ...]:
+    """Run ``steps`` in order, skipping those done; ``log`` gets ``[job] name done (… s)`` per step.
+    ``record`` is checked before the first step and written once one has succeeded."""
+    if record is not None:
+        record.check()
+    times = []
+    for step in steps:
+        began = time.perf_counter()
+        done = step.done()
+        if not done:
+            step.action()
+        if record is not None:
+            record.write()
+        timed = StepTime(step.name, time.perf_counter() - began, done)
+        if log is not None:
+            log(f"[{job}] {step.name} {'already done' if done else 'done'} ({timed.seconds:.1f} s)")
+        times.append(timed)
+    return tuple(times)
+
+
+def fresh(outputs: Iterable[Path], inputs: Iterable[Path] = ()) -> bool:
+    """Whether every output exists and none is older than any input (a step made from them is done)."""
+    outputs = list(outputs)
+    if not all(path.exists() for path in outputs):
+        return False
+    newest = max((path.stat().st_mtime_ns for path in inputs), default=0)
+    return all(path.stat().st_mtime_ns >= newest for path in outputs)
+
+
+def fit_complete(run: Path) -> bool:
+    """Whether ``run`` holds a complete first-frame fit (its run.json says so)."""
+    from mmcsplat.storage.run_info import RunInfo  # the session store's format with it: not for every command's start
+
+    return (Path(run) / RUN_INFO).exists() and RunInfo.read(run).complete
+
+
+def made_in_place(target: Path, make: Callable[[Path], None]) -> None:
+    """``make(partial)`` builds ``target`` in the hidden sibling ``.NAME.partial`` (a leftover of an
+    interrupted one removed first), which is then renamed into place."""
+    partial = target.with_name(f".{target.name}.partial")
+    shutil.rmtree(partial, ignore_errors=True)
+    make(partial)
+    os.replace(partial, target)

@@ -1,0 +1,74 @@
+"""A run directory's first-frame fit, read once into one typed record: what tracking, evaluation,
+landmarks, rendering, export, the viewer and the report read of a run.
+
+It lives in ``training`` rather than beside the file names in :mod:`mmcsplat.storage.run` because reading
+it needs the checkpoint reader and the backdrops of this room, which sits above ``storage``.
+"""
+
+from __future__ import annotations
+
+from functools import cached_property
+from pathlib import Path
+
+import attrs
+import torch
+
+from mmcsplat.plugin_api.errors import InputError, MissingFileError
+from mmcsplat.storage.run import CHECKPOINT, RUN_INFO
+from mmcsplat.storage.run_info import RunInfo
+from mmcsplat.storage.session import SessionReader
+
+from .backdrop import Background, camera_backdrop, parse_background
+from .checkpoint import read_checkpoint
+from .settings import FitSettings
+
+
+@attrs.frozen
+class FittedRun:
+    """The fit of run directory :attr:`path`: its run.json record, the fitted Gaussians' parameters and
+    the training cameras' learnt colour correction (``rgb * camera_scale[i] + camera_offset[i]`` for
+    training camera ``i``). The session and the settings are read on first use (export needs neither)."""
+
+    path: Path
+    info: RunInfo
+    params: dict[str, torch.Tensor]
+    camera_scale: torch.Tensor
+    camera_offset: torch.Tensor
+
+    @classmethod
+    def load(cls, run: str | Path) -> FittedRun:
+        """The fit in ``run``; an error naming the directory when it is not a fit run directory."""
+        run = Path(run)
+        checkpoint = run / CHECKPOINT
+        if not (run / RUN_INFO).exists() or not checkpoint.exists():
+            raise MissingFileError(f"{run} is not a fit run directory (needs {RUN_INFO} and {CHECKPOINT})")
+        info = RunInfo.read(run)
+        model = read_checkpoint(checkpoint)["model"]
+        return cls(run, info, model["params"], model["camera_scale"], model["camera_offset"])
+
+    def require_complete(self) -> None:
+        """Refuse a fit that is still running or diverged: later steps need its final Gaussians."""
+        if not self.info.complete:
+            raise InputError(f"{self.path / RUN_INFO}: the first-frame fit is {self.info.status!r}, not complete: finish it with `mmcsplat fit` first")
+
+    @cached_property
+    def session(self) -> SessionReader:
+        """The session the run was fitted on."""
+        try:
+            return SessionReader(self.info.session)
+        except FileNotFoundError as error:
+            raise MissingFileError(f"{self.path}: its session {self.info.session} cannot be opened ({error})") from error
+
+    @cached_property
+    def settings(self) -> FitSettings:
+        """The ``[fit]`` settings the run was fitted with."""
+        return FitSettings.from_table(self.info.fit_table, str(self.path / RUN_INFO))
+
+    @property
+    def background(self) -> Background:
+        """The ``fit.background`` the run was fitted with."""
+        return parse_background(self.info.background_value)
+
+    def backdrop(self, camera: str) -> torch.Tensor:
+        """What ``camera``'s renders were composited over in the fit (:func:`~mmcsplat.training.backdrop.camera_backdrop`)."""
+        return camera_backdrop(self.background, self.session, camera)
