@@ -14,6 +14,7 @@ from mmcsplat.pipeline.fit import fitted_background, load_fitted
 from mmcsplat.plugin_api.errors import InputError, MissingFileError
 from mmcsplat.plugin_api.render_contract import Gaussians, gaussians_from_params
 from mmcsplat.scene.camera import Camera
+from mmcsplat.storage.recording import require_same_recording
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.storage.tracks import TRACKS_DIR, TrackReader
 from mmcsplat.training.backdrop import PLATE
@@ -30,6 +31,8 @@ class RunStates:
             raise MissingFileError(f"run directory {self.run} does not exist")
         self.info, fitted, _, _ = load_fitted(self.run)
         self.tracks = TrackReader(self.run) if (self.run / TRACKS_DIR).exists() else None
+        if self.tracks is not None:
+            require_same_recording(self.run, self.info, self.tracks)
         self._fitted = None if self.tracks is not None else {name: value.detach().float() for name, value in fitted.items()}
         first = self.tracks.attrs.get("first_frame", self.info.frame) if self.tracks is not None else self.info.frame
         self.first_frame = int(first)
@@ -42,9 +45,11 @@ class RunStates:
     def session(self) -> SessionReader:
         """The session the run was fitted on (opened on first use: export does not need it)."""
         try:
-            return SessionReader(self.info.session)
+            session = SessionReader(self.info.session)
         except FileNotFoundError as error:
             raise MissingFileError(f"{self.run}: its session {self.info.session} cannot be opened ({error})") from error
+        require_same_recording(self.run, self.info, session)
+        return session
 
     def params(self, k: int) -> dict[str, torch.Tensor]:
         """Every ``GAUSSIAN_PARAMETERS`` tensor at frame ``k``."""
