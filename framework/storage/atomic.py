@@ -68,6 +68,22 @@ def new_folder(path: str | os.PathLike) -> Iterator[Path]:
         raise
 
 
+@contextmanager
+def new_files(folder: str | os.PathLike) -> Iterator[Path]:
+    """Yield a temporary folder beside ``folder`` to write files into; on success each is moved into
+    ``folder`` (created if needed; same-named files replaced, others kept), on error the temporary folder is
+    removed: a failed export leaves no file behind that looks whole."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    temporary = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".tmp", dir=folder.parent))
+    try:
+        yield temporary
+        for path in sorted(temporary.iterdir()):
+            os.replace(path, folder / path.name)
+    finally:
+        remove_local_tree(temporary)
+
+
 def remove_leftovers(folder: Path, prefix: str) -> None:
     """Delete what killed writers left in ``folder``: entries named ``prefix`` + anything (their partial
     or replaced copies). Only a writer holding the lock of what it writes may call it."""
