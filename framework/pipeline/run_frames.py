@@ -31,7 +31,7 @@ class RunStates:
             raise MissingFileError(f"run directory {self.run} does not exist")
         self.info, fitted, _, _ = load_fitted(self.run)
         self.tracks = TrackReader(self.run) if (self.run / TRACKS_DIR).exists() else None
-        if self.tracks is not None:
+        if self.tracks is not None and self.tracks.fingerprint is not None:  # tracks older than fingerprints: the session is checked
             require_same_recording(self.run, self.info, self.tracks)
         self._fitted = None if self.tracks is not None else {name: value.detach().float() for name, value in fitted.items()}
         first = self.tracks.attrs.get("first_frame", self.info.frame) if self.tracks is not None else self.info.frame

@@ -73,11 +73,16 @@ def new_files(folder: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary folder beside ``folder`` to write files into; on success each is moved into
     ``folder`` (created if needed; same-named files replaced, others kept), on error the temporary folder is
     removed: a failed export leaves no file behind that looks whole."""
+    from mmcsplat.plugin_api.errors import NotAFolderError
+
     folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
+    if folder.exists() and not folder.is_dir():
+        raise NotAFolderError(f"{folder} is a file, not a folder to write into: give a folder")
+    folder.parent.mkdir(parents=True, exist_ok=True)
     temporary = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".tmp", dir=folder.parent))
     try:
         yield temporary
+        folder.mkdir(exist_ok=True)
         for path in sorted(temporary.iterdir()):
             os.replace(path, folder / path.name)
     finally:
