@@ -243,3 +243,42 @@ def test_no_metrics_are_written_for_a_run_another_process_holds(fitted, capsys):
     with run_lock(run):
         assert main(["evaluate", str(run), "--allow-incomplete"]) == 2
     assert "is being written by another mmcsplat process" in capsys.readouterr().err and not (run / "metrics.json").exists()
+
+
+# ------------------------------------------------------------ what would desynchronise or warp a capture
+
+
+def test_videos_at_different_frame_rates_are_refused(tmp_path, capsys):
+    capture = tmp_path / "capture"
+    cameras = rig.make_capture(capture, names=("cam_a", "cam_b", "cam_c"), frames=3)
+    rig.write_videos(capture, cameras[1:2], 3, fps=25.0)  # one camera at 25 fps among 30 fps ones
+    assert main(["ingest", str(capture), str(tmp_path / "s.zarr")]) == 2
+    err = capsys.readouterr().err
+    assert "different frame rates (cam_a 30 fps, cam_b 25 fps, cam_c 30 fps)" in err and "out of sync" in err
+    assert not (tmp_path / "s.zarr").exists()
+
+
+@pytest.mark.parametrize("distortion, message", [
+    ([50.0, 0.0, 0.0, 0.0], "moves the image's corner"),  # k1 = 50: pixels thrown far off the image
+    ([-3.0, 0.0, 0.0, 0.0, 0.0], "folds the image over itself"),  # the radial mapping turns back
+    ([0.0, 0.0, 0.0, 0.0, -40.0], "folds the image over itself"),
+])
+def test_implausible_distortion_is_refused_naming_the_camera(tmp_path, capsys, distortion, message):
+    import attrs
+
+    capture = tmp_path / "capture"
+    cameras = rig.make_capture(capture, frames=2)
+    write_calibration(capture / "calibration.toml", [cameras[0], attrs.evolve(cameras[1], distortion=distortion)])
+    assert main(["ingest", str(capture), str(tmp_path / "s.zarr")]) == 2
+    err = capsys.readouterr().err
+    assert f"camera '{cameras[1].name}': its distortion (k1 = " in err and message in err and len(err.strip().splitlines()) == 1
+
+
+def test_plausible_distortion_is_accepted():
+    import attrs
+
+    from mmcsplat.storage.calibration import check_distortion
+
+    camera = rig.ring_cameras(("c1",))[0]
+    for distortion in ([-0.35, 0.18, 0.0, 0.0, -0.05], [-0.05, 0.15, 0.0, 0.001], [0.1, 0.0, 0.0, 0.0]):  # as in real calibrations (Pose2Sim, anipose)
+        check_distortion(attrs.evolve(camera, distortion=distortion), "test")
