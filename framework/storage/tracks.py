@@ -6,7 +6,9 @@ On-disk layout (format version 1)::
     RUN/tracks.zarr/                  a zarr v3 group
         zarr.json                     attributes: mmcsplat_tracks (1), complete (true, written last),
                                       num_frames T, num_gaussians N, method, static [names],
-                                      dynamic [names], attrs {…the method's own metadata}
+                                      dynamic [names], attrs {…the method's own metadata},
+                                      recording (the session's fingerprint, stamped by ``track``
+                                      once the tracks are complete; absent in older tracks)
         <static name>    [N, ...]     parameters that do not change over time (e.g. opacity_logits)
         <dynamic name>   [T, N, ...]  float32, one frame per chunk (at least means and quats)
 
