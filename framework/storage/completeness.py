@@ -44,8 +44,8 @@ def unfinished_work(run: Path, info: RunInfo) -> list[str]:
         problems.append(f"its fit is {info.status!r} at iteration {info.iterations} (run.json), not complete: run the same "
                         "`mmcsplat fit` again to resume it")
     if (run / TRACKING_UNFINISHED).exists():
-        problems.append(f"its tracking was stopped or failed before it finished ({run / TRACKING_UNFINISHED}): run `mmcsplat track {run} "
-                        "--overwrite` again")
+        problems.append(f"its tracking was stopped or failed before it finished ({run / TRACKING_UNFINISHED}): run `mmcsplat track {run}` "
+                        "again (it resumes; add --overwrite where older tracks are in the way)")
     return problems
 
 
