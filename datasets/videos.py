@@ -13,7 +13,7 @@ Frames are decoded lazily with OpenCV, one camera's decoder open at a time.
 from __future__ import annotations
 
 import warnings
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 
 import attrs
@@ -155,20 +155,24 @@ class VideoReader(Reader):
             "size_mismatch": self.size_mismatch,
             "masks": str(source / MASKS_FOLDER) if masks else None,
         }
-        return VideoRecording(source, cameras, _frame_rate(infos.values(), source), num_frames, provenance, paths,
+        return VideoRecording(source, cameras, _frame_rate(infos, source), num_frames, provenance, paths,
                               {name: files[:num_frames] for name, files in masks.items()})
 
 
-def _frame_rate(infos: Iterable[VideoInfo], source: Path) -> float:
-    """The videos' common frame rate, with a warning when they disagree or state none."""
-    rates = {info.path.name: info.fps for info in infos}
+def _frame_rate(infos: Mapping[str, VideoInfo], source: Path) -> float:
+    """The videos' common frame rate (camera name → probe): videos at different rates are refused, since
+    frame t of each would be another moment; a video stating no rate is assumed at the others' (warned)."""
+    rates = {name: info.fps for name, info in infos.items()}
     valid = [fps for fps in rates.values() if fps > 0 and np.isfinite(fps)]
     if not valid:
         warnings.warn(f"{source}: the videos state no frame rate; assuming {DEFAULT_FPS} fps", stacklevel=3)
         return DEFAULT_FPS
-    if max(valid) - min(valid) > 1e-3 * max(valid) or len(valid) < len(rates):
-        detail = ", ".join(f"{name}: {fps:g}" for name, fps in rates.items())
-        warnings.warn(f"{source}: the videos' frame rates differ ({detail}); using {valid[0]:g} fps", stacklevel=3)
+    detail = ", ".join(f"{name} {fps:g} fps" if fps > 0 and np.isfinite(fps) else f"{name} none stated" for name, fps in rates.items())
+    if max(valid) - min(valid) > 1e-3 * max(valid):
+        raise InputError(f"{source}: the cameras' videos have different frame rates ({detail}): frame by frame they would be out of "
+                         "sync; re-encode them to one rate (or ingest the cameras of one rate with --cameras)")
+    if len(valid) < len(rates):
+        warnings.warn(f"{source}: not every video states its frame rate ({detail}); using {valid[0]:g} fps", stacklevel=3)
     return valid[0]
 
 

@@ -155,7 +155,7 @@ def write_fitted_run(run: Path, session: Path, truth: Gaussians | None = None, b
         "status": "complete", "session": str(Path(session).resolve()), "config": "test", "config_values": config,
         "renderer": "torch-cpu", "frame": 0, "train_cameras": train, "heldout_cameras": list(reader.heldout),
         "iterations": 0, "num_gaussians": gaussians.count, "wall_s": 0.0,
-        "scene_center": center.tolist(), "scene_scale": rig_scale(reader.cameras, center),
+        "scene_center": center.tolist(), "scene_scale": rig_scale(reader.cameras, center), "recording": reader.fingerprint,
     }
     (run / "run.json").write_text(json.dumps(info))
     return run

@@ -30,6 +30,7 @@ def scene(tmp_path_factory) -> tuple[Path, Path, Path]:
     ("fit.checkpoint_every=0", "checkpoint_every must be ≥ 1"),
     ("fit.lrs.means=inf", "means must be a finite number > 0, got inf"),
     ("fit.frame=99", "fit.frame 99 is past the last frame of session"),
+    ("fit.iterations=99999999999999999999999", "iterations must be between 1 and 100000000, got 99999999999999999999999"),
 ])
 def test_bad_fit_settings(scene, tmp_path, capsys, setting, message):
     session, _, config = scene
@@ -86,3 +87,81 @@ def test_a_plugin_whose_hook_returns_nonsense_breaks_nothing_else():
         assert result.returncode == 0, result.stderr
     assert "broken plugin 'odd' from mmcsplat-odd-plugin: hook mmcsplat_metrics returned" in result.stdout
     assert "psnr" in result.stdout
+
+
+# ------------------------------------------------------------------------ messages that name their cause
+
+
+@pytest.mark.parametrize("damage, message", [
+    (lambda zarr_json: zarr_json.write_text("{ not json"), "the tracks' metadata is damaged"),
+    (lambda zarr_json: zarr_json.unlink(), "the tracks' metadata is damaged"),
+    (lambda zarr_json: zarr_json.write_text(zarr_json.read_text().replace('"num_frames": 2', '"num_frames": 7')),
+     "it says 7 frames of"),
+])
+def test_damaged_tracks_metadata_is_named(scene, tmp_path, capsys, damage, message):
+    session, _, _ = scene
+    run = write_fitted_run(tmp_path / "run", session)
+    assert main(["track", str(run), "--dynamics", "iterative", "--set", "dynamics.iterations=1", "--no-progress"]) == 0
+    damage(run / "tracks.zarr" / "zarr.json")
+    assert main(["export", str(run), "--ply", str(tmp_path / "ply"), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert f"{run / 'tracks.zarr'}: " in err and message in err and "track the run again" in err and err.count("\n") == 1
+
+
+def test_a_garbled_metrics_file_is_named_by_report(scene, tmp_path, capsys):
+    session, _, _ = scene
+    run = write_fitted_run(tmp_path / "run", session)
+    (run / "metrics.json").write_text('{"val_psnr": 12.')
+    assert main(["report", str(run)]) == 2
+    err = capsys.readouterr().err
+    assert f"{run / 'metrics.json'} is not readable JSON" in err and "run `mmcsplat evaluate" in err and err.count("\n") == 1
+
+
+@pytest.mark.parametrize("kind, message", [("binary", "is not text (a binary file?)"), ("folder", "is a folder, not a TOML file")])
+def test_a_config_that_is_not_a_toml_file_is_named(scene, tmp_path, capsys, kind, message):
+    session, _, _ = scene
+    config = tmp_path / "fit.toml"
+    if kind == "binary":
+        config.write_bytes(bytes(range(256)))
+    else:
+        config.mkdir()
+    assert main(["fit", str(session), "--config", str(config), "--out", str(tmp_path / "r"), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert f"configuration {config} {message}" in err and err.count("\n") == 1
+
+
+def test_a_full_disk_is_reported_as_such(tmp_path, monkeypatch):
+    import errno
+
+    import torch
+
+    from mmcsplat.storage.atomic import DiskFullError, write_json_atomic
+    from mmcsplat.training.checkpoint import save_checkpoint
+
+    checkpoint = tmp_path / "checkpoint.pt"
+    save_checkpoint(checkpoint, {"k": 1}, {"step": 1})
+    before = checkpoint.read_bytes()
+
+    def short_write(*_args, **_kwargs):
+        raise RuntimeError("[enforce fail at inline_container.cc:672] . unexpected pos 4096 vs 2048")
+
+    monkeypatch.setattr(torch, "save", short_write)
+    with pytest.raises(DiskFullError, match=f"^disk full: cannot write {checkpoint} .*the previous version is kept"):
+        save_checkpoint(checkpoint, {"k": 1}, {"step": 2})
+    assert checkpoint.read_bytes() == before and [p.name for p in tmp_path.iterdir()] == ["checkpoint.pt"]
+
+    def no_space(self, *_args, **_kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(Path, "write_text", no_space)
+    with pytest.raises(DiskFullError, match="^disk full: cannot write .*run.json"):
+        write_json_atomic(tmp_path / "run.json", {})
+    assert [p.name for p in tmp_path.iterdir()] == ["checkpoint.pt"]
+
+
+def test_a_landmark_source_without_its_file_says_what_to_set(scene, tmp_path, capsys):
+    session, _, _ = scene
+    run = write_fitted_run(tmp_path / "run", session)
+    assert main(["landmarks", str(run), "--source", "trc"]) == 2
+    err = capsys.readouterr().err
+    assert "landmarks 'trc': set path=… (the .trc file), a required parameter (--set path=VALUE" in err and err.count("\n") == 1

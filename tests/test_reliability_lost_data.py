@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 import rig_fixtures as rig
-from fitting_scene import write_config, write_session
+from fitting_scene import write_config, write_fitted_run, write_session
 
 from mmcsplat.cli.main import main
 from mmcsplat.storage.locking import run_lock, session_lock
@@ -81,3 +81,56 @@ def test_the_next_writer_cleans_what_a_killed_one_left(capture, tmp_path):
     assert orphan in list(SessionReader(session)._group["cameras/cam_a"].array_keys())
     SessionUpdater(session).abort()
     assert orphan not in list(SessionReader(session)._group["cameras/cam_a"].array_keys())
+
+
+# ------------------------------------------------------------- nothing deleted that mmcsplat did not write
+
+SYNTH = ["--num-frames", "1", "--num-cameras", "2", "--width", "32", "--height", "24", "--no-adult-leg", "--no-progress"]
+
+
+def test_synth_overwrite_replaces_only_a_synthetic_capture(tmp_path, capsys):
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("the infant's history")
+    assert main(["synth", str(mine), "--overwrite", *SYNTH]) == 2
+    assert "is not a capture `mmcsplat synth` wrote (notes.txt)" in capsys.readouterr().err
+    assert (mine / "notes.txt").read_text() == "the infant's history" and [p.name for p in mine.iterdir()] == ["notes.txt"]
+    capture = tmp_path / "capture"
+    assert main(["synth", str(capture), *SYNTH]) == 0
+    assert main(["synth", str(capture), "--overwrite", *SYNTH]) == 0  # its own output may be replaced
+    (capture / "session.zarr").mkdir()  # ... until the user keeps something of theirs in it
+    assert main(["synth", str(capture), "--overwrite", *SYNTH]) == 2
+    assert "(session.zarr)" in capsys.readouterr().err and (capture / "session.zarr").is_dir()
+
+
+def test_ingest_overwrite_refuses_a_session_holding_a_run(capture, tmp_path, capsys):
+    session = tmp_path / "s.zarr"
+    assert main(["ingest", str(capture), str(session)]) == 0
+    (session / "run").mkdir()
+    (session / "run" / "run.json").write_text("{}")  # a run fitted into the session, by an older mmcsplat
+    assert main(["ingest", str(capture), str(session), "--overwrite"]) == 2
+    err = capsys.readouterr().err
+    assert f"{session}: the session holds run" in err and "move it out first" in err
+    assert (session / "run" / "run.json").exists() and SessionReader(session).num_frames == 2
+
+
+@pytest.mark.parametrize("inside", [".", "cameras/r"])
+def test_a_run_is_never_written_into_a_session(tmp_path, capsys, inside):
+    session = write_session(tmp_path / "s.zarr")
+    out = session / inside
+    before = sorted(path.relative_to(session) for path in session.rglob("*"))
+    config = write_config(tmp_path / "c.toml", iterations=2)
+    assert main(["fit", str(session), "--config", str(config), "--out", str(out), "--no-progress"]) == 2
+    assert f"lies inside the session store {session}" in capsys.readouterr().err
+    assert sorted(path.relative_to(session) for path in session.rglob("*")) == before
+
+
+def test_a_failed_export_leaves_no_file_that_looks_whole(tmp_path, capsys):
+    session = write_session(tmp_path / "s.zarr", frames=3)
+    run = write_fitted_run(tmp_path / "run", session)
+    assert main(["track", str(run), "--dynamics", "iterative", "--set", "dynamics.iterations=1", "--no-progress"]) == 0
+    (run / "tracks.zarr" / "means" / "c.2.0.0").write_bytes(b"damaged")
+    out = tmp_path / "ply"
+    assert main(["export", str(run), "--ply", str(out), "--no-progress"]) == 2
+    assert "tracks.zarr: means, frame 2" in capsys.readouterr().err
+    assert not out.exists() and [p.name for p in tmp_path.iterdir() if p.name.startswith(".ply")] == []

@@ -123,3 +123,162 @@ def test_missing_or_garbled_metadata_names_the_array(fitted):
     (session / "zarr.json").write_text("{garbled")
     with pytest.raises(ValueError, match=r"the store's metadata \(zarr.json\) is garbled"):
         SessionReader(session)
+
+
+# ------------------------------------------------------------------ a run is bound to its recording
+
+
+def _replace_session(session: Path, **kwargs) -> None:
+    """Put another recording at ``session``'s path (a re-ingest, another infant)."""
+    import shutil
+
+    shutil.rmtree(session)
+    write_session(session, **kwargs)
+
+
+def test_a_sessions_fingerprint_covers_its_images_and_frame_count(tmp_path):
+    first = SessionReader(write_session(tmp_path / "a.zarr", frames=2)).fingerprint
+    assert first is not None and SessionReader(write_session(tmp_path / "b.zarr", frames=2)).fingerprint == first  # same recording
+    assert SessionReader(write_session(tmp_path / "c.zarr", frames=1)).fingerprint != first
+    assert SessionReader(write_session(tmp_path / "d.zarr", frames=2, blank=("cam_3",))).fingerprint != first
+
+
+@pytest.mark.parametrize("command", [["track", "--dynamics", "iterative", "--no-progress"], ["evaluate"], ["render", "--novel", "--no-progress"],
+                                     ["export", "--transforms", "EXPORT"]])
+def test_a_run_refuses_a_session_replaced_by_another_recording(fitted, tmp_path, capsys, command):
+    session, run = fitted
+    _replace_session(session, frames=2, blank=("cam_3",))
+    args = [str(tmp_path / "export") if arg == "EXPORT" else arg for arg in command]
+    assert main([args[0], str(run), *args[1:]]) == 2
+    err = capsys.readouterr().err
+    assert f"run {run} was fitted on another recording than {session} holds" in err and "re-fit with a new --out" in err
+    assert len(err.strip().splitlines()) == 1
+    assert not (run / "tracks.zarr").exists() and not (run / "metrics.json").exists() and not (tmp_path / "export").exists()
+
+
+def test_a_session_replaced_by_a_shorter_one_is_another_recording(fitted, capsys):
+    session, run = fitted
+    _replace_session(session, frames=1)
+    assert main(["track", str(run), "--dynamics", "iterative", "--no-progress"]) == 2
+    assert "fitted on another recording" in capsys.readouterr().err
+
+
+def test_a_fit_never_resumes_onto_another_recording(tmp_path, capsys):
+    session = write_session(tmp_path / "s.zarr")
+    config = write_config(tmp_path / "fit.toml", iterations=2, checkpoint_every=1)
+    run = tmp_path / "run"
+    assert main(["fit", str(session), "--config", str(config), "--out", str(run), "--no-progress", "--backend", "torch-reference"]) == 0
+    assert json.loads((run / "run.json").read_text())["recording"] == SessionReader(session).fingerprint
+    checkpoint = (run / "checkpoint.pt").read_bytes()
+    _replace_session(session, blank=("cam_2",))
+    assert main(["fit", str(session), "--config", str(config), "--out", str(run), "--no-progress", "--backend", "torch-reference"]) == 2
+    err = capsys.readouterr().err
+    assert "checkpoint.pt: its recording differ from this run's; use a new --out" in err
+    assert (run / "checkpoint.pt").read_bytes() == checkpoint
+
+
+def test_a_run_older_than_fingerprints_says_it_cannot_check(fitted):
+    session, run = fitted
+    info = json.loads((run / "run.json").read_text())
+    del info["recording"]
+    (run / "run.json").write_text(json.dumps(info))
+    with pytest.warns(UserWarning, match="written before mmcsplat fingerprinted recordings: cannot check"):
+        assert main(["evaluate", str(run)]) == 0
+
+
+# ------------------------------------------------------------------------- unfinished is never final
+
+
+def _set_status(run: Path, status: str) -> None:
+    info = json.loads((run / "run.json").read_text())
+    (run / "run.json").write_text(json.dumps({**info, "status": status}))
+
+
+@pytest.mark.parametrize("command", [["evaluate"], ["report"], ["landmarks", "--source", "synthetic"], ["export", "--ply", "PLY"]])
+def test_an_unfinished_fit_is_refused(fitted, tmp_path, capsys, command):
+    _, run = fitted
+    _set_status(run, "running")
+    args = [str(tmp_path / "ply") if arg == "PLY" else arg for arg in command]
+    assert main([args[0], str(run), *args[1:]]) == 2
+    err = capsys.readouterr().err
+    assert f"run {run} is unfinished: its fit is 'running' at iteration 0 (run.json)" in err and "--allow-incomplete" in err
+    assert not (run / "metrics.json").exists() and not (run / "report.html").exists() and not (tmp_path / "ply").exists()
+
+
+def test_allow_incomplete_labels_every_output(fitted, tmp_path, capsys):
+    _, run = fitted
+    _set_status(run, "running")
+    assert main(["evaluate", str(run), "--allow-incomplete"]) == 0
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["incomplete"] is True and "'running'" in metrics["unfinished"][0]
+    assert "is unfinished" in capsys.readouterr().err
+    assert main(["report", str(run), "--allow-incomplete"]) == 0
+    assert "<strong>Incomplete run</strong>" in (run / "report.html").read_text()
+    assert main(["export", str(run), "--ply", str(tmp_path / "ply"), "--allow-incomplete", "--no-progress"]) == 0
+    assert b"comment mmcsplat: incomplete run" in (tmp_path / "ply" / "frame_0000.ply").read_bytes()[:400]
+    _set_status(run, "complete")
+    assert main(["evaluate", str(run)]) == 0 and json.loads((run / "metrics.json").read_text())["incomplete"] is False
+
+
+def test_a_report_of_metrics_scored_before_the_end_has_a_banner(fitted):
+    _, run = fitted
+    assert main(["evaluate", str(run)]) == 0
+    metrics = json.loads((run / "metrics.json").read_text())
+    (run / "metrics.json").write_text(json.dumps({**metrics, "incomplete": True}))
+    assert main(["report", str(run)]) == 0
+    assert "scored it before it was finished" in (run / "report.html").read_text()
+
+
+def test_a_stopped_tracking_is_unfinished(fitted, capsys):
+    _, run = fitted
+    (run / "tracking.unfinished").write_text("{}")
+    assert main(["evaluate", str(run)]) == 2
+    assert "its tracking was stopped or failed before it finished" in capsys.readouterr().err
+
+
+def test_no_metrics_are_written_for_a_run_another_process_holds(fitted, capsys):
+    from mmcsplat.storage.locking import run_lock
+
+    _, run = fitted
+    with run_lock(run):
+        assert main(["evaluate", str(run), "--allow-incomplete"]) == 2
+    assert "is being written by another mmcsplat process" in capsys.readouterr().err and not (run / "metrics.json").exists()
+
+
+# ------------------------------------------------------------ what would desynchronise or warp a capture
+
+
+def test_videos_at_different_frame_rates_are_refused(tmp_path, capsys):
+    capture = tmp_path / "capture"
+    cameras = rig.make_capture(capture, names=("cam_a", "cam_b", "cam_c"), frames=3)
+    rig.write_videos(capture, cameras[1:2], 3, fps=25.0)  # one camera at 25 fps among 30 fps ones
+    assert main(["ingest", str(capture), str(tmp_path / "s.zarr")]) == 2
+    err = capsys.readouterr().err
+    assert "different frame rates (cam_a 30 fps, cam_b 25 fps, cam_c 30 fps)" in err and "out of sync" in err
+    assert not (tmp_path / "s.zarr").exists()
+
+
+@pytest.mark.parametrize("distortion, message", [
+    ([50.0, 0.0, 0.0, 0.0], "moves the image's corner"),  # k1 = 50: pixels thrown far off the image
+    ([-3.0, 0.0, 0.0, 0.0, 0.0], "folds the image over itself"),  # the radial mapping turns back
+    ([0.0, 0.0, 0.0, 0.0, -40.0], "folds the image over itself"),
+])
+def test_implausible_distortion_is_refused_naming_the_camera(tmp_path, capsys, distortion, message):
+    import attrs
+
+    capture = tmp_path / "capture"
+    cameras = rig.make_capture(capture, frames=2)
+    write_calibration(capture / "calibration.toml", [cameras[0], attrs.evolve(cameras[1], distortion=distortion)])
+    assert main(["ingest", str(capture), str(tmp_path / "s.zarr")]) == 2
+    err = capsys.readouterr().err
+    assert f"camera '{cameras[1].name}': its distortion (k1 = " in err and message in err and len(err.strip().splitlines()) == 1
+
+
+def test_plausible_distortion_is_accepted():
+    import attrs
+
+    from mmcsplat.storage.calibration import check_distortion
+
+    camera = rig.ring_cameras(("c1",))[0]
+    for distortion in ([-0.35, 0.18, 0.0, 0.0, -0.05], [-0.05, 0.15, 0.0, 0.001], [0.1, 0.0, 0.0, 0.0]):  # as in real calibrations (Pose2Sim, anipose)
+        check_distortion(attrs.evolve(camera, distortion=distortion), "test")

@@ -13,6 +13,8 @@ import json
 import sys
 from pathlib import Path
 
+from mmcsplat.cli.options import add_allow_incomplete
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("run", type=Path, help="run directory written by `mmcsplat fit`")
@@ -21,12 +23,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="ground truth of a tracked run (a zarr group with surface_points [T, P, 3]; default: "
                              "ground_truth.zarr beside the session's source capture, as `mmcsplat synth` writes)")
     parser.add_argument("--json", action="store_true", help="print the metrics as JSON")
+    add_allow_incomplete(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     from mmcsplat.pipeline.evaluate import evaluate
 
-    metrics = evaluate(args.run, backend=args.backend, ground_truth=args.ground_truth)
+    metrics = evaluate(args.run, backend=args.backend, ground_truth=args.ground_truth, allow_incomplete=args.allow_incomplete)
+    if metrics.get("incomplete"):
+        print(f"mmcsplat evaluate: warning: {args.run} is unfinished: its metrics are labelled incomplete", file=sys.stderr)
     for warning in metrics.get("warnings", []):
         print(f"mmcsplat evaluate: warning: {args.run}: {warning}", file=sys.stderr)
     if metrics.get("tracking_error"):

@@ -18,14 +18,18 @@ landmarks`): TRC as Pose2Sim writes it (Y-up axes, metres; OpenSim reads it), CS
 landmark, C3D in millimetres through ezc3d.
 
 A run with tracks exports every tracked frame; without tracks, its first-frame fit (run frame 0).
+An unfinished run (its fit or tracking not complete) is refused; with --allow-incomplete it is exported,
+with a warning and a comment in every PLY header saying what is unfinished. --ply files are written
+beside DIR and moved in once all are whole.
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
-from mmcsplat.cli.options import add_progress
+from mmcsplat.cli.options import add_allow_incomplete, add_progress
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -42,12 +46,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--c3d", type=Path, metavar="FILE", help="the run's landmarks as a C3D file (millimetres)")
     parser.add_argument("--frame", type=int, metavar="K",
                         help="the run frame --inria writes (0 to frames − 1; default 0, the first)")
+    add_allow_incomplete(parser)
     add_progress(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     from mmcsplat.cli.main import CommandError
     from mmcsplat.outputs.ply import FULL_SH_DEGREE, export_ply
+    from mmcsplat.storage.completeness import require_finished
+    from mmcsplat.storage.run_info import RunInfo
 
     landmark_files = {"trc": args.trc, "csv": args.csv, "c3d": args.c3d}
     if args.ply is None and args.inria is None and args.transforms is None and not any(landmark_files.values()):
@@ -56,11 +63,15 @@ def run(args: argparse.Namespace) -> int:
         raise CommandError("--full-sh sets the layout of --ply files (--inria always writes the full layout)")
     if args.frame is not None and args.inria is None:
         raise CommandError("--frame picks the run frame of --inria (--ply writes every frame)")
+    unfinished = require_finished(args.run, RunInfo.read(args.run), args.allow_incomplete)
+    comments = [f"mmcsplat: incomplete run {args.run}: {problem}" for problem in unfinished]
+    for problem in unfinished:
+        print(f"mmcsplat export: warning: {args.run} is unfinished, its outputs are incomplete: {problem}", file=sys.stderr)
     if args.inria is not None:
         from mmcsplat.outputs.inria_model import export_inria
 
         frame = args.frame or 0
-        ply = export_inria(args.run, args.inria, frame=frame)
+        ply = export_inria(args.run, args.inria, frame=frame, comments=comments)
         print(f"{args.inria}: reference 3DGS model folder of run frame {frame}, {ply.relative_to(args.inria)}")
     if args.transforms is not None:
         from mmcsplat.outputs.transforms_json import export_transforms
@@ -73,6 +84,7 @@ def run(args: argparse.Namespace) -> int:
         for path in export_landmarks(args.run, **landmark_files):
             print(f"{path}: the run's landmarks")
     if args.ply is not None:
-        paths = export_ply(args.run, args.ply, progress=not args.no_progress, sh_degree=FULL_SH_DEGREE if args.full_sh else 0)
+        paths = export_ply(args.run, args.ply, progress=not args.no_progress, sh_degree=FULL_SH_DEGREE if args.full_sh else 0,
+                           comments=comments)
         print(f"{args.ply}: {len(paths)} PLY file(s), {paths[0].name} … {paths[-1].name}")
     return 0

@@ -29,12 +29,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from mmcsplat.cli.main import CommandError
     from mmcsplat.configuration.config import load_config
     from mmcsplat.pipeline.evaluate import fit_signals
     from mmcsplat.pipeline.fit import FirstFrameFit
     from mmcsplat.pipeline.regions import region_overrides
-    from mmcsplat.storage.session import SessionReader
+    from mmcsplat.storage.session import SessionReader, enclosing_session
 
+    if (store := enclosing_session(args.out)) is not None:
+        raise CommandError(f"--out {args.out} lies inside the session store {store}: a run is never written into a session; give another --out")
     config = load_config(args.config, args.overrides)
     session = SessionReader(args.session)
     plan = [(args.out / camera, [camera]) for camera in args.folds] if args.folds else [(args.out, args.holdout)]

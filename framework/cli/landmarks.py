@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from mmcsplat.cli.options import add_settings, settings_table
+from mmcsplat.cli.options import add_allow_incomplete, add_settings, settings_table
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -28,6 +28,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--anchors", type=int, default=8, metavar="K", help="Gaussians carrying each landmark (default 8)")
     parser.add_argument("--max-distance", type=float, default=0.1, metavar="M",
                         help="metres within which a Gaussian may carry a landmark (default 0.1); farther landmarks are left out, not invented")
+    add_allow_incomplete(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -40,7 +41,8 @@ def run(args: argparse.Namespace) -> int:
     if args.keypoint_overrides and not args.keypoints:
         raise CommandError("--keypoints-set … needs --keypoints NAME")
     result = track_landmarks(args.run, args.source, settings_table(args.overrides), keypoints=args.keypoints,
-                             keypoint_params=settings_table(args.keypoint_overrides), anchors=args.anchors, max_distance=args.max_distance)
+                             keypoint_params=settings_table(args.keypoint_overrides), anchors=args.anchors, max_distance=args.max_distance,
+                             allow_incomplete=args.allow_incomplete)
     info = result.info
     bound = len(info["names"]) - len(info["unbound"])
     print(f"{args.run / LANDMARKS_CSV}: {bound} landmarks over {info['frames'][1] - info['frames'][0]} frames"

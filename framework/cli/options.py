@@ -51,6 +51,14 @@ def settings_table(pairs: list[str]) -> dict:
     return table
 
 
+def add_allow_incomplete(parser: argparse.ArgumentParser) -> None:
+    """``--allow-incomplete``: use an unfinished run (a fit or tracking not complete), labelling the outputs."""
+    from mmcsplat.storage.completeness import ALLOW_INCOMPLETE
+
+    parser.add_argument(ALLOW_INCOMPLETE, action="store_true",
+                        help="use a run whose fit or tracking is not finished, labelling every output incomplete (refused without it)")
+
+
 def add_logging(parser: argparse.ArgumentParser) -> None:
     """``--verbose`` and ``--log-file``, on every command."""
     parser.add_argument("--verbose", action="store_true", help="also print what the command does (its log) on the console")

@@ -110,9 +110,14 @@ def load_config(name_or_path: str | Path, overrides: Iterable[str] = ()) -> Conf
     """Load a built-in configuration by name or a TOML file by path, then apply ``key=value`` overrides."""
     path = Path(name_or_path)
     if path.suffix == ".toml" or path.exists():
+        if path.is_dir():
+            raise ConfigError(f"configuration {path} is a folder, not a TOML file: give the file (e.g. {path / 'fit.toml'})")
         if not path.is_file():
             raise ConfigError(f"configuration file {path} does not exist")
-        text, source = path.read_text(encoding="utf-8"), str(path)
+        try:
+            text, source = path.read_text(encoding="utf-8"), str(path)
+        except UnicodeDecodeError as error:
+            raise ConfigError(f"configuration {path} is not text (a binary file?): give a TOML file ({error.reason} at byte {error.start})") from error
     else:
         resource = resources.files(__package__).joinpath("configs", f"{name_or_path}.toml")
         if not resource.is_file():

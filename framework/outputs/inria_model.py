@@ -59,9 +59,10 @@ def point_cloud_path(iterations: int) -> Path:
     return Path("point_cloud") / f"iteration_{iterations}" / "point_cloud.ply"
 
 
-def export_inria(run: str | Path, out: str | Path, frame: int = 0) -> Path:
+def export_inria(run: str | Path, out: str | Path, frame: int = 0, comments: Sequence[str] = ()) -> Path:
     """Write run frame ``frame`` of ``run`` as the reference trainer's model folder ``out`` (module
-    docstring), which must not exist or be empty; returns the path of its PLY."""
+    docstring), which must not exist or be empty, with ``comments`` in its PLY's header; returns the path
+    of its PLY."""
     states = RunStates(run)
     if not 0 <= frame < states.num_frames:
         raise InputError(f"{states.run}: run frame {frame} does not exist (the run has frames 0 to {states.num_frames - 1})")
@@ -72,5 +73,5 @@ def export_inria(run: str | Path, out: str | Path, frame: int = 0) -> Path:
         write_text_atomic(folder / "cfg_args", cfg_args(states.info.session, os.path.abspath(out), states.background == WHITE))
         write_json_atomic(folder / "cameras.json", camera_entries(cameras))
         (folder / ply).parent.mkdir(parents=True)
-        write_ply(folder / ply, states.params(frame), FULL_SH_DEGREE)
+        write_ply(folder / ply, states.params(frame), FULL_SH_DEGREE, comments)
     return out / ply

@@ -14,7 +14,7 @@ tools built on that layout require.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +22,7 @@ import torch
 
 from mmcsplat.pipeline.run_frames import RunStates
 from mmcsplat.plugin_api.errors import InputError
-from mmcsplat.storage.atomic import atomic_path
+from mmcsplat.storage.atomic import atomic_path, new_files
 
 SH_C0 = 0.28209479177387814  # the degree-0 real spherical harmonic, 1 / (2 √π)
 MAX_SH_DEGREE = 3
@@ -63,11 +63,13 @@ def ply_vertices(params: Mapping[str, torch.Tensor], sh_degree: int = 0) -> np.n
     return vertices
 
 
-def write_ply(path: str | Path, params: Mapping[str, torch.Tensor], sh_degree: int = 0) -> None:
+def write_ply(path: str | Path, params: Mapping[str, torch.Tensor], sh_degree: int = 0, comments: Sequence[str] = ()) -> None:
     """Write the Gaussians ``params`` as a binary PLY at ``path``, atomically, in the layout of
-    ``sh_degree`` (0: compact; :data:`FULL_SH_DEGREE`: the reference 3DGS layout)."""
+    ``sh_degree`` (0: compact; :data:`FULL_SH_DEGREE`: the reference 3DGS layout), with header ``comments``
+    (one line each)."""
     vertices = ply_vertices(params, sh_degree)
-    header = ["ply", "format binary_little_endian 1.0", f"element vertex {len(vertices)}"]
+    header = ["ply", "format binary_little_endian 1.0", *(f"comment {' '.join(comment.split())}" for comment in comments),
+              f"element vertex {len(vertices)}"]
     header += [f"property float {name}" for name in vertices.dtype.names]
     header.append("end_header\n")
     with atomic_path(path) as temporary, open(temporary, "wb") as handle:
@@ -75,18 +77,17 @@ def write_ply(path: str | Path, params: Mapping[str, torch.Tensor], sh_degree: i
         handle.write(vertices.tobytes())
 
 
-def export_ply(run: str | Path, out: str | Path, progress: bool = True, sh_degree: int = 0) -> list[Path]:
+def export_ply(run: str | Path, out: str | Path, progress: bool = True, sh_degree: int = 0, comments: Sequence[str] = ()) -> list[Path]:
     """One PLY per frame of ``run`` (its tracks, or the first-frame fit) in ``out``, named
-    ``frame_NNNN.ply`` by session frame number, in the layout of ``sh_degree``; returns the paths."""
+    ``frame_NNNN.ply`` by session frame number, in the layout of ``sh_degree`` with header ``comments``;
+    returns the paths. The files are written beside ``out`` and moved in once all are whole."""
     from tqdm import tqdm
 
     properties(sh_degree)  # a bad degree fails before the run is read
     states = RunStates(run)
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    paths = []
-    for k in tqdm(range(states.num_frames), desc="export ply", unit="frame", disable=not progress):
-        path = out / f"frame_{states.first_frame + k:04d}.ply"
-        write_ply(path, states.params(k), sh_degree)
-        paths.append(path)
-    return paths
+    names = [f"frame_{states.first_frame + k:04d}.ply" for k in range(states.num_frames)]
+    with new_files(out) as staging:
+        for k in tqdm(range(states.num_frames), desc="export ply", unit="frame", disable=not progress):
+            write_ply(staging / names[k], states.params(k), sh_degree, comments)
+    return [out / name for name in names]

@@ -21,6 +21,7 @@ from mmcsplat.outputs.report_html import command, esc, image, markdown_html, pag
 from mmcsplat.outputs.video import encode_png
 from mmcsplat.plugin_api.errors import InputError, MissingFileError
 from mmcsplat.storage.atomic import write_text_atomic
+from mmcsplat.storage.completeness import require_finished
 from mmcsplat.storage.curves import STAGES, read_curves
 from mmcsplat.storage.run import CHECKPOINT, CURVES_FILE, METRICS_FILE, NOVEL_VIDEO, RENDERS_DIR, REPORT_FILE, RUN_INFO
 
@@ -69,11 +70,13 @@ def report_kind(path: Path) -> str:
                      f"nor a study output ({' and '.join(STUDY_FILES)} of `mmcsplat compare`)")
 
 
-def write_report(path: Path, out: Path | None = None, backend: str | None = None, registry: Registry | None = None) -> Path:
+def write_report(path: Path, out: Path | None = None, backend: str | None = None, registry: Registry | None = None,
+                 allow_incomplete: bool = False) -> Path:
     """Write the page of the run or study at ``path`` to ``out`` (default ``path``/report.html), atomically;
-    returns where. ``backend`` renders a run's views (default: the renderer that fitted it)."""
+    returns where. ``backend`` renders a run's views (default: the renderer that fitted it). An unfinished run
+    is refused, or with ``allow_incomplete`` reported under a banner saying what is unfinished."""
     path = Path(path)
-    text = run_report(path, backend, registry) if report_kind(path) == "run" else study_report(path)
+    text = run_report(path, backend, registry, allow_incomplete) if report_kind(path) == "run" else study_report(path)
     target = Path(out) if out is not None else path / REPORT_FILE
     target.parent.mkdir(parents=True, exist_ok=True)
     write_text_atomic(target, text)
@@ -83,20 +86,38 @@ def write_report(path: Path, out: Path | None = None, backend: str | None = None
 # ------------------------------------------------------------------------------------------------- run
 
 
-def run_report(run: Path, backend: str | None = None, registry: Registry | None = None) -> str:
+def run_report(run: Path, backend: str | None = None, registry: Registry | None = None, allow_incomplete: bool = False) -> str:
     """The page of a run directory."""
     from mmcsplat.outputs.renders import RunRenderer
     from mmcsplat.pipeline.run_frames import RunStates
 
     states = RunStates(run)
+    unfinished = require_finished(run, states.info, allow_incomplete)
     renderer = RunRenderer(states, backend=backend, registry=registry, progress=False)
-    metrics = json.loads((run / METRICS_FILE).read_text()) if (run / METRICS_FILE).is_file() else None
+    metrics = read_metrics(run)
+    if metrics is not None and metrics.get("incomplete") and not unfinished:
+        unfinished = [f"its {METRICS_FILE} scored it before it was finished: run `mmcsplat evaluate {run}` again"]
     from mmcsplat.outputs.report_landmarks import landmarks_section
 
     videos = [(path.read_bytes(), path.name) for path in sorted((Path(run) / RENDERS_DIR).glob("landmarks_*.mp4"))]
     sections = [run_summary(states), views_section(renderer, backend or states.info.renderer), metrics_section(run, metrics),
                 landmarks_section(run, videos), curves_section(run), plates_section(states.session), renders_section(run, states)]
-    return page(f"Run {Path(run).resolve()}", sections)
+    banner = [f'<p class="warning"><strong>Incomplete run</strong>: {esc("; ".join(unfinished))}</p>'] if unfinished else []
+    return page(f"Run {Path(run).resolve()}", banner + sections)
+
+
+def read_metrics(run: Path) -> dict[str, Any] | None:
+    """``RUN/metrics.json`` of ``mmcsplat evaluate``, ``None`` when absent; an error naming it when garbled."""
+    path = Path(run) / METRICS_FILE
+    if not path.is_file():
+        return None
+    try:
+        metrics = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError) as error:
+        raise InputError(f"{path} is not readable JSON ({error}): run `mmcsplat evaluate {run}` again to rewrite it") from error
+    if not isinstance(metrics, dict):
+        raise InputError(f"{path}: expected a JSON object of metrics, got {type(metrics).__name__}: run `mmcsplat evaluate {run}` again")
+    return metrics
 
 
 def run_summary(states: RunStates) -> str:

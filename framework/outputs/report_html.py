@@ -20,6 +20,7 @@ figure { display: inline-block; margin: 0.5em 1em 1em 0; vertical-align: top; }
 figure img, figure video { display: block; max-width: 100%; min-width: 20em; image-rendering: pixelated; }
 figure video { width: 24em; }
 figcaption, .note { color: #555; font-size: 0.9em; }
+.warning { background: #fff3cd; border: 1px solid #e0a800; padding: 0.5em; }
 code { background: #f3f3f3; padding: 0 0.2em; }
 """
 

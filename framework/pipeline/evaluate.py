@@ -18,6 +18,7 @@ from mmcsplat.plugin_api.errors import MissingFileError
 from mmcsplat.plugin_api.render_contract import gaussians_from_params
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.atomic import write_json_atomic
+from mmcsplat.storage.completeness import require_finished
 from mmcsplat.storage.run import METRICS_FILE, RUN_INFO, TRACKS_DIR
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.storage.tracks import TrackReader
@@ -90,16 +91,20 @@ def fit_signals(run: Path) -> list[str]:
     return failure_signals(_floater_share(views, fitted.params), _mask_agreement(views, np.asarray(info.scene_center), info.scene_scale))
 
 
-def evaluate_run(run: Path, registry: Registry | None = None, backend: str | None = None, ground_truth: Path | None = None) -> dict[str, Any]:
+def evaluate_run(run: Path, registry: Registry | None = None, backend: str | None = None, ground_truth: Path | None = None,
+                 allow_incomplete: bool = False) -> dict[str, Any]:
     """Score one run directory and write its metrics.json; returns the metrics. A run with tracks
     (``mmcsplat track``) also gets the tracking metrics of :mod:`mmcsplat.analysis.trajectory_error` (against
     ``ground_truth``, or the one found beside the session's source) and the drift report of
     :mod:`mmcsplat.analysis.drift`. ``floater_share`` is the share of opacity mass outside the visual hull of the
     session's masks at the fitted frame, ``mask_agreement`` per camera the share of its mask on the hull
-    of the other cameras' masks (:mod:`mmcsplat.analysis.visual_hull`; low for a camera with wrong extrinsics)."""
+    of the other cameras' masks (:mod:`mmcsplat.analysis.visual_hull`; low for a camera with wrong extrinsics).
+    An unfinished run is refused, or with ``allow_incomplete`` scored with ``incomplete`` true."""
     registry = registry or default_registry()
     fitted = FittedRun.load(run)
-    info, params, session = fitted.info, fitted.params, fitted.session
+    info, params = fitted.info, fitted.params
+    unfinished = require_finished(run, info, allow_incomplete)
+    session = fitted.session
     renderer = run_renderer(info, registry, backend)
     psnr = registry.create("metric", "psnr")
     ssim = registry.create("metric", "ssim")
@@ -154,6 +159,8 @@ def evaluate_run(run: Path, registry: Registry | None = None, backend: str | Non
         "iterations": info.iterations,
         "wall_s": info.wall_s,
         "status": info.status,
+        "incomplete": bool(unfinished),
+        "unfinished": unfinished,
         "heldout_cameras": list(info.heldout_cameras),
         "per_camera": per_camera,
     }
@@ -176,17 +183,19 @@ def fold_runs(run: Path) -> list[Path]:
     return folds
 
 
-def evaluate(run: Path, registry: Registry | None = None, backend: str | None = None, ground_truth: Path | None = None) -> dict[str, Any]:
+def evaluate(run: Path, registry: Registry | None = None, backend: str | None = None, ground_truth: Path | None = None,
+             allow_incomplete: bool = False) -> dict[str, Any]:
     """Evaluate a run or every fold of a leave-one-camera-out run; folds are averaged into RUN/metrics.json."""
     runs = fold_runs(run)
     if runs == [Path(run)]:
-        return evaluate_run(Path(run), registry, backend, ground_truth)
-    folds = {path.name: evaluate_run(path, registry, backend, ground_truth) for path in runs}
+        return evaluate_run(Path(run), registry, backend, ground_truth, allow_incomplete)
+    folds = {path.name: evaluate_run(path, registry, backend, ground_truth, allow_incomplete) for path in runs}
     summary: dict[str, Any] = {}
     for key in ("val_masked_psnr", "val_psnr", "val_ssim", "train_masked_psnr", "val_interior_masked_psnr", "train_interior_masked_psnr", "train_psnr", "num_gaussians", "floater_share", "iterations", "wall_s"):
         values = [m[key] for m in folds.values() if m[key] is not None]
         summary[key] = _mean(values)
     summary["val_masked_psnr_std"] = float(np.std([m["val_masked_psnr"] for m in folds.values() if m["val_masked_psnr"] is not None] or [np.nan]))
+    summary["incomplete"] = any(m["incomplete"] for m in folds.values())
     summary["folds"] = folds
     write_json_atomic(Path(run) / METRICS_FILE, summary)
     return summary

@@ -242,7 +242,8 @@ class FirstFrameFit:
 
     def _key(self) -> dict[str, Any]:
         """What a checkpoint must have been written with to be resumed."""
-        return {"configuration": self.config.values, "session": self.session.url, "training cameras": [c.name for c in self.train_cameras]}
+        return {"configuration": self.config.values, "session": self.session.url, "recording": self.session.fingerprint,
+                "training cameras": [c.name for c in self.train_cameras]}
 
     def _resume(self, path: Path, model, generator, schedule, densify_state) -> tuple[int, float, BlockLosses, list[dict]]:
         payload = resume_checkpoint(path, self._key(), "use a new --out or delete the checkpoint")
@@ -275,5 +276,6 @@ class FirstFrameFit:
             scene_center=np.asarray(self.scene.center).tolist(),
             scene_scale=self.scene.scale,
             resumed_from=self.resumed_from,
+            recording=self.session.fingerprint,
         )
 

@@ -28,6 +28,7 @@ from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.interfaces import KeypointObservations, Landmarks, LandmarkSource
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.atomic import write_json_atomic, write_text_atomic
+from mmcsplat.storage.completeness import require_finished
 from mmcsplat.storage.landmark_formats import write_landmark_csv
 from mmcsplat.storage.locking import run_lock
 from mmcsplat.storage.run import LANDMARKS_CSV, LANDMARKS_INFO, MOVEMENT_CSV, MOVEMENT_JSON
@@ -90,14 +91,16 @@ def write_movement(run: Path, summary: dict[str, Any]) -> None:
 
 def track_landmarks(run: str | Path, source: str, params: dict[str, Any] | None = None, *, keypoints: str | None = None,
                     keypoint_params: dict[str, Any] | None = None, anchors: int = ANCHORS, max_distance: float = MAX_DISTANCE,
-                    registry: Registry | None = None) -> LandmarkRun:
+                    registry: Registry | None = None, allow_incomplete: bool = False) -> LandmarkRun:
     """Bind the landmarks of the ``landmarks`` plugin ``source`` (built with ``params``) at ``run``'s fitted
     frame, carry them through its frames, score them, and write RUN/landmarks.csv and RUN/landmarks.json, and
     their movement measures RUN/movement.json and RUN/movement.csv.
-    ``keypoints`` names a second source whose 2D detections score the carried landmarks per camera."""
+    ``keypoints`` names a second source whose 2D detections score the carried landmarks per camera. An
+    unfinished run is refused, or with ``allow_incomplete`` labelled ``incomplete`` in landmarks.json."""
     run = Path(run)
     registry = registry or default_registry()
     states = RunStates(run)
+    unfinished = require_finished(run, states.info, allow_incomplete)
     session = states.session
     frames = np.arange(states.first_frame, states.first_frame + states.num_frames)
     plugin: LandmarkSource = registry.create("landmarks", source, **(params or {}))
@@ -129,6 +132,7 @@ def track_landmarks(run: str | Path, source: str, params: dict[str, Any] | None 
             "anchors": anchors, "max_distance_m": max_distance, "unbound": binding.unbound,
             "nearest_gaussian_mm": {name: None if not np.isfinite(d) else round(float(d) * 1000, 2) for name, d in zip(binding.names, binding.distances, strict=True)},
             "spread_median_mm": float(np.nanmedian(spread) * 1000) if np.isfinite(spread).any() else None,
+            "incomplete": bool(unfinished), "unfinished": unfinished,
         }
         if len(frames) > 1 and np.isfinite(reference.positions[1:]).any():
             info["accuracy_3d"] = attrs.asdict(landmark_accuracy(reference.names, carried, reference.positions))

@@ -18,6 +18,7 @@ import numpy as np
 
 from mmcsplat.configuration.registry import default_registry
 from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.training.plugin_hooks import plugin_hook
 
 if TYPE_CHECKING:  # imported on use: the CLI parser imports this module for every command
     from mmcsplat.storage.session import SessionReader, SessionUpdater
@@ -60,11 +61,12 @@ def segment_session(
     with SessionUpdater(url) as updater:
         with tqdm(total=total, unit="frame", desc=f"segment ({segmenter})", disable=not progress) as bar:
             for camera in selected:
-                for t, mask, labels in instance.segment(session, camera):
-                    updater.write(camera, "mask", t, mask)
-                    if labels is not None:
-                        updater.write(camera, "labels", t, labels)
-                    bar.update()
+                with plugin_hook("segmenter", segmenter, "segment"):
+                    for t, mask, labels in instance.segment(session, camera):
+                        updater.write(camera, "mask", t, mask)
+                        if labels is not None:
+                            updater.write(camera, "labels", t, labels)
+                        bar.update()
         if consistent:
             _keep_what_the_others_see(session, updater, selected, progress)
         return [_summary(session, updater, camera) for camera in selected]

@@ -18,16 +18,18 @@ import numpy as np
 
 from mmcsplat.configuration.config import Config, PluginChoice, apply_override, load_config
 from mmcsplat.configuration.registry import Registry, default_registry
-from mmcsplat.plugin_api.errors import InputError, OutputExistsError
+from mmcsplat.plugin_api.errors import InputError, OutputExistsError, PluginError
 from mmcsplat.plugin_api.interfaces import Dynamics, TrackingContext
 from mmcsplat.storage.atomic import write_json_atomic
 from mmcsplat.storage.locking import run_lock
-from mmcsplat.storage.run import RUN_INFO, TRACK_INFO, TRACKS_DIR
+from mmcsplat.storage.run import RUN_INFO, TRACK_INFO, TRACKING_UNFINISHED, TRACKS_DIR
 from mmcsplat.storage.run_info import RunInfo
 from mmcsplat.storage.run_log import run_log
 from mmcsplat.storage.session import SessionReader
+from mmcsplat.storage.tracks import stamp_recording, tracks_token
 from mmcsplat.training.backdrop import camera_backdrop
 from mmcsplat.training.fitted_run import FittedRun
+from mmcsplat.training.plugin_hooks import plugin_hook
 from mmcsplat.training.settings import FitSettings
 from mmcsplat.training.supersampling import run_renderer
 from mmcsplat.training.views import load_views
@@ -129,8 +131,15 @@ def track_run(
     with run_lock(run), run_log(run) as log:
         log.info("track with %s %s over session frames %d–%d, renderer %s", choice.name, dict(choice.params), first, stop - 1, renderer_name)
         began = time.perf_counter()
+        before = tracks_token(run)
+        write_json_atomic(run / TRACKING_UNFINISHED, {"method": choice.name, "frames": [first, stop]})
         try:
-            summary = method.track(context, run)
+            with plugin_hook("dynamics", choice.name, "track"):
+                summary = method.track(context, run)
+            if tracks_token(run) in (None, before):
+                raise PluginError(f"dynamics plugin {choice.name!r} returned from track() without writing its tracks "
+                                  f"({run / TRACKS_DIR}): a defect of the plugin")
+            stamp_recording(run, session.fingerprint)
         except BaseException as error:
             context.curve.write(run)  # what was logged before the stop: a failed track's curve shows why
             log.error("tracking stopped: %s", f"{type(error).__name__}: {error}" if str(error) else type(error).__name__)
@@ -147,6 +156,8 @@ def track_run(
             "wall_s": round(wall, 3),
             "wall_s_per_frame": round(wall / (len(context.frames) - 1), 3),
             "summary": summary,
+            "recording": session.fingerprint,
         }
         write_json_atomic(run / TRACK_INFO, record)
+        (run / TRACKING_UNFINISHED).unlink()
     return record

@@ -104,6 +104,10 @@ def build_from_table(cls: Callable[..., Any], table: Mapping[str, Any], owner: s
     unknown = sorted(set(table) - set(fields))
     if unknown:
         raise InputError(f"{owner}: unknown parameter(s) {', '.join(unknown)}; known: {', '.join(fields) or 'none'}")
+    missing = [field for name, field in fields.items() if field.default is attrs.NOTHING and name not in table and name not in injected]
+    if missing:
+        wanted = "; ".join(f"set {field.name}=… ({field.metadata.get(DOC) or _type_text(field.type)})" for field in missing)
+        raise InputError(f"{owner}: {wanted}, a required parameter (--set {missing[0].name}=VALUE, or in its configuration table)")
     checked = {key: _checked(value, fields[key].type, owner, key) for key, value in table.items()}
     try:
         return cls(**checked, **injected)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import glob
 import json
 import os
@@ -12,10 +13,30 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+from mmcsplat.plugin_api.errors import MmcsplatError
+
+#: The errors of a file system that has no room left (a full disk, an exhausted quota).
+NO_SPACE = (errno.ENOSPC, errno.EDQUOT)
+
+
+class DiskFullError(MmcsplatError, OSError):
+    """A write that failed for want of space; what was there before is kept."""
+
+
+def disk_full(path: Path, error: BaseException) -> DiskFullError:
+    """The one-line error of a write of ``path`` that ran out of space (``error`` the system's or a library's)."""
+    try:
+        free = f"{shutil.disk_usage(path.parent).free / 1e6:.0f} MB free"
+    except OSError:
+        free = "free space unknown"
+    return DiskFullError(f"disk full: cannot write {path} ({free}; {type(error).__name__}: {error}); the previous version is kept: "
+                         "free some space and run the command again")
+
 
 @contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
-    """Yield a temporary path beside ``path``; on success it replaces ``path``, on error it is removed."""
+    """Yield a temporary path beside ``path``; on success it replaces ``path``, on error it is removed (a full
+    disk as :class:`DiskFullError`)."""
     path = Path(path)
     handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     os.close(handle)
@@ -23,6 +44,11 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     try:
         yield Path(temporary)
         os.replace(temporary, path)
+    except OSError as error:
+        Path(temporary).unlink(missing_ok=True)
+        if error.errno in NO_SPACE and not isinstance(error, MmcsplatError):
+            raise disk_full(path, error) from error
+        raise
     except BaseException:
         Path(temporary).unlink(missing_ok=True)
         raise
@@ -66,6 +92,27 @@ def new_folder(path: str | os.PathLike) -> Iterator[Path]:
     except BaseException:
         remove_local_tree(temporary)
         raise
+
+
+@contextmanager
+def new_files(folder: str | os.PathLike) -> Iterator[Path]:
+    """Yield a temporary folder beside ``folder`` to write files into; on success each is moved into
+    ``folder`` (created if needed; same-named files replaced, others kept), on error the temporary folder is
+    removed: a failed export leaves no file behind that looks whole."""
+    from mmcsplat.plugin_api.errors import NotAFolderError
+
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise NotAFolderError(f"{folder} is a file, not a folder to write into: give a folder")
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    temporary = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".tmp", dir=folder.parent))
+    try:
+        yield temporary
+        folder.mkdir(exist_ok=True)
+        for path in sorted(temporary.iterdir()):
+            os.replace(path, folder / path.name)
+    finally:
+        remove_local_tree(temporary)
 
 
 def remove_leftovers(folder: Path, prefix: str) -> None:

@@ -32,6 +32,9 @@ _REQUIRED = ("size", "matrix", "distortions", "rotation", "translation")
 #: The plausible extent of a rig, metres: its farthest camera from the cameras' centroid (a mouse arena's
 #: cameras ~0.3 m, a motion-capture hall's ~10 m).
 RIG_RADIUS_M = (0.05, 50.0)
+#: How much radial distortion may scale a radius within the image: beyond it the coefficients are wrong
+#: (strong wide-angle lenses scale their corners by 0.6–0.8; fisheye models are refused anyway).
+RADIAL_SCALE = (1 / 3, 3.0)
 
 
 def metres_per_unit(units: str) -> float:
@@ -84,8 +87,33 @@ def read_calibration(path: Path, units: str = "m", cameras: Sequence[str] | None
     return read
 
 
+def check_distortion(camera: Camera, where: str) -> None:
+    """Refuse radial distortion no lens has: over the image's radius (the principal point to its farthest
+    corner, in normalised coordinates) the mapping r → r (1 + k1 r² + k2 r⁴ + k3 r⁶) must rise (else the
+    image folds over itself) and stay within :data:`RADIAL_SCALE` of r (else pixels move off the image)."""
+    if not camera.is_distorted:
+        return
+    k1, k2, _, _, k3 = np.pad(camera.distortion, (0, 5 - len(camera.distortion)))
+    fx, fy, cx, cy = camera.K[0, 0], camera.K[1, 1], camera.K[0, 2], camera.K[1, 2]
+    corners = np.array([[0, 0], [camera.width, 0], [0, camera.height], [camera.width, camera.height]], dtype=np.float64)
+    reach = float(np.max(np.hypot((corners[:, 0] - cx) / fx, (corners[:, 1] - cy) / fy)))
+    r2 = np.linspace(0.0, reach, 257)[1:] ** 2
+    scale = 1 + k1 * r2 + k2 * r2**2 + k3 * r2**3  # distorted radius / undistorted radius
+    slope = 1 + 3 * k1 * r2 + 5 * k2 * r2**2 + 7 * k3 * r2**3  # d(distorted radius) / d(radius)
+    coefficients = ", ".join(f"{name} = {value:g}" for name, value in zip(("k1", "k2", "p1", "p2", "k3"), camera.distortion, strict=False))
+    low, high = RADIAL_SCALE
+    if np.any(slope <= 0):
+        at = float(np.sqrt(r2[np.argmax(slope <= 0)]) / reach)
+        raise InputError(f"{where}: camera {camera.name!r}: its distortion ({coefficients}) folds the image over itself at {at:.0%} of "
+                         "the way to its corner (no lens does); check the coefficients and their order (k1 k2 p1 p2 k3)")
+    if np.any((scale < low) | (scale > high)):
+        raise InputError(f"{where}: camera {camera.name!r}: its distortion ({coefficients}) moves the image's corner {scale[-1]:.3g} times "
+                         f"as far from the centre (plausible lenses stay within {low:g}–{high:g}); check the coefficients and their order")
+
+
 def check_rig(cameras: Sequence[Camera], where: str, units: str) -> None:
-    """Refuse a rig no real capture has: a focal length ≤ 0, a principal point far outside its image, two
+    """Refuse a rig no real capture has: a focal length ≤ 0, a principal point far outside its image,
+    implausible distortion (:func:`check_distortion`), two
     cameras with the same pose (a copy-paste error), or a rig whose extent (the farthest camera from the
     cameras' centroid) is outside :data:`RIG_RADIUS_M` — then the units are most likely wrong."""
     for camera in cameras:
@@ -95,6 +123,7 @@ def check_rig(cameras: Sequence[Camera], where: str, units: str) -> None:
         if not (-0.5 * camera.width <= cx <= 1.5 * camera.width and -0.5 * camera.height <= cy <= 1.5 * camera.height):
             raise InputError(f"{where}: camera {camera.name!r} has its principal point ({cx:g}, {cy:g}) far outside its "
                              f"{camera.width}×{camera.height} image (is the size or the matrix wrong?)")
+        check_distortion(camera, where)
     for index, first in enumerate(cameras):
         for second in cameras[index + 1:]:
             if np.allclose(first.R, second.R, atol=1e-9) and np.allclose(first.t, second.t, atol=1e-9):

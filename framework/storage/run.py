@@ -21,6 +21,9 @@ LOG_FILE = "log.txt"
 TRACKS_DIR = "tracks.zarr"
 #: What tracking ran and how long it took.
 TRACK_INFO = "track.json"
+#: Written when a tracking starts and removed when it has finished: left behind, the tracking was killed
+#: or failed, and whatever tracks the run holds are not the ones asked for.
+TRACKING_UNFINISHED = "tracking.unfinished"
 #: The deformation dynamics method's own checkpoint.
 DEFORMATION_CHECKPOINT = "deformation.pt"
 #: The evaluation's scores.

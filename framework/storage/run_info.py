@@ -8,7 +8,8 @@ Versions: 0 is every run.json written before the field ``version`` existed (iden
 ``resumed_from``); 1 adds ``version`` and ``resumed_from``; 2 stores a local session's path relative to the
 run directory, so a project folder copied or moved whole still works (read back as an absolute path). Fit settings absent from an older run's
 ``config_values`` read as the defaults they had when it was written (``fit.supersample`` 1, black
-background).
+background). ``recording``, the fingerprint of the session's recording (:mod:`mmcsplat.storage.recording`), is
+absent from runs fitted before it existed: unknown, read as ``None``.
 """
 
 from __future__ import annotations
@@ -63,6 +64,8 @@ class RunInfo:
     warnings: tuple[str, ...] = attrs.field(default=(), converter=_names)
     #: The iteration this run last resumed from (``None``: it never resumed).
     resumed_from: int | None = None
+    #: The fingerprint of the recording fitted (``None``: unknown, a run or session older than fingerprints).
+    recording: str | None = None
     version: int = RUN_INFO_VERSION
 
     @property

@@ -6,7 +6,9 @@ On-disk layout (format version 1)::
     RUN/tracks.zarr/                  a zarr v3 group
         zarr.json                     attributes: mmcsplat_tracks (1), complete (true, written last),
                                       num_frames T, num_gaussians N, method, static [names],
-                                      dynamic [names], attrs {…the method's own metadata}
+                                      dynamic [names], attrs {…the method's own metadata},
+                                      recording (the session's fingerprint, stamped by ``track``
+                                      once the tracks are complete; absent in older tracks)
         <static name>    [N, ...]     parameters that do not change over time (e.g. opacity_logits)
         <dynamic name>   [T, N, ...]  float32, one frame per chunk (at least means and quats)
 
@@ -170,6 +172,24 @@ class TrackWriter(Transaction):
         remove_local_tree(self._partial)
 
 
+def tracks_token(run: Path) -> tuple[int, int] | None:
+    """What identifies the tracks now in ``run`` (their metadata file's inode and time), ``None`` without
+    tracks: unchanged across a dynamics method's ``track``, the method wrote nothing."""
+    try:
+        status = os.stat(Path(run) / TRACKS_DIR / "zarr.json")
+    except OSError:
+        return None
+    return status.st_ino, status.st_mtime_ns
+
+
+def stamp_recording(run: Path, fingerprint: str | None) -> None:
+    """Record in ``run``'s complete tracks the fingerprint of the recording they were tracked on (one
+    attribute write)."""
+    import zarr
+
+    zarr.open_group(str(Path(run) / TRACKS_DIR), mode="r+", zarr_format=3).attrs["recording"] = fingerprint
+
+
 class TrackReader:
     """The complete tracks of a run, read one frame at a time."""
 
@@ -179,24 +199,44 @@ class TrackReader:
         self.path = Path(run) / TRACKS_DIR
         if not self.path.is_dir():
             raise MissingFileError(f"no tracks at {self.path}: run `mmcsplat track {run}` first")
-        group = zarr.open_group(str(self.path), mode="r", zarr_format=3)
+        self.url = str(self.path)
+        damaged = f"{self.path}: the tracks' metadata is damaged"
+        try:
+            group = zarr.open_group(str(self.path), mode="r", zarr_format=3)
+        except (ValueError, zarr.errors.GroupNotFoundError, zarr.errors.ContainsArrayError) as error:  # garbled or missing zarr.json
+            raise InputError(f"{damaged} ({error}); track the run again with `mmcsplat track {run} --overwrite`") from error
         attributes = group.attrs.asdict()
         version = attributes.get("mmcsplat_tracks")
         if version is None:
             raise InputError(f"{self.path} is a zarr group but not mmcsplat tracks")
-        if version > FORMAT_VERSION:
+        if not isinstance(version, int) or version > FORMAT_VERSION:
             raise InputError(f"{self.path}: tracks format {version} is newer than this mmcsplat reads ({FORMAT_VERSION})")
         if attributes.get("complete") is not True:
             raise InputError(f"{self.path}: the tracks were never completed")
-        self.num_frames: int = int(attributes["num_frames"])
-        self.num_gaussians: int = int(attributes["num_gaussians"])
-        self.method: str = attributes["method"]
-        self.attrs: dict[str, Any] = dict(attributes["attrs"])
-        self.static: tuple[str, ...] = tuple(attributes["static"])
-        self.dynamic: tuple[str, ...] = tuple(attributes["dynamic"])
+        try:
+            self.num_frames: int = int(attributes["num_frames"])
+            self.num_gaussians: int = int(attributes["num_gaussians"])
+            self.method: str = str(attributes["method"])
+            self.attrs: dict[str, Any] = dict(attributes["attrs"])
+            self.static: tuple[str, ...] = tuple(attributes["static"])
+            self.dynamic: tuple[str, ...] = tuple(attributes["dynamic"])
+        except (KeyError, TypeError, ValueError) as error:
+            raise InputError(f"{damaged} (attribute {error}); track the run again with `mmcsplat track {run} --overwrite`") from error
+        self._fingerprint = attributes.get("recording")
         self._static = {name: torch.from_numpy(read_stored(open_stored(group, name, str(self.path)), None, f"{self.path}: static {name}"))
                         for name in self.static}
         self._arrays = {name: open_stored(group, name, str(self.path)) for name in self.dynamic}
+        shapes = {name: array.shape[:2] for name, array in self._arrays.items()} | {name: value.shape[:1] for name, value in self._static.items()}
+        expected = (self.num_frames, self.num_gaussians)
+        wrong = {name: list(shape) for name, shape in shapes.items() if shape != (expected if name in self._arrays else expected[1:])}
+        if wrong:
+            raise InputError(f"{damaged}: it says {self.num_frames} frames of {self.num_gaussians} Gaussians, but the arrays hold {wrong}; "
+                             f"track the run again with `mmcsplat track {run} --overwrite`")
+
+    @property
+    def fingerprint(self) -> str | None:
+        """The fingerprint of the recording the tracks were made from (``None``: tracks older than it)."""
+        return self._fingerprint
 
     def _check(self, t: int) -> int:
         if not isinstance(t, int | np.integer) or not 0 <= t < self.num_frames:

@@ -19,6 +19,8 @@ from mmcsplat.synthetic.scene import Image
 VIDEOS = "videos"
 CALIBRATION = "calibration.toml"
 PLATES = "plates"
+#: Everything a synthetic capture folder holds: ``--overwrite`` replaces only such a folder.
+CAPTURE_ENTRIES = frozenset({VIDEOS, CALIBRATION, GROUND_TRUTH, PLATES})
 #: Lossless H.264 in RGB (4:4:4): the videos hold exactly the rendered frames. Measured on the default
 #: capture, OpenCV's 'mp4v' reached 30 dB PSNR (26 dB inside the infant) and even lossless 4:2:0 H.264
 #: only 27 dB inside the infant, because chroma subsampling smears the small coloured patterns.
@@ -154,9 +156,18 @@ class CaptureWriter:
 
 
 def check_output(out_dir: Path, overwrite: bool) -> None:
-    """Refuse to replace an existing non-empty ``out_dir`` unless ``overwrite``."""
-    if out_dir.exists() and not overwrite:
-        if not out_dir.is_dir():
-            raise OutputExistsError(f"output {out_dir} exists and is not a folder; pass --overwrite to replace it")
-        if any(out_dir.iterdir()):
-            raise OutputExistsError(f"output {out_dir} exists and is not empty; pass --overwrite to replace it")
+    """Refuse to replace an existing non-empty ``out_dir`` unless ``overwrite``, and even then anything but
+    a synthetic capture (a folder of only what :class:`CaptureWriter` writes): nothing else is deleted."""
+    if not out_dir.exists() and not out_dir.is_symlink():
+        return
+    if not out_dir.is_dir() or out_dir.is_symlink():
+        what = "is not a folder" if not out_dir.is_symlink() else "is a link"
+        raise OutputExistsError(f"output {out_dir} exists and {what}; --overwrite replaces only a synthetic capture, never other files")
+    entries = sorted(path.name for path in out_dir.iterdir())
+    if entries and not overwrite:
+        raise OutputExistsError(f"output {out_dir} exists and is not empty; pass --overwrite to replace it")
+    foreign = [name for name in entries if name not in CAPTURE_ENTRIES]
+    if entries and (foreign or GROUND_TRUTH not in entries):
+        shown = ", ".join(foreign[:5]) + (" …" if len(foreign) > 5 else "") if foreign else f"no {GROUND_TRUTH}"
+        raise OutputExistsError(f"output {out_dir} is not a capture `mmcsplat synth` wrote ({shown}): --overwrite replaces only a "
+                                "synthetic capture, never other files; give a new folder")

@@ -14,6 +14,7 @@ import torch
 from mmcsplat.plugin_api.errors import PluginError
 from mmcsplat.plugin_api.interfaces import Renderer
 from mmcsplat.plugin_api.render_contract import Gaussians, RenderCameras, RenderOutput
+from mmcsplat.training.plugin_hooks import plugin_hook
 
 
 class RendererContractError(PluginError):
@@ -29,7 +30,8 @@ class CheckedRenderer(Renderer):
 
     def render(self, gaussians: Gaussians, cameras: RenderCameras, background: torch.Tensor | None = None) -> RenderOutput:
         """The wrapped renderer's output, after the checks."""
-        output = self.renderer.render(gaussians, cameras, background)
+        with plugin_hook("renderer", self.name, "render"):
+            output = self.renderer.render(gaussians, cameras, background)
         if not isinstance(output, RenderOutput):
             raise RendererContractError(f"renderer {self.name!r} returned {type(output).__name__}, not a RenderOutput")
         c, h, w, n = cameras.count, int(cameras.height), int(cameras.width), gaussians.count

@@ -11,17 +11,27 @@ from typing import Any
 import torch
 
 from mmcsplat.plugin_api.errors import InputError
-from mmcsplat.storage.atomic import atomic_path
+from mmcsplat.storage.atomic import atomic_path, disk_full
 
 
 class CheckpointError(InputError):
     """A checkpoint that cannot be resumed: unreadable, or written by another run."""
 
 
+#: How torch's zip writer reports a write the file system cut short (it hides the errno).
+SHORT_WRITE = ("unexpected pos", "failed writing", "file write failed")
+
+
 def save_checkpoint(path: Path, key: Any, state: dict[str, Any]) -> None:
-    """Write ``state`` with the ``key`` a resuming run must match, atomically."""
-    with atomic_path(path) as temporary:
-        torch.save({"key": key, **state}, temporary)
+    """Write ``state`` with the ``key`` a resuming run must match, atomically; a full disk is a
+    :class:`~mmcsplat.storage.atomic.DiskFullError` and the previous checkpoint is kept."""
+    try:
+        with atomic_path(path) as temporary:
+            torch.save({"key": key, **state}, temporary)
+    except RuntimeError as error:
+        if any(text in str(error) for text in SHORT_WRITE):
+            raise disk_full(Path(path), error) from error
+        raise
 
 
 def read_checkpoint(path: Path) -> dict[str, Any]:

@@ -14,6 +14,7 @@ import attrs
 import torch
 
 from mmcsplat.plugin_api.errors import InputError, MissingFileError
+from mmcsplat.storage.recording import require_same_recording
 from mmcsplat.storage.run import CHECKPOINT, RUN_INFO
 from mmcsplat.storage.run_info import RunInfo
 from mmcsplat.storage.session import SessionReader
@@ -53,11 +54,14 @@ class FittedRun:
 
     @cached_property
     def session(self) -> SessionReader:
-        """The session the run was fitted on."""
+        """The session the run was fitted on; refused when the store at its path now holds another
+        recording (:func:`~mmcsplat.storage.recording.require_same_recording`)."""
         try:
-            return SessionReader(self.info.session)
+            session = SessionReader(self.info.session)
         except FileNotFoundError as error:
             raise MissingFileError(f"{self.path}: its session {self.info.session} cannot be opened ({error})") from error
+        require_same_recording(self.path, self.info, session)
+        return session
 
     @cached_property
     def settings(self) -> FitSettings:

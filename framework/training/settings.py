@@ -18,11 +18,15 @@ if TYPE_CHECKING:
     from mmcsplat.configuration.config import Config
 
 
+#: More iterations than any fit needs (weeks of GPU time): a larger value is a typo.
+MAX_ITERATIONS = 100_000_000
+
+
 @attrs.frozen
 class FitSettings:
     """The ``[fit]`` table of a configuration."""
 
-    iterations: int = parameter(2000, doc="training iterations, one training camera each", validator=at_least(1))
+    iterations: int = parameter(2000, doc="training iterations, one training camera each", validator=between(1, MAX_ITERATIONS))
     frame: int = parameter(0, doc="the session frame fitted", validator=at_least(0))
     window: int = parameter(0, doc="train on the images of this many frames from `frame` on (a moving camera's capture); 0: one frame "
                                    "on a rig, on a monocular capture the frames that hold 8 images (training.views)", validator=at_least(0))

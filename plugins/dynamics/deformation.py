@@ -191,7 +191,7 @@ class _Run:
         """What a checkpoint must have been written with to be resumed."""
         settings = attrs.asdict(self.settings, filter=lambda field, _: field.name not in ("checkpoint_every", "cache_bytes"))
         return {"settings": settings, "frames": [self.context.frames.start, self.context.frames.stop],
-                "cameras": [c.name for c in self.context.cameras]}
+                "cameras": [c.name for c in self.context.cameras], "recording": self.context.session.fingerprint}
 
     def _checkpoint(self, path: Path) -> None:
         save_checkpoint(path, self._key(), {

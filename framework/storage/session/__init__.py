@@ -14,6 +14,7 @@ from .format import (
     AbsentFrameError,
     IncompleteSessionError,
     SessionFrame,
+    enclosing_session,
 )
 from .reader import SessionReader
 from .updater import SessionUpdater
@@ -32,4 +33,5 @@ __all__ = [
     "SessionReader",
     "SessionUpdater",
     "SessionWriter",
+    "enclosing_session",
 ]

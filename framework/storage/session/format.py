@@ -13,6 +13,8 @@ On-disk layout (format version 2; version 1 had no plates nor ``source_mask`` an
             heldout: [camera name]       cameras kept for evaluation
             source: str                  what the session was made from
             provenance: {mmcsplat, zarr, created (UTC, ISO 8601), command, ...}
+            fingerprint: str             the recording's identity (:func:`recording_fingerprint`), written
+                                         at commit; absent in sessions written before it existed (unknown)
             fields: {camera: {field: array name}}   where each optional field of a camera lives, and
                                                      source_mask: the replaced masks it was written with
             plates: [camera name]        the cameras with a clean plate
@@ -50,6 +52,7 @@ Reading is lazy: :meth:`SessionReader.frame` decodes only the chunks of that (t,
 from __future__ import annotations
 
 import datetime
+import hashlib
 import json
 import os
 import re
@@ -118,6 +121,22 @@ def is_session_store(path: Path) -> bool:
     except (OSError, ValueError):
         return False
     return isinstance(metadata, dict) and "mmcsplat_session" in (metadata.get("attributes") or {})
+
+
+#: What a local session folder holds; anything else in it was put there by someone else.
+SESSION_ENTRIES = frozenset({"zarr.json", "cameras"})
+
+
+def foreign_entries(path: Path) -> list[str]:
+    """The names in the session folder ``path`` that are not the session's own (a run fitted into it, the
+    user's files): ``overwrite`` must not delete them."""
+    return sorted(entry.name for entry in Path(path).iterdir() if entry.name not in SESSION_ENTRIES) if Path(path).is_dir() else []
+
+
+def enclosing_session(path: str | os.PathLike) -> Path | None:
+    """The local session store that ``path`` is, or lies inside, or ``None``: no output goes there."""
+    path = Path(os.path.abspath(path))
+    return next((folder for folder in (path, *path.parents) if is_session_store(folder)), None)
 
 
 def open_group(url: str | os.PathLike, mode: str, storage_options: dict | None):
@@ -210,6 +229,19 @@ def coverage_error(session: str, camera: str, field: str, written: np.ndarray, p
         return None
     shown = ", ".join(map(str, missing[:10])) + (" …" if len(missing) > 10 else "")
     return f"{session}: camera {camera!r}: {field} is missing for {len(missing)} present frame(s): {shown}"
+
+
+def frame_digest(rgb: np.ndarray) -> str:
+    """The digest of one stored rgb frame (one chunk of the session), for :func:`recording_fingerprint`."""
+    return hashlib.blake2b(np.ascontiguousarray(rgb).data, digest_size=16).hexdigest()
+
+
+def recording_fingerprint(cameras: list[dict], num_frames: int, frame_times: list[float], digests: Mapping[str, list[str | None]]) -> str:
+    """The identity of a recording: a digest over its cameras (calibration and image sizes), frame count,
+    frame times and the digest of every stored rgb frame (``None`` for an absent one). Masks, plates and
+    provenance are left out: segmenting a session again does not make it another recording."""
+    record = {"cameras": cameras, "num_frames": num_frames, "frame_times": frame_times, "frames": {name: list(digests[name]) for name in sorted(digests)}}
+    return hashlib.blake2b(json.dumps(record, sort_keys=True).encode(), digest_size=16).hexdigest()
 
 
 def provenance_record(extra: Mapping[str, Any] | None) -> dict[str, Any]:

@@ -49,6 +49,12 @@ class SessionBase:
         self._attributes = attributes
         self._present: dict[str, np.ndarray] = {}
 
+    @property
+    def fingerprint(self) -> str | None:
+        """The recording's identity (:func:`~mmcsplat.storage.session.format.recording_fingerprint`), or
+        ``None`` for a session written before mmcsplat recorded it (unknown)."""
+        return self._attributes.get("fingerprint")
+
     def camera(self, name: str) -> Camera:
         """The stored (undistorted) camera called ``name``."""
         try:

@@ -25,10 +25,13 @@ from .format import (
     checked_array,
     coverage_error,
     create_image_array,
+    foreign_entries,
+    frame_digest,
     is_session_store,
     local_path,
     open_group,
     provenance_record,
+    recording_fingerprint,
     remove_remote,
 )
 
@@ -89,6 +92,7 @@ class SessionWriter(Transaction):
                 raise OutputExistsError(f"{self.url} already exists (overwrite it explicitly)")
             if self._target.exists() and not is_session_store(self._target):
                 raise OutputExistsError(f"{self.url} exists and is not an mmcsplat session: overwrite replaces only a session, never other files")
+            self._refuse_foreign()
             self._lock = session_lock(self._target)
             try:  # what a killed writer of this session left
                 remove_leftovers(self._target.parent, f".{self._target.name}.partial-")
@@ -128,6 +132,8 @@ class SessionWriter(Transaction):
             self.abort()
             raise
         self._present = {name: np.zeros(self.num_frames, dtype=bool) for name in names}
+        # camera -> the digest of each written rgb frame, for the recording's fingerprint
+        self._digests: dict[str, list[str | None]] = {name: [None] * self.num_frames for name in names}
         # camera -> field -> (zarr array, [T] bool of the frames written)
         self._fields: dict[str, dict[str, tuple[Any, np.ndarray]]] = {name: {} for name in names}
         self._plates: list[str] = []
@@ -152,7 +158,9 @@ class SessionWriter(Transaction):
         for field, value in (("mask", mask), ("depth", depth), ("labels", labels)):
             if value is not None:
                 values[field] = checked_array(self.url, spec, field, t, value)
-        self._rgb[camera][t] = values.pop("rgb")
+        rgb = values.pop("rgb")
+        self._rgb[camera][t] = rgb
+        self._digests[camera][t] = frame_digest(rgb)
         for field, value in values.items():
             fields = self._fields[camera]
             if field not in fields:
@@ -190,7 +198,9 @@ class SessionWriter(Transaction):
             for camera, present in self._present.items():
                 self._group.create_array(f"cameras/{camera}/present", data=present, config={"write_empty_chunks": True})
             fields = {camera: {field: field for field in fields} for camera, fields in self._fields.items()}
-            self._group.attrs.update({"fields": fields, "plates": self._plates, "complete": True})
+            attributes = self._group.attrs.asdict()
+            fingerprint = recording_fingerprint(attributes["cameras"], self.num_frames, attributes["frame_times"], self._digests)
+            self._group.attrs.update({"fields": fields, "plates": self._plates, "fingerprint": fingerprint, "complete": True})
             if self._partial is not None:
                 self._move_into_place()
         except BaseException:
@@ -203,11 +213,20 @@ class SessionWriter(Transaction):
         if self._lock is not None:
             self._lock.release()
 
+    def _refuse_foreign(self) -> None:
+        """Refuse to replace a session holding what mmcsplat did not write there (a run fitted into it)."""
+        foreign = foreign_entries(self._target)
+        if foreign:
+            shown = ", ".join(foreign[:5]) + (" …" if len(foreign) > 5 else "")
+            raise OutputExistsError(f"{self.url}: the session holds {shown}, which the session's writer did not put there (a run fitted "
+                                    "into it?): overwrite would delete it; move it out first, or ingest to a new OUT")
+
     def _move_into_place(self) -> None:
         target = self._target
         if target.exists() or target.is_symlink():
             if not self._overwrite or not is_session_store(target):
                 raise OutputExistsError(f"{self.url} appeared while the session was written (overwrite replaces only a session)")
+            self._refuse_foreign()
             replaced = target.parent / f".{target.name}.replaced-{uuid.uuid4().hex[:8]}"
             os.replace(target, replaced)
             os.replace(self._partial, target)
