@@ -79,8 +79,8 @@ def test_a_calibration_in_millimetres_read_as_metres_is_refused(tmp_path, capsys
 @pytest.mark.parametrize("override, message", [
     ("nosection.x=3", "unknown table(s) 'nosection'"),
     ("fitt.iterations=3", "unknown table(s) 'fitt'"),
-    ("fit.iterations=-5", "iterations must be ≥ 1, got -5"),
-    ("fit.iterations=0", "iterations must be ≥ 1, got 0"),
+    ("fit.iterations=-5", "iterations must be between 1 and 100000000, got -5"),
+    ("fit.iterations=0", "iterations must be between 1 and 100000000, got 0"),
 ])
 def test_settings_that_would_be_ignored_or_meaningless_are_refused(fitted, tmp_path, capsys, override, message):
     session, _ = fitted

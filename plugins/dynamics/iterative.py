@@ -157,15 +157,16 @@ class IterativeDynamics(Dynamics):
         return quats / quats.norm(dim=-1, keepdim=True)
 
     def _flow_prediction(self, context: TrackingContext, foreground: torch.Tensor) -> FlowGuidance | None:
-        """The flow the foreground is predicted from, or ``None`` (constant velocity, with a note why)."""
+        """The flow the foreground is predicted from, or ``None`` (constant velocity, with a note why in the
+        run's log; ``track.json``'s ``prediction`` says which was used)."""
         if self.predict != "flow":
             return None
         if context.frames.step != 1:
-            logger.warning("iterative: frames step by %d; the flow links consecutive frames: constant-velocity prediction", context.frames.step)
+            logger.info("iterative: frames step by %d; the flow links consecutive frames: constant-velocity prediction", context.frames.step)
             return None
         prediction = FlowPrediction.of_session(context.session.url, context.cameras, context.renderer)
         if prediction is None:
-            logger.warning("iterative: %s has no optical flow in two training cameras (`mmcsplat flow` computes it): "
+            logger.info("iterative: %s has no optical flow in two training cameras (`mmcsplat flow` computes it): "
                            "constant-velocity prediction", context.session.url)
             return None
         return FlowGuidance(prediction, foreground)
