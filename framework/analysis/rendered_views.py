@@ -75,7 +75,7 @@ def heldout_mask(session_mask: np.ndarray | None, camera: Camera, frame: int, tr
     if coverage > HULL_COVERAGE_LIMIT:
         return ScoringMask(None, coverage=coverage, reason=(
             f"the training cameras' hull covers {coverage:.0%} of its image at frame {frame} (more than {HULL_COVERAGE_LIMIT:.0%}): "
-            "a masked PSNR would be the full-image PSNR, so it is scored on the full image only — give it a mask "
+            "a masked PSNR would measure the image, not the subject, so it is scored on the full image only — give it a mask "
             "(`mmcsplat segment`) or check the training masks"))
     return ScoringMask(mask, HULL_MASK, coverage)
 
