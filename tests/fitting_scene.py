@@ -63,10 +63,12 @@ def moved(gaussians: Gaussians, t: int, step: float = 0.005, bend: float = 0.04)
 
 def write_session(path: Path, cameras: int = 5, heldout: tuple[str, ...] = ("cam_0",), blank: tuple[str, ...] = (),
                   frames: int = 1, absent: tuple[tuple[str, int], ...] = (), zoom: int = 1, truth: Gaussians | None = None,
-                  masks: bool = True, depth: bool = True, plates: bool = False, supersample: int = 1, taller: tuple[str, ...] = ()) -> Path:
+                  masks: bool = True, depth: bool = True, plates: bool = False, supersample: int = 1, taller: tuple[str, ...] = (),
+                  unmasked: tuple[str, ...] = ()) -> Path:
     """Render ``truth`` (default ``subject()``), moving over ``frames``, into ``cameras`` ring cameras of ``zoom`` times the
     base resolution; cameras in ``blank`` get an empty image/mask; the (camera, frame) pairs in ``absent``
-    are left out of the session; ``masks`` / ``depth`` false leave those fields out (a capture without them);
+    are left out of the session; ``masks`` / ``depth`` false leave those fields out (a capture without them),
+    cameras in ``unmasked`` have no masks;
     with ``plates`` the subject is seen in front of each camera's :func:`plate` (else black), stored as its
     clean plate; ``supersample`` > 1 makes each pixel the mean of that many sub-pixels per side (a pixel
     integrating over its area); cameras in ``taller`` have two more rows (as a real rig's 1088-row cameras
@@ -90,7 +92,7 @@ def write_session(path: Path, cameras: int = 5, heldout: tuple[str, ...] = ("cam
                 if camera.name in blank:
                     rgb[:] = 0
                     mask[:] = False
-                writer.write_frame(camera.name, t, rgb, mask=mask if masks else None,
+                writer.write_frame(camera.name, t, rgb, mask=mask if masks and camera.name not in unmasked else None,
                                    depth=out.depth[0].numpy().astype(np.float32) if depth else None)
         if plates:
             for camera in rig:

@@ -161,8 +161,12 @@ def test_drift_detector_fires_on_a_broken_run_only(tracked, scene):
     assert report.drifted
 
 
-def test_track_refuses_to_overwrite_and_needs_a_method(tracked, scene, capsys):
+def test_track_refuses_to_overwrite_and_defaults_to_iterative(tracked, scene, tmp_path, capsys):
     assert main(["track", str(tracked), "--dynamics", "iterative", "--no-progress"]) == 2
     assert "already exists" in capsys.readouterr().err
-    assert main(["track", str(tracked), "--overwrite", "--no-progress"]) == 2
-    assert "no [dynamics] table" in capsys.readouterr().err
+    _, session, _ = scene
+    run = write_fitted_run(tmp_path / "run", session, TRUTH)  # its configuration names no dynamics method
+    assert main(["track", str(run), "--set", "dynamics.iterations=1", "--frames", ":2", "--no-progress"]) == 0
+    assert "with iterative (the default: the configuration names no dynamics method)" in capsys.readouterr().out
+    record = json.loads((run / TRACK_INFO).read_text())
+    assert record["method"] == "iterative" and record["method_default"] is True and record["params"] == {"iterations": 1}

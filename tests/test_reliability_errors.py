@@ -62,11 +62,11 @@ def test_outputs_below_a_file_and_unknown_url_schemes(scene, tmp_path, capsys):
     assert "zip://nowhere.zip" in capsys.readouterr().err
 
 
-def test_a_damaged_checkpoint_and_a_run_without_dynamics(scene, tmp_path, capsys):
+def test_a_damaged_checkpoint_and_a_malformed_dynamics_table(scene, tmp_path, capsys):
     session, _, _ = scene
     run = write_fitted_run(tmp_path / "run", session)
-    assert main(["track", str(run), "--no-progress"]) == 2
-    assert "has no [dynamics] table: choose a method with --dynamics" in capsys.readouterr().err
+    assert main(["track", str(run), "--set", "dynamics.name=3", "--no-progress"]) == 2
+    assert "[dynamics] must be one table with a string 'name'" in capsys.readouterr().err
     checkpoint = run / "checkpoint.pt"
     checkpoint.write_bytes(checkpoint.read_bytes()[:100])
     assert main(["evaluate", str(run)]) == 2

@@ -34,10 +34,10 @@ FOREGROUND = 0.5
 
 @attrs.frozen
 class DriftReport:
-    """Per tracked frame, how many foreground Gaussians are off the subject (``counts``) and as a share
-    of the ``foreground`` count (``fractions``); ``drifted`` lists the Gaussians (indices into the tracks)
-    off the subject at some frame but not at the first; ``drift`` says whether the run drifts; the
-    thresholds it was judged with."""
+    """Per tracked frame (session frames ``first_frame``…), how many foreground Gaussians are off the
+    subject (``counts``) and as a share of the ``foreground`` count (``fractions``); ``drifted`` lists the
+    Gaussians (indices into the tracks) off the subject at some frame but not at the first; ``drift`` says
+    whether the run drifts; the thresholds it was judged with."""
 
     counts: list[int]
     fractions: list[float]
@@ -47,6 +47,25 @@ class DriftReport:
     view_fraction: float
     margin_px: int
     max_fraction: float
+    first_frame: int = 0
+
+    @property
+    def since(self) -> int | None:
+        """The first session frame whose share off the subject exceeds the first frame's by more than
+        ``max_fraction`` (``None`` when the run does not drift)."""
+        over = [k for k, fraction in enumerate(self.fractions) if fraction - self.fractions[0] > self.max_fraction]
+        return self.first_frame + over[0] if over else None
+
+    def explain(self) -> str:
+        """The verdict in one line: how many Gaussians left the subject, since which frame, at most how many at once."""
+        worst = int(np.argmax(self.counts))
+        peak = (f"at most {self.counts[worst]} at once (frame {self.first_frame + worst}, {self.fractions[worst]:.1%}; "
+                f"{self.counts[0]} at the first frame)")
+        if self.since is None:
+            return (f"no drift: {len(self.drifted)} of {self.foreground} foreground Gaussians left the subject at some frame, {peak}, "
+                    f"within the first frame's share + {self.max_fraction:.0%}")
+        return (f"drift: {len(self.drifted)} of {self.foreground} foreground Gaussians left the subject, more than the first frame's "
+                f"share + {self.max_fraction:.0%} since frame {self.since}; {peak}")
 
 
 def off_subject(points: np.ndarray, views: Sequence[tuple[Camera, np.ndarray]], view_fraction: float = VIEW_FRACTION) -> np.ndarray:
@@ -98,4 +117,5 @@ def detect_drift(
         view_fraction=view_fraction,
         margin_px=margin_px,
         max_fraction=max_fraction,
+        first_frame=first_frame,
     )

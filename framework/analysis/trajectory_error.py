@@ -1,5 +1,5 @@
 """How well a dynamic run's Gaussians follow the body: 3D and 2D trajectory errors against ground-truth
-surface points, and the held-out camera's masked PSNR at every frame.
+surface points.
 
 Ground truth is a zarr group holding ``surface_points`` [T, P, 3] float (world metres, the session's
 world frame, indexed by the capture's frame numbers) — what ``mmcsplat synth`` writes as
@@ -23,13 +23,11 @@ import numpy as np
 import scipy.sparse
 from scipy.spatial import cKDTree
 
-from mmcsplat.analysis.rendered_views import render_over
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.ground_truth import GroundTruthReader, ground_truth_beside
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.storage.tracks import TrackReader
-from mmcsplat.training.backdrop import Background, camera_backdrop
 
 FOLLOW_RADIUS = 0.01  # metres
 
@@ -113,36 +111,17 @@ def _pixel_errors(camera: Camera, estimate: np.ndarray, actual: np.ndarray) -> n
     return np.linalg.norm(camera.project(estimate[inside]) - true_pixels[inside], axis=1)
 
 
-def evaluate_tracks(run: Path, session: SessionReader, heldout: list[str], ground_truth: str | Path | None = None,
-                    renderer: Any = None, psnr: Any = None, background: Background = (0.0, 0.0, 0.0)) -> dict[str, Any]:
+def evaluate_tracks(run: Path, session: SessionReader, heldout: list[str], ground_truth: str | Path | None = None) -> dict[str, Any]:
     """The tracking metrics of ``run``: ``tracking_median_mm``, ``tracking_p90_mm``,
-    ``tracking_2d_median_px`` (``None`` when no ground truth is found, and ``None`` with the reason in
-    ``tracking_error`` when no ground-truth point is followed), ``tracking_followed_points``,
-    ``tracking_per_frame_median_mm``, ``tracking_num_gaussians`` (the tracked model's size: a method
-    that densifies while tracking ends larger than the first-frame fit, whose size is ``num_gaussians``)
-    ``per_frame_val_masked_psnr`` (held-out cameras' mean per frame, rendered with ``renderer`` over the
-    run's ``background`` and scored by the ``psnr`` metric) and ``tracked_val_masked_psnr``, its mean over
-    the frames a held-out camera imaged (a moving camera's capture is held out this way only)."""
-    backdrops = {name: camera_backdrop(background, session, name) for name in heldout}
+    ``tracking_2d_median_px`` (in the first of the ``heldout`` cameras; ``None`` when no ground truth is
+    found, and ``None`` with the reason in ``tracking_error`` when no ground-truth point is followed),
+    ``tracking_followed_points``, ``tracking_per_frame_median_mm``, ``tracking_num_gaussians`` (the tracked
+    model's size: a method that densifies while tracking ends larger than the first-frame fit, whose size
+    is ``num_gaussians``). The held-out views' scores at every frame are
+    :func:`~mmcsplat.analysis.rendered_views.tracked_heldout_scores`'s."""
     tracks = TrackReader(run)
     frames = range(int(tracks.attrs.get("first_frame", 0)), int(tracks.attrs.get("first_frame", 0)) + tracks.num_frames)
     metrics: dict[str, Any] = {"tracking_method": tracks.method, "tracking_num_gaussians": tracks.num_gaussians}
-    per_frame = []
-    for k, t in enumerate(frames):
-        gaussians = tracks.gaussians(k)
-        scores = []
-        for name in heldout:
-            if not session.present(name)[t]:
-                continue
-            data = session.frame(t, name)
-            if data.mask is None or not data.mask.any():
-                continue
-            rgb = render_over(renderer, gaussians, session.camera(name), backdrops[name])
-            scores.append(psnr(rgb.clamp(0, 1).double().numpy(), data.rgb.astype(np.float64) / 255.0, data.mask))
-        per_frame.append(float(np.mean(scores)) if scores else None)
-    metrics["per_frame_val_masked_psnr"] = per_frame
-    scored = [value for value in per_frame if value is not None]
-    metrics["tracked_val_masked_psnr"] = float(np.mean(scored)) if scored else None
     path = Path(ground_truth) if ground_truth is not None else ground_truth_beside(session)
     if path is None:
         metrics.update(tracking_median_mm=None, tracking_p90_mm=None, tracking_2d_median_px=None)

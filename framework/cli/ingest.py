@@ -7,8 +7,6 @@ written atomically, so a failed or interrupted ingest leaves no session behind.
 from __future__ import annotations
 
 import argparse
-import sys
-import warnings
 from pathlib import Path
 
 from mmcsplat.cli.options import add_frames, add_names, add_progress, add_settings, settings_table
@@ -38,25 +36,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from mmcsplat.pipeline.ingest import ingest
 
-    with warnings.catch_warnings():
-        # Reader warnings (size mismatches, truncation) are user-facing: one line each, no source location.
-        warnings.showwarning = lambda message, *_, **__: print(f"mmcsplat ingest: warning: {message}", file=sys.stderr)
-        session = ingest(
-            args.source,
-            args.out,
-            format=args.format,
-            calibration=args.calibration,
-            units=args.units,
-            frames=args.frames,
-            scale=args.scale,
-            cameras=args.cameras,
-            holdout=args.holdout,
-            overwrite=args.overwrite,
-            plates=args.plates,
-            reader_options=settings_table(args.options),
-            skip_missing=args.skip_missing,
-            progress=not args.no_progress,
-        )
+    session = ingest(
+        args.source,
+        args.out,
+        format=args.format,
+        calibration=args.calibration,
+        units=args.units,
+        frames=args.frames,
+        scale=args.scale,
+        cameras=args.cameras,
+        holdout=args.holdout,
+        overwrite=args.overwrite,
+        plates=args.plates,
+        reader_options=settings_table(args.options),
+        skip_missing=args.skip_missing,
+        progress=not args.no_progress,
+    )
     sizes = sorted({f"{camera.width}×{camera.height}" for camera in session.cameras})
     held = f" (held out: {', '.join(session.heldout)})" if session.heldout else ""
     plates = ", with clean plates" if session.provenance.get("plates") else ""

@@ -9,6 +9,8 @@ import os
 import signal
 import sys
 import threading
+import warnings
+from collections.abc import Callable
 
 from mmcsplat import __version__
 from mmcsplat.cli.options import add_logging
@@ -122,6 +124,17 @@ def _log_to(verbose: bool, log_file: str | None) -> list[logging.Handler]:
     return handlers
 
 
+def _warning_format(command: str) -> Callable[..., str]:
+    """A :func:`warnings.formatwarning` that prints a warning as one line in mmcsplat's voice —
+    ``mmcsplat COMMAND: warning: MESSAGE`` — without Python's category and source location. Only the
+    text changes: the warnings stay warnings, filtered and caught (``pytest.warns``) as any other."""
+
+    def format_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int, line: str | None = None) -> str:
+        return f"mmcsplat {command}: warning: {' '.join(str(message).split())}\n"
+
+    return format_warning
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the process exit status (2 for a user's error, 130 for Ctrl-C, 143 for SIGTERM)."""
     args = build_parser().parse_args(argv)
@@ -131,6 +144,7 @@ def main(argv: list[str] | None = None) -> int:
     except OSError as error:
         print(f"mmcsplat {args.command}: error: --log-file: {error}", file=sys.stderr)
         return 2
+    previous_format, warnings.formatwarning = warnings.formatwarning, _warning_format(args.command)
     try:
         return int(args._run(args) or 0)
     except KeyboardInterrupt as interrupt:
@@ -151,6 +165,7 @@ def main(argv: list[str] | None = None) -> int:
               f"(a defect of mmcsplat or of a plugin; set {TRACEBACK_VARIABLE}=1 for the traceback)", file=sys.stderr)
         return 1
     finally:
+        warnings.formatwarning = previous_format
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
         for handler in handlers:

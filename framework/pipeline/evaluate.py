@@ -10,9 +10,9 @@ import numpy as np
 import torch
 
 from mmcsplat.analysis.drift import detect_drift
-from mmcsplat.analysis.rendered_views import render_over
+from mmcsplat.analysis.rendered_views import SESSION_MASK, ScoringMask, heldout_mask, render_over, tracked_heldout_scores, training_masks
 from mmcsplat.analysis.trajectory_error import evaluate_tracks
-from mmcsplat.analysis.visual_hull import FLOATER_MARGIN_PX, dilated, eroded, floater_share, mask_agreement, projected_hull_mask
+from mmcsplat.analysis.visual_hull import FLOATER_MARGIN_PX, dilated, eroded, floater_share, mask_agreement
 from mmcsplat.configuration.registry import Registry, default_registry
 from mmcsplat.plugin_api.errors import MissingFileError
 from mmcsplat.plugin_api.render_contract import gaussians_from_params
@@ -20,7 +20,6 @@ from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.atomic import write_json_atomic
 from mmcsplat.storage.completeness import require_finished
 from mmcsplat.storage.run import METRICS_FILE, RUN_INFO, TRACKS_DIR
-from mmcsplat.storage.session import SessionReader
 from mmcsplat.storage.tracks import TrackReader
 from mmcsplat.training.fitted_run import FittedRun
 from mmcsplat.training.supersampling import run_renderer
@@ -35,16 +34,6 @@ AGREEMENT_WARNING = 0.6
 
 def _mean(values: list[float]) -> float | None:
     return float(np.mean(values)) if values else None
-
-
-def _mask_views(session: SessionReader, frame: int) -> list[tuple[Camera, np.ndarray]]:
-    """(camera, mask) of every camera with a mask at ``frame``."""
-    views = []
-    for name in session.camera_names:
-        mask = session.frame(frame, name).mask if session.present(name)[frame] else None
-        if mask is not None:
-            views.append((session.camera(name), mask))
-    return views
 
 
 def _floater_share(views: list[tuple[Camera, np.ndarray]], params: dict[str, torch.Tensor]) -> float | None:
@@ -83,23 +72,36 @@ def failure_signals(floaters: float | None, agreement: dict[str, float]) -> list
     return warnings
 
 
+def unmasked_signals(unmasked: dict[str, str], tracked: dict[str, dict[str, Any]]) -> list[str]:
+    """One warning per held-out camera scored on the full image only: at the fitted frame (``unmasked``,
+    camera → reason) and at tracked frames (``tracked``, camera → frames and the first reason)."""
+    found = [f"camera {name!r}: no masked score at the fitted frame: {reason}" for name, reason in sorted(unmasked.items())]
+    found += [f"camera {name!r}: no masked score at {entry['frames']} tracked frame(s): {entry['reason']}" for name, entry in sorted(tracked.items())]
+    return found
+
+
 def fit_signals(run: Path) -> list[str]:
     """:func:`failure_signals` of a fitted run, from its Gaussians and the session's masks (no rendering)."""
     fitted = FittedRun.load(run)
     info = fitted.info
-    views = _mask_views(fitted.session, info.frame)
+    views = training_masks(fitted.session, info.frame, fitted.session.camera_names)
     return failure_signals(_floater_share(views, fitted.params), _mask_agreement(views, np.asarray(info.scene_center), info.scene_scale))
 
 
 def evaluate_run(run: Path, registry: Registry | None = None, backend: str | None = None, ground_truth: Path | None = None,
-                 allow_incomplete: bool = False) -> dict[str, Any]:
+                 allow_incomplete: bool = False, progress: bool = False) -> dict[str, Any]:
     """Score one run directory and write its metrics.json; returns the metrics. A run with tracks
     (``mmcsplat track``) also gets the tracking metrics of :mod:`mmcsplat.analysis.trajectory_error` (against
     ``ground_truth``, or the one found beside the session's source) and the drift report of
-    :mod:`mmcsplat.analysis.drift`. ``floater_share`` is the share of opacity mass outside the visual hull of the
-    session's masks at the fitted frame, ``mask_agreement`` per camera the share of its mask on the hull
-    of the other cameras' masks (:mod:`mmcsplat.analysis.visual_hull`; low for a camera with wrong extrinsics).
-    An unfinished run is refused, or with ``allow_incomplete`` scored with ``incomplete`` true."""
+    :mod:`mmcsplat.analysis.drift` (the verdict explained in ``drift_summary``), and the held-out cameras'
+    scores at every tracked frame (:func:`~mmcsplat.analysis.rendered_views.tracked_heldout_scores`). A
+    held-out camera without a mask is scored in the training cameras' hull as it projects there
+    (:func:`~mmcsplat.analysis.rendered_views.heldout_mask`), or on the full image only with the reason in
+    ``per_camera[…]["unmasked"]`` and ``warnings``. ``floater_share`` is the share of opacity mass outside the
+    visual hull of the session's masks at the fitted frame, ``mask_agreement`` per camera the share of its
+    mask on the hull of the other cameras' masks (:mod:`mmcsplat.analysis.visual_hull`; low for a camera
+    with wrong extrinsics). An unfinished run is refused, or with ``allow_incomplete`` scored with
+    ``incomplete`` true. ``progress`` shows a bar over the tracked frames."""
     registry = registry or default_registry()
     fitted = FittedRun.load(run)
     info, params = fitted.info, fitted.params
@@ -110,10 +112,12 @@ def evaluate_run(run: Path, registry: Registry | None = None, backend: str | Non
     ssim = registry.create("metric", "ssim")
     gaussians = gaussians_from_params(params)
     frame = info.frame
-    views = _mask_views(session, frame)
-    background = fitted.background
+    views = training_masks(session, frame, session.camera_names)
+    train_views = [(camera, mask) for camera, mask in views if camera.name in info.train_cameras]
+    center = np.asarray(info.scene_center)
     scores: dict[str, dict[str, list[float]]] = {"val": {}, "train": {}}
     per_camera = {}
+    unmasked = {}
     # A moving camera's poses are cameras present at one frame each: only those imaging the fitted frame are scored.
     names = [name for name in (*info.train_cameras, *info.heldout_cameras) if session.present(name)[frame]]
     for name in names:
@@ -126,24 +130,21 @@ def evaluate_run(run: Path, registry: Registry | None = None, backend: str | Non
         prediction = rgb.clamp(0, 1).double().numpy()
         target = data.rgb.astype(np.float64) / 255.0
         camera_scores = {"psnr": psnr(prediction, target), "ssim": ssim(prediction, target)}
-        mask, mask_source = data.mask, "session"
-        if mask is None and split == "val":  # no mask of its own: where the training cameras' hull projects
-            others = [(camera, view_mask) for camera, view_mask in views if camera.name in info.train_cameras]
-            if len(others) >= 2:
-                mask = projected_hull_mask(session.camera(name), others, np.asarray(info.scene_center), info.scene_scale)
-                mask_source = "hull of the training cameras' masks"
-        if mask is not None and mask.any():
-            camera_scores["masked_psnr"] = psnr(prediction, target, mask)
-            camera_scores["mask"] = mask_source
-            interior = eroded(mask, 1)
+        scoring = (heldout_mask(data.mask, session.camera(name), frame, train_views, center, info.scene_scale) if split == "val"
+                   else ScoringMask(data.mask, SESSION_MASK if data.mask is not None else None))
+        if scoring.mask is not None and scoring.mask.any():
+            camera_scores["masked_psnr"] = psnr(prediction, target, scoring.mask)
+            interior = eroded(scoring.mask, 1)
             if interior.any():
                 camera_scores["interior_masked_psnr"] = psnr(prediction, target, interior)
-        per_camera[name] = {"split": split, **camera_scores}
+        elif split == "val":
+            unmasked[name] = scoring.reason or f"its mask is empty at frame {frame}"
         for key, value in camera_scores.items():
-            if key != "mask":
-                scores[split].setdefault(key, []).append(value)
+            scores[split].setdefault(key, []).append(value)
+        described = {"mask": scoring.source, "mask_coverage": scoring.coverage, "unmasked": unmasked.get(name)}
+        per_camera[name] = {"split": split, **camera_scores, **{key: value for key, value in described.items() if value is not None}}
     floaters = _floater_share(views, params)
-    agreement = _mask_agreement(views, np.asarray(info.scene_center), info.scene_scale)
+    agreement = _mask_agreement(views, center, info.scene_scale)
     metrics = {
         "val_masked_psnr": _mean(scores["val"].get("masked_psnr", [])),
         "val_psnr": _mean(scores["val"].get("psnr", [])),
@@ -155,7 +156,7 @@ def evaluate_run(run: Path, registry: Registry | None = None, backend: str | Non
         "num_gaussians": int(params["means"].shape[0]),
         "floater_share": floaters,
         "mask_agreement": agreement,
-        "warnings": failure_signals(floaters, agreement),
+        "warnings": failure_signals(floaters, agreement) + unmasked_signals(unmasked, {}),
         "iterations": info.iterations,
         "wall_s": info.wall_s,
         "status": info.status,
@@ -165,9 +166,15 @@ def evaluate_run(run: Path, registry: Registry | None = None, backend: str | Non
         "per_camera": per_camera,
     }
     if (Path(run) / TRACKS_DIR).exists():
-        metrics.update(evaluate_tracks(Path(run), session, info.heldout_cameras, ground_truth, renderer, psnr, background))
+        backdrops = {name: fitted.backdrop(name) for name in info.heldout_cameras}
+        tracked = tracked_heldout_scores(TrackReader(run), session, info.heldout_cameras, info.train_cameras, renderer, psnr, backdrops,
+                                         center, info.scene_scale, progress)
+        metrics.update(tracked)
+        metrics["warnings"] += unmasked_signals({}, tracked["tracked_val_unmasked"])
+        metrics.update(evaluate_tracks(Path(run), session, info.heldout_cameras, ground_truth))
         report = detect_drift(TrackReader(run), session, info.train_cameras)
-        metrics.update(drift=report.drift, drift_per_frame=report.counts, drift_foreground=report.foreground)
+        metrics.update(drift=report.drift, drift_summary=report.explain(), drift_since_frame=report.since, drift_gaussians=len(report.drifted),
+                       drift_per_frame=report.counts, drift_foreground=report.foreground)
     write_json_atomic(Path(run) / METRICS_FILE, metrics)
     return metrics
 
@@ -184,12 +191,13 @@ def fold_runs(run: Path) -> list[Path]:
 
 
 def evaluate(run: Path, registry: Registry | None = None, backend: str | None = None, ground_truth: Path | None = None,
-             allow_incomplete: bool = False) -> dict[str, Any]:
-    """Evaluate a run or every fold of a leave-one-camera-out run; folds are averaged into RUN/metrics.json."""
+             allow_incomplete: bool = False, progress: bool = False) -> dict[str, Any]:
+    """Evaluate a run or every fold of a leave-one-camera-out run; folds are averaged into RUN/metrics.json.
+    ``progress`` shows a bar over each run's tracked frames."""
     runs = fold_runs(run)
     if runs == [Path(run)]:
-        return evaluate_run(Path(run), registry, backend, ground_truth, allow_incomplete)
-    folds = {path.name: evaluate_run(path, registry, backend, ground_truth, allow_incomplete) for path in runs}
+        return evaluate_run(Path(run), registry, backend, ground_truth, allow_incomplete, progress)
+    folds = {path.name: evaluate_run(path, registry, backend, ground_truth, allow_incomplete, progress) for path in runs}
     summary: dict[str, Any] = {}
     for key in ("val_masked_psnr", "val_psnr", "val_ssim", "train_masked_psnr", "val_interior_masked_psnr", "train_interior_masked_psnr", "train_psnr", "num_gaussians", "floater_share", "iterations", "wall_s"):
         values = [m[key] for m in folds.values() if m[key] is not None]

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from mmcsplat.configuration.config import Config, PluginChoice, apply_override, load_config
+from mmcsplat.configuration.config import Config, ConfigError, PluginChoice, apply_override, load_config
 from mmcsplat.configuration.registry import Registry, default_registry
 from mmcsplat.plugin_api.errors import InputError, OutputExistsError, PluginError
 from mmcsplat.plugin_api.interfaces import Dynamics, TrackingContext
@@ -34,13 +34,18 @@ from mmcsplat.training.settings import FitSettings
 from mmcsplat.training.supersampling import run_renderer
 from mmcsplat.training.views import load_views
 
+#: The method ``track`` runs when neither ``--dynamics`` nor the configuration's [dynamics] table names one
+#: — the built-in configurations are first-frame ones and have none — as ``mmcsplat demo`` and ``run`` do.
+DEFAULT_DYNAMICS = "iterative"
+
 
 def tracking_config(
     run: Path, info: RunInfo, config: str | Path | None, overrides: Iterable[str], dynamics: str | None
 ) -> tuple[Config, PluginChoice]:
     """The configuration to track with (``config``, else the one ``run`` was fitted with, from its run.json
-    ``info``) after ``overrides``, and its dynamics choice; ``dynamics`` names the method instead of the
-    ``[dynamics]`` table (whose parameters are kept when it names the same method or none)."""
+    ``info``) after ``overrides``, and its dynamics choice: ``dynamics``, else the method the ``[dynamics]``
+    table names, else :data:`DEFAULT_DYNAMICS`; the table's parameters are kept when it names the chosen
+    method or none (``--set dynamics.iterations=300`` alone tunes the default)."""
     if config is not None:
         loaded = load_config(config, overrides)
     else:
@@ -49,13 +54,12 @@ def tracking_config(
         for override in overrides:
             values = apply_override(values, override, source)
         loaded = Config(source, values)
-    if dynamics is not None:
-        table = loaded.values.get("dynamics")
-        table = table if isinstance(table, Mapping) and table.get("name", dynamics) == dynamics else {}
-        return loaded, PluginChoice("dynamics", dynamics, {key: value for key, value in table.items() if key != "name"})
-    if not loaded.plugins("dynamics"):
-        raise InputError(f"{loaded.source} has no [dynamics] table: choose a method with --dynamics (e.g. iterative)")
-    return loaded, loaded.plugin("dynamics")
+    table = loaded.values.get("dynamics", {})
+    if not isinstance(table, Mapping) or not isinstance(table.get("name", ""), str):
+        raise ConfigError(f"{loaded.source}: [dynamics] must be one table with a string 'name'")
+    method = dynamics or table.get("name") or DEFAULT_DYNAMICS
+    params = {key: value for key, value in table.items() if key != "name"} if table.get("name", method) == method else {}
+    return loaded, PluginChoice("dynamics", method, params)
 
 
 def require_cameras_per_frame(run: Path, session: SessionReader, cameras: Iterable[str], frames: range, method: str, needed: int) -> None:
@@ -128,8 +132,10 @@ def track_run(
         progress=progress,
         overwrite=overwrite,
     )
+    defaulted = dynamics is None and not loaded.get("dynamics.name")
     with run_lock(run), run_log(run) as log:
-        log.info("track with %s %s over session frames %d–%d, renderer %s", choice.name, dict(choice.params), first, stop - 1, renderer_name)
+        log.info("track with %s %s%s over session frames %d–%d, renderer %s", choice.name, dict(choice.params),
+                 " (the default: the configuration names no dynamics method)" if defaulted else "", first, stop - 1, renderer_name)
         began = time.perf_counter()
         before = tracks_token(run)
         write_json_atomic(run / TRACKING_UNFINISHED, {"method": choice.name, "frames": [first, stop]})
@@ -149,6 +155,7 @@ def track_run(
         log.info("tracked %d frames in %.1f s", len(context.frames), wall)
         record = {
             "method": choice.name,
+            "method_default": defaulted,
             "params": dict(choice.params),
             "config": loaded.source,
             "renderer": renderer_name,

@@ -46,6 +46,7 @@ def camera_backdrop(background: Background, session: SessionReader, camera: str)
     if plate is None:
         raise InputError(
             f"fit.background = {PLATE!r}, but session {session.url} has no clean plate of camera {camera!r}: "
-            "ingest the capture again with its plates (a plates/ folder of the capture, or --plates DIR)"
+            f"estimate the plates from the sequence with `mmcsplat plates {session.url}` (a capture recorded without an empty "
+            "scene), or ingest the capture again with its recorded plates (a plates/ folder of the capture, or --plates DIR)"
         )
     return torch.from_numpy(plate.astype(np.float32) / 255.0)
