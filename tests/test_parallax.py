@@ -1,0 +1,71 @@
+"""The ``parallax`` segmenter (masks from nothing but the calibrated videos) on a small still-trunk
+synthetic capture with its masks and plates left out, and the implausible-mask check of the segment step."""
+
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pytest
+
+from mmcsplat.configuration.registry import default_registry
+from mmcsplat.pipeline.ingest import ingest
+from mmcsplat.pipeline.segment import segment_session
+from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.storage.session import SessionReader
+from mmcsplat.synthetic import SynthConfig, synthesize
+
+CONFIG = SynthConfig(frames=2, cameras=8, width=128, height=96, seed=0, motion="still-trunk")
+
+
+@pytest.fixture(scope="module")
+def sessions(tmp_path_factory):
+    """(a session of the capture's videos and calibration only, the session of the full capture with its true masks)."""
+    root = tmp_path_factory.mktemp("parallax")
+    capture = synthesize(root / "capture", CONFIG, progress=False).out_dir
+    bare = root / "bare"
+    bare.mkdir()
+    shutil.copytree(capture / "videos", bare / "videos")
+    shutil.copy(capture / "calibration.toml", bare / "calibration.toml")
+    ingest(bare, root / "bare.zarr", progress=False)
+    ingest(capture, root / "truth.zarr", progress=False)
+    return root / "bare.zarr", root / "truth.zarr"
+
+
+def test_floor_found_from_calibration_and_images(sessions):
+    plane = default_registry().create("segmenter", "parallax").floor(SessionReader(sessions[0]))
+    assert np.degrees(np.arccos(plane.normal @ [0.0, 0.0, 1.0])) < 2  # the mat's normal, z up
+    assert abs(plane.offset) < 0.01  # the mat lies at z = 0
+
+
+def test_masks_match_the_truth_in_every_camera(sessions):
+    bare, truth = SessionReader(sessions[0]), SessionReader(sessions[1])
+    assert not bare.has("mask") and all(bare.plate(name) is None for name in bare.camera_names)
+    summaries = segment_session(sessions[0], "parallax", progress=False)
+    assert len(summaries) == CONFIG.cameras
+    bare = SessionReader(sessions[0])
+    for name in bare.camera_names:
+        for t in range(CONFIG.frames):
+            mask, true = bare.frame(t, name).mask.astype(bool), truth.frame(t, name).mask.astype(bool)
+            # At 128 × 96 the outline is a large share of the infant; 256 × 192 scores higher (docs/real-data.md).
+            assert (mask & true).sum() / (mask | true).sum() > 0.65, (name, t)
+
+
+def test_refine_against_plates_needs_plates(sessions):
+    segmenter = default_registry().create("segmenter", "parallax", refine="plate")
+    with pytest.raises(InputError, match="mmcsplat plates"):
+        next(segmenter.segment(SessionReader(sessions[0]), "cam_0"))
+
+
+def test_implausible_masks_stop_before_anything_is_written(sessions, tmp_path):
+    copy = tmp_path / "copy.zarr"
+    shutil.copytree(sessions[0], copy)
+    before = SessionReader(copy).frame(0, "cam_0").mask
+    # A threshold no colour difference reaches: every mask is empty.
+    empty = {"method": "median", "threshold": 1000.0}
+    with pytest.raises(InputError, match=r"'background' made implausible masks in 8 of 8 cameras \(.*cam_0 0\.0%.*--keypoints"):
+        segment_session(copy, "background", empty, progress=False)
+    after = SessionReader(copy).frame(0, "cam_0").mask
+    assert (before is None and after is None) or np.array_equal(before, after)
+    summaries = segment_session(copy, "background", empty, progress=False, check=False)  # asked for: written
+    assert all(summary.coverage == 0 and not summary.plausible for summary in summaries)
