@@ -3,9 +3,10 @@ rig (docs/real-data.md): ingest → masks → plates → masks refined against t
 evaluate → landmarks → renders → report.
 
 - Masks: with 2D keypoints (``--keypoints DIR``, default ``CAPTURE/pose_2d`` when it exists) the
-  skeleton-then-plate path of the ``keypoints`` segmenter; without, the ``background`` segmenter's
-  temporal median (a subject that never moves is then lost: keypoints, or a recorded plate, are better).
-  A capture ingested with recorded plates keeps them.
+  skeleton-then-plate path of the ``keypoints`` segmenter; without, against the capture's recorded
+  plates (``background``, method ``plate``) or, with nothing but videos and a calibration, the
+  ``parallax`` segmenter (what the cameras agree stands off the floor: a still trunk too), refined against
+  plates estimated with its masks held out. A capture ingested with recorded plates keeps them.
 - Fit: ``visual-hull-plate`` with the start cube sized from the masks' visual hull (its reach from the
   rig centre plus 10 cm, never below the configuration's), so an adult or a mouse fits like an infant.
 - Landmarks: a TRC of joints (``--joints FILE``, default the single ``CAPTURE/*.trc``) bound at the
@@ -113,9 +114,9 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
         ingest(capture, partial, calibration=Path(settings.calibration) if settings.calibration else None, units=settings.units,
                frames=slice(*settings.frames), scale=settings.scale, holdout=list(settings.holdout), overwrite=True, progress=progress)
         source = {"name": "openpose", "folder": str(keypoints)} if keypoints else None
-        segmenter, first, refined = ("keypoints", {"source": source}, {"source": source, "refine": "plate"}) if source else \
-            ("background", {"method": "median"}, {"method": "plate"})
         recorded = any(SessionReader(partial).plate(name) is not None for name in SessionReader(partial).camera_names)
+        segmenter, first, refined = ("keypoints", {"source": source}, {"source": source, "refine": "plate"}) if source else \
+            ("background", {"method": "median"}, {"method": "plate"}) if recorded else ("parallax", {}, {"refine": "plate"})
         if not recorded:
             segment_session(partial, segmenter, first, progress=progress)
             estimate_plates(str(partial), None, progress=progress)
