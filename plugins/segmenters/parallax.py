@@ -17,9 +17,9 @@ elsewhere, so they disagree (plane plus parallax). Each step:
    kept voxels, holes filled. A bystander outside the rig and a floor pixel only one camera calls
    off-plane drop out.
 4. **Refined against plates** (``refine = "plate"``, when the session has plates, e.g. estimated by
-   ``mmcsplat plates`` with these masks held out): the pixels that differ from the plate, within
-   ``refine_radius`` of the geometric mask, joined to it. The plate sharpens the outline; the geometric
-   mask keeps a subject that never moved, whose pixels a temporal plate cannot know.
+   ``mmcsplat plates`` with these masks held out): the geometric mask keeps only the pixels within
+   ``refine_radius`` of one that differs from the plate. The plate trims the outline, where the
+   geometric mask spills onto the floor beside the subject.
 """
 
 from __future__ import annotations
@@ -182,10 +182,10 @@ class ParallaxSegmenter(PostProcessedSegmenter):
     passes: int = parameter(2, doc="passes: each after the first lets only the cameras whose last mask leaves a floor point "
                                    "uncovered judge it", validator=at_least(1))
     near: int = parameter(1, doc="pixels a camera's off-plane pixels may lie from its kept voxels' projection", validator=at_least(0))
-    refine: str = parameter("none", doc="none, or plate: join the pixels that differ from the session's plate near the geometric mask",
+    refine: str = parameter("none", doc="none, or plate: keep only the mask's pixels near one that differs from the session's plate",
                             validator=one_of("none", "plate"))
-    refine_threshold: float = parameter(20.0, doc="plate: grey levels a pixel must differ from the plate by", validator=finite_positive)
-    refine_radius: int = parameter(1, doc="plate: pixels a kept pixel may lie from one that differs from the plate", validator=at_least(0))
+    refine_threshold: float = parameter(30.0, doc="plate: grey levels a pixel must differ from the plate by", validator=finite_positive)
+    refine_radius: int = parameter(0, doc="plate: pixels a kept pixel may lie from one that differs from the plate", validator=at_least(0))
     close_radius: int = parameter(2, doc="morphological closing of the mask, pixels (0 skips)", validator=at_least(0))
     _cache: dict = attrs.field(factory=dict, init=False, repr=False, eq=False)
 
