@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from mmcsplat.configuration.registry import default_registry
+from mmcsplat.jobs.capture import run_capture
 from mmcsplat.pipeline.ingest import ingest
 from mmcsplat.pipeline.plates import estimate_plates
 from mmcsplat.pipeline.segment import segment_session
@@ -21,7 +22,8 @@ CONFIG = SynthConfig(frames=3, cameras=8, width=128, height=96, seed=0, motion="
 
 @pytest.fixture(scope="module")
 def sessions(tmp_path_factory):
-    """(a session of the capture's videos and calibration only, the session of the full capture with its true masks)."""
+    """(a session of the capture's videos and calibration only, the session of the full capture with its true
+    masks, the folder of videos and calibration)."""
     root = tmp_path_factory.mktemp("parallax")
     capture = synthesize(root / "capture", CONFIG, progress=False).out_dir
     bare = root / "bare"
@@ -30,7 +32,7 @@ def sessions(tmp_path_factory):
     shutil.copy(capture / "calibration.toml", bare / "calibration.toml")
     ingest(bare, root / "bare.zarr", progress=False)
     ingest(capture, root / "truth.zarr", progress=False)
-    return root / "bare.zarr", root / "truth.zarr"
+    return root / "bare.zarr", root / "truth.zarr", bare
 
 
 def test_floor_found_from_calibration_and_images(sessions):
@@ -83,3 +85,20 @@ def test_implausible_masks_stop_before_anything_is_written(sessions, tmp_path):
     assert (before is None and after is None) or np.array_equal(before, after)
     summaries = segment_session(copy, "background", empty, progress=False, check=False)  # asked for: written
     assert all(summary.coverage == 0 and not summary.plausible for summary in summaries)
+
+
+def test_run_segments_a_capture_of_videos_and_a_calibration_with_parallax(sessions, tmp_path, monkeypatch):
+    calls = []
+
+    class Stop(Exception):
+        """Ends the run once its masks are chosen."""
+
+    def stop(*args, **kwargs):
+        raise Stop
+
+    monkeypatch.setattr("mmcsplat.pipeline.segment.segment_session", lambda url, name, params=None, **kwargs: calls.append((name, params)))
+    monkeypatch.setattr("mmcsplat.pipeline.plates.estimate_plates", lambda *args, **kwargs: calls.append(("plates", None)))
+    monkeypatch.setattr("mmcsplat.pipeline.regions.region_overrides", stop)
+    with pytest.raises(Stop):
+        run_capture(sessions[2], tmp_path / "out", progress=False, log=lambda line: None)
+    assert calls == [("parallax", {}), ("plates", None), ("parallax", {"refine": "plate"})]
