@@ -117,9 +117,10 @@ def range_difference(image: np.ndarray, warped: np.ndarray) -> np.ndarray:
 
 
 def sweep_floor(cameras: Sequence[Camera], medians: Sequence[np.ndarray], normal: np.ndarray) -> Plane:
-    """The floor plane with ``normal``: the offset, of :data:`SWEEP_STEPS` below the cameras, at which the
-    cameras' ``medians`` (images [H, W, 3]) agree best with their two nearest neighbours' through the
-    plane's warp (the share of overlapping pixels within :data:`SWEEP_AGREEMENT` grey levels)."""
+    """The floor plane with ``normal``: the offset, swept over :data:`SWEEP_RANGE` × the rig centre's depth
+    below the cameras (coarse, then fine), at which the cameras' ``medians`` (images [H, W, 3]) agree best
+    with their two nearest neighbours' through the plane's warp (the share of overlapping pixels within
+    :data:`SWEEP_AGREEMENT` grey levels)."""
     scale = min(1.0, SWEEP_WIDTH / max(camera.width for camera in cameras))
     small = [camera.scaled(scale) for camera in cameras]
     images = [cv2.resize(image, (camera.width, camera.height), interpolation=cv2.INTER_AREA) for camera, image in zip(small, medians, strict=True)]
