@@ -70,6 +70,8 @@ def mmcsplat_segmenters() -> list[Registration]:
                      "OpenCV background subtraction over each camera's sequence (MOG2, KNN or median)"),
         Registration("keypoints", f"{segmenters}.keypoints:KeypointSegmenter",
                      "the filled skeleton of 2D keypoints (OpenPose JSON), optionally refined against the clean plate"),
+        Registration("parallax", f"{segmenters}.parallax:ParallaxSegmenter",
+                     "what the calibrated cameras agree stands off the floor (plane plus parallax, fused over voxels): no keypoints, plates or model"),
         Registration("precomputed", f"{segmenters}.precomputed:PrecomputedSegmenter",
                      "the masks the session already holds (d3dgs, D-NeRF, synthetic ground truth)"),
     ]

@@ -15,8 +15,9 @@ from mmcsplat.cli import main
 from mmcsplat.storage.calibration import read_calibration
 from mmcsplat.synthetic import SynthConfig, SynthGroundTruth, synthesize
 from mmcsplat.synthetic.body import BodyPose, forward_kinematics, infant_parts, surface_points
-from mmcsplat.synthetic.motion import Motion
+from mmcsplat.synthetic.motion import TRUNK, Motion
 from mmcsplat.synthetic.scene import AdultLeg, ViewRenderer, cast_body, paint_body
+from mmcsplat.synthetic.synthesize import infant_motion
 
 TINY = SynthConfig(frames=4, cameras=3, width=64, height=48, seed=3)
 
@@ -269,7 +270,8 @@ def test_existing_output_needs_overwrite(tmp_path):
 @pytest.mark.parametrize(
     "field, value, message",
     [("frames", 0, "frames"), ("cameras", 0, "cameras"), ("width", 8, "width"), ("height", 2.5, "height"),
-     ("seed", -1, "seed"), ("fps", 0.0, "fps"), ("samples", 0, "samples"), ("slide", float("nan"), "slide")],
+     ("seed", -1, "seed"), ("fps", 0.0, "fps"), ("samples", 0, "samples"), ("slide", float("nan"), "slide"),
+     ("motion", "wobbly", "motion must be one of natural, still-trunk, fast-kicks")],
 )  # fmt: skip
 def test_bad_configuration_is_refused(field, value, message):
     with pytest.raises(ValueError, match=message):
@@ -285,18 +287,63 @@ def test_slide_moves_the_whole_infant_along_x(tmp_path):
     np.testing.assert_allclose(points[1] - points[0], np.broadcast_to([0.25, 0.0, 0.0], points[0].shape), atol=1e-6)
 
 
+def _part_points(config: SynthConfig) -> dict[str, np.ndarray]:
+    """Each part's surface points [T, N, 3] over ``config``'s frames."""
+    parts, _, poses = infant_motion(config)
+    local, owner = surface_points(parts)
+    points = poses.to_world(owner, local)
+    return {part.name: points[:, owner == i] for i, part in enumerate(parts)}
+
+
+def _part_centres(config: SynthConfig) -> dict[str, np.ndarray]:
+    """Each part's surface-point centre [T, 3] over ``config``'s frames."""
+    return {name: points.mean(axis=1) for name, points in _part_points(config).items()}
+
+
+def test_still_trunk_moves_only_the_limbs():
+    for seed in range(3):
+        still = _part_points(SynthConfig(frames=90, seed=seed, motion="still-trunk"))
+        natural = _part_points(SynthConfig(frames=90, seed=seed))
+        for name, points in still.items():
+            travel = np.linalg.norm(points - points[0], axis=-1).max()
+            if name.startswith(TRUNK):
+                assert travel < 1e-9, (seed, name)  # the same pose in every frame
+                assert np.linalg.norm(natural[name] - natural[name][0], axis=-1).max() > 0.002  # where the natural motion moves it
+            elif name.startswith(("hand", "foot")):
+                centre = points.mean(axis=1)
+                assert np.linalg.norm(centre - centre[0], axis=1).max() > 0.02, (seed, name)
+
+
+def test_fast_kicks_move_a_foot_about_its_width_per_frame():
+    foot_width = 2 * infant_parts()[[p.name for p in infant_parts()].index("foot_left")].radii[1]
+    for seed in range(3):
+        config = SynthConfig(frames=60, seed=seed, motion="fast-kicks")
+        centres = _part_centres(config)
+        for side in ("left", "right"):
+            step = np.linalg.norm(np.diff(centres[f"foot_{side}"], axis=0), axis=1).max()
+            assert 0.8 * foot_width < step < 1.5 * foot_width, (seed, side, step / foot_width)
+            slow = np.linalg.norm(np.diff(_part_centres(SynthConfig(frames=60, seed=seed))[f"foot_{side}"], axis=0), axis=1).max()
+            assert step > 3 * slow  # much faster than the natural motion's feet
+        _, _, poses = infant_motion(config)
+        local, owner = surface_points(infant_parts())
+        assert poses.to_world(owner, local)[..., 2].min() > -0.005  # the kicks stay above the mat
+
+
 def test_cli(tmp_path, capsys):
     out = tmp_path / "cap"
     assert main(["synth", str(out), "--num-frames", "2", "--num-cameras", "2", "--width", "32", "--height", "24", "--no-adult-leg", "--no-progress", "--seed", "7",
-                 "--slide", "0.5"]) == 0
+                 "--slide", "0.5", "--motion", "still-trunk"]) == 0
     assert "2 cameras × 2 frames" in capsys.readouterr().out
     truth = SynthGroundTruth(out)
     assert truth.seed == 7 and truth.group.attrs["config"]["adult_leg"] is False and truth.group.attrs["config"]["slide"] == 0.5
+    assert truth.group.attrs["config"]["motion"] == "still-trunk" and truth.group.attrs["motion"]["kind"] == "still-trunk"
     assert main(["synth", str(out), "--no-progress"]) == 2
     assert "not empty" in capsys.readouterr().err
     assert main(["synth", str(tmp_path / "bad"), "--num-frames", "0", "--no-progress"]) == 2
     assert "frames must be an integer" in capsys.readouterr().err
     assert not (tmp_path / "bad").exists()
+    assert main(["synth", str(tmp_path / "bad"), "--motion", "wobbly", "--no-progress"]) == 2
+    assert "motion must be one of" in capsys.readouterr().err
 
 
 def test_ingested_capture_keeps_masks_aligned_with_the_surface(capture, tmp_path):

@@ -28,6 +28,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--slide", type=float, default=0.0, metavar="M_PER_S",
                         help="move the whole infant along +x at this speed in m/s (default: 0); at about 1 m/s it leaves "
                              "some views within a second — a failure regime for `mmcsplat stability`")  # fmt: skip
+    parser.add_argument("--motion", default="natural", metavar="KIND",
+                        help="natural (default): every joint swings; still-trunk: the torso, pelvis and head hold one pose, only "
+                             "the limbs move; fast-kicks: quick kicks, the feet moving about their own width between frames at 30 fps")  # fmt: skip
     parser.add_argument("--monocular", action="store_true",
                         help="one camera orbiting the mat instead of the ring, written in the D-NeRF layout (transforms_train.json; "
                              "transforms_test.json: --num-cameras fixed held-out cameras every 5th frame); no adult's leg")  # fmt: skip
@@ -41,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
 
     config = SynthConfig(
         frames=args.num_frames, cameras=args.num_cameras, width=args.width, height=args.height,
-        seed=args.seed, fps=args.fps, adult_leg=args.adult_leg, slide=args.slide,
+        seed=args.seed, fps=args.fps, adult_leg=args.adult_leg, slide=args.slide, motion=args.motion,
     )  # fmt: skip
     if args.monocular:
         from mmcsplat.plugin_api.errors import InputError

@@ -5,9 +5,11 @@ evaluate → landmarks → renders → report.
 - Masks: the capture's own when it brings them for every training camera (Dynamic3DGaussians ``seg/``,
   a ``masks/`` folder per camera, RGBA alpha: whatever its reader ingests); else, with 2D keypoints
   (``--keypoints DIR``, default ``CAPTURE/pose_2d`` when it exists) the skeleton-then-plate path of the
-  ``keypoints`` segmenter; without, the ``background`` segmenter's temporal median (a subject that never
-  moves is then lost: keypoints, or a recorded plate, are better). Which masks were used is printed and
-  recorded in ``DIR/masks.json``. A capture ingested with recorded plates keeps them.
+  ``keypoints`` segmenter; without, against the capture's recorded plates (``background``, method
+  ``plate``) or, with nothing but videos and a calibration, the ``parallax`` segmenter (what the cameras
+  agree stands off the floor: a still trunk too), refined against plates estimated with its masks held
+  out. Which masks were used is printed and recorded in ``DIR/masks.json``. A capture ingested with
+  recorded plates keeps them.
 - Fit: ``visual-hull-plate`` with the start cube sized from the masks' visual hull (its reach from the
   rig centre plus 10 cm, never below the configuration's), so an adult or a mouse fits like an infant.
 - Landmarks: a TRC of joints (``--joints FILE``, default the single ``CAPTURE/*.trc``) bound at the
@@ -115,10 +117,10 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
                frames=slice(*settings.frames), scale=settings.scale, cameras=list(settings.cameras) or None, holdout=list(settings.holdout),
                overwrite=True, progress=progress)
         source = {"name": "openpose", "folder": str(keypoints)} if keypoints else None
-        segmenter, first, refined = ("keypoints", {"source": source}, {"source": source, "refine": "plate"}) if source else \
-            ("background", {"method": "median"}, {"method": "plate"})
-        choice = mask_choice(SessionReader(partial), segmenter)
         recorded = any(SessionReader(partial).plate(name) is not None for name in SessionReader(partial).camera_names)
+        segmenter, first, refined = ("keypoints", {"source": source}, {"source": source, "refine": "plate"}) if source else \
+            ("background", {"method": "median"}, {"method": "plate"}) if recorded else ("parallax", {}, {"refine": "plate"})
+        choice = mask_choice(SessionReader(partial), segmenter)
         if choice["masks"] != "capture" and not recorded:
             segment_session(partial, segmenter, first, progress=progress)
         if not recorded:

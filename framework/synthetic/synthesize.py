@@ -14,7 +14,7 @@ from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.ground_truth import GROUND_TRUTH
 from mmcsplat.synthetic.body import BodyPose, Part, forward_kinematics, infant_parts, surface_points
 from mmcsplat.synthetic.cameras import RING_HEIGHT, RING_RADIUS, ring_cameras
-from mmcsplat.synthetic.motion import FREQUENCY_RANGE, RANGES, Motion
+from mmcsplat.synthetic.motion import FREQUENCY_RANGE, MOTIONS, RANGES, Motion
 from mmcsplat.synthetic.scene import AMBIENT, DIFFUSE, LIGHT, AdultLeg, ViewRenderer
 from mmcsplat.synthetic.textures import MAT_HALF_SIZE
 from mmcsplat.synthetic.writer import CALIBRATION, VIDEOS, CaptureWriter
@@ -38,13 +38,23 @@ def _finite(instance: SynthConfig, attribute: attrs.Attribute, value: float) -> 
         raise InputError(f"{attribute.name} must be a finite number, got {value!r}")
 
 
+def _one_of(choices: tuple[str, ...]):
+    def check(instance: SynthConfig, attribute: attrs.Attribute, value: str) -> None:
+        if value not in choices:
+            raise InputError(f"{attribute.name} must be one of {', '.join(choices)}, got {value!r}")
+
+    return check
+
+
 @attrs.frozen
 class SynthConfig:
     """What to synthesise: ``frames`` frames at ``fps`` from ``cameras`` cameras of ``width`` × ``height``
     pixels; ``seed`` fixes the rig's small variations and the motion; ``adult_leg`` adds an adult's leg
     standing beside the mat (in some views, never in the subject mask); ``samples``² rays per pixel
     anti-alias the colour; ``slide`` moves the whole infant along +x at that many metres per second
-    (at about 1 m/s it leaves some cameras' views within a second: a failure regime for studies)."""
+    (at about 1 m/s it leaves some cameras' views within a second: a failure regime for studies);
+    ``motion`` picks the variant of :mod:`~.motion`: ``natural``, ``still-trunk`` (only the limbs move) or
+    ``fast-kicks`` (the feet move about their own width between frames at 30 fps)."""
 
     frames: int = attrs.field(default=30, validator=_at_least(1))
     cameras: int = attrs.field(default=8, validator=_at_least(1))
@@ -55,6 +65,7 @@ class SynthConfig:
     adult_leg: bool = True
     samples: int = attrs.field(default=2, validator=_at_least(1))
     slide: float = attrs.field(default=0.0, converter=float, validator=_finite)
+    motion: str = attrs.field(default="natural", validator=_one_of(MOTIONS))
 
 
 @attrs.frozen(eq=False)
@@ -76,7 +87,7 @@ def infant_motion(config: SynthConfig) -> tuple[tuple[Part, ...], np.ndarray, Bo
     """(body parts, frame times in seconds [T], pose of every part at every frame) of the infant that
     ``config``'s seed, frame count, frame rate and slide describe."""
     parts = infant_parts()
-    motion = Motion.random(parts, np.random.default_rng([config.seed, 2]))
+    motion = Motion.random(parts, np.random.default_rng([config.seed, 2]), config.motion)
     times = np.arange(config.frames) / config.fps
     poses = forward_kinematics(parts, motion.rotvecs(times))
     if config.slide:
@@ -120,7 +131,8 @@ def synthesize(out_dir: str | Path, config: SynthConfig = SynthConfig(), *, over
             "cameras": [camera.name for camera in cameras],
             "config": attrs.asdict(config),
             "scene": scene_description(parts, leg),
-            "motion": {"ranges_rad": {k: [list(axis) for axis in v] for k, v in RANGES.items()}, "frequency_hz": list(FREQUENCY_RANGE)},
+            "motion": {"kind": config.motion, "ranges_rad": {k: [list(axis) for axis in v] for k, v in RANGES.items()},
+                       "frequency_hz": list(FREQUENCY_RANGE)},
         }
         writer.commit(attributes, {"generator": "mmcsplat synth", "seed": config.seed, "fps": config.fps})
     return SynthResult(

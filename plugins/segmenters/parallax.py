@@ -1,0 +1,314 @@
+"""``parallax``: subject masks from nothing but the calibrated videos — what the cameras agree stands off
+the floor.
+
+A rig's cameras look down at a floor or mat. Warped from one camera into another through the floor
+plane, the floor lands on itself, so the two images agree there; anything standing off the plane lands
+elsewhere, so they disagree (plane plus parallax). Each step:
+
+1. **The floor plane**, from the calibration and the images: its normal is the normal of the plane
+   through the camera centres (the cameras of a rig stand at about one height), turned to the cameras'
+   "up"; its height is the one, swept along the normal below the cameras, at which neighbouring cameras'
+   median images agree best through the plane's warp.
+2. **Off-plane pixels** of each camera and frame: the pixels whose colour disagrees with most of the
+   other cameras' colour at the same floor point. A floor pixel one other camera cannot see (the subject
+   hides it there) disagrees with that camera only, so a majority keeps it floor.
+3. **What the cameras agree on in 3D**: voxels above the floor, inside the rig, kept where most cameras
+   that see them find them off-plane; a camera's mask is its off-plane pixels near the projection of the
+   kept voxels, holes filled. A bystander outside the rig and a floor pixel only one camera calls
+   off-plane drop out.
+4. **Refined against plates** (``refine = "plate"``, when the session has plates, e.g. estimated by
+   ``mmcsplat plates`` with these masks held out): the geometric mask keeps only the pixels within
+   ``refine_radius`` of one that differs from the plate. The plate trims the outline, where the
+   geometric mask spills onto the floor beside the subject.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+
+import attrs
+import cv2
+import numpy as np
+
+from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.plugin_api.parameters import at_least, between, finite_positive, one_of, parameter
+from mmcsplat.plugins.segmenters.postprocess import PostProcessedSegmenter, dilate, open_close, present_frames
+from mmcsplat.scene.camera import Camera
+from mmcsplat.scene.rig import rig_center
+from mmcsplat.scene.visual_hull import mask_hits, pixel_rays
+from mmcsplat.storage.session import SessionReader
+
+#: Floor heights tried by the sweep, spread over [SWEEP_RANGE] × the rig centre's depth below the cameras,
+#: then as many again between the best one's neighbours.
+SWEEP_STEPS = 25
+SWEEP_RANGE = (0.5, 2.0)
+#: Frames whose per-pixel median the sweep compares (a moving subject drops out of the median).
+SWEEP_SAMPLES = 9
+#: Width in pixels the sweep's images are reduced to (the floor is large: a coarse image finds it).
+SWEEP_WIDTH = 64
+#: Grey levels under which two warped pixels agree in the sweep.
+SWEEP_AGREEMENT = 12.0
+
+
+@attrs.frozen(eq=False)
+class Plane:
+    """The floor: the points x with ``normal`` · x = ``offset`` (``normal`` a unit vector towards the
+    cameras)."""
+
+    normal: np.ndarray
+    offset: float
+
+    def height(self, points: np.ndarray) -> np.ndarray:
+        """Signed distance [N] of ``points`` [N, 3] above the plane."""
+        return points @ self.normal - self.offset
+
+
+def floor_normal(cameras: Sequence[Camera]) -> np.ndarray:
+    """The unit normal of the plane through the camera centres (their mean "up" direction when they are
+    fewer than 3 or in a line), turned to the side the cameras' image "up" points to."""
+    up = -np.mean([camera.R[1] for camera in cameras], axis=0)  # image rows grow downwards
+    centres = np.array([camera.center for camera in cameras])
+    normal = up
+    if len(cameras) >= 3:
+        singular, vectors = np.linalg.svd(centres - centres.mean(axis=0))[1:]
+        if singular[1] > 1e-3 * singular[0]:  # the centres span a plane
+            normal = vectors[2]
+    normal = normal / np.linalg.norm(normal)
+    return normal if normal @ up >= 0 else -normal
+
+
+def floor_rays(camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """(centre [3], unit ray directions [H·W, 3]) of every pixel of ``camera``, row-major."""
+    ys, xs = np.mgrid[0 : camera.height, 0 : camera.width]
+    points = pixel_rays(camera, np.stack([xs.ravel(), ys.ravel()], axis=1), np.ones(1))[:, 0]
+    directions = points - camera.center
+    return camera.center, directions / np.linalg.norm(directions, axis=1, keepdims=True)
+
+
+def plane_warp(source: Camera, target: Camera, rays: tuple[np.ndarray, np.ndarray], plane: Plane) -> tuple[np.ndarray, np.ndarray]:
+    """(map [H, W, 2] float32 for :func:`cv2.remap`, valid [H, W] bool): where the floor point seen by
+    each pixel of ``source`` (its ``rays``) lies in ``target``'s image; invalid where the ray misses the
+    floor or the point falls outside ``target``'s view."""
+    centre, directions = rays
+    along = directions @ plane.normal
+    distance = (plane.offset - centre @ plane.normal) / np.where(np.abs(along) > 1e-9, along, np.nan)
+    points = centre + np.nan_to_num(distance)[:, None] * directions
+    pixels = target.project(points)
+    depth = (points @ target.R.T + target.t)[:, 2]
+    valid = (distance > 0) & (depth > 0) & np.all((pixels >= 0) & (pixels <= [target.width - 1, target.height - 1]), axis=1)
+    shape = (source.height, source.width)
+    return pixels.reshape(*shape, 2).astype(np.float32), valid.reshape(shape)
+
+
+def colour_difference(image: np.ndarray, other: np.ndarray) -> np.ndarray:
+    """The largest per-channel absolute difference [H, W] float32 of two [H, W, 3] images."""
+    return np.abs(image.astype(np.float32) - other.astype(np.float32)).max(axis=-1)
+
+
+def range_difference(image: np.ndarray, warped: np.ndarray) -> np.ndarray:
+    """How far [H, W] float32 (largest over channels) each pixel of ``image`` lies outside the range of
+    colours ``warped`` holds in its 3 × 3 neighbourhood: a warp a pixel off (calibration, resampling) on a
+    sharp edge of the floor's texture (tile joints) still agrees."""
+    kernel = np.ones((3, 3), np.uint8)
+    image = image.astype(np.int16)
+    above = image - cv2.dilate(warped, kernel).astype(np.int16)
+    below = cv2.erode(warped, kernel).astype(np.int16) - image
+    return np.maximum(np.maximum(above, below), 0).max(axis=-1).astype(np.float32)
+
+
+def sweep_floor(cameras: Sequence[Camera], medians: Sequence[np.ndarray], normal: np.ndarray) -> Plane:
+    """The floor plane with ``normal``: the offset, swept over :data:`SWEEP_RANGE` × the rig centre's depth
+    below the cameras (coarse, then fine), at which the cameras' ``medians`` (images [H, W, 3]) agree best
+    with their two nearest neighbours' through the plane's warp (the share of overlapping pixels within
+    :data:`SWEEP_AGREEMENT` grey levels)."""
+    scale = min(1.0, SWEEP_WIDTH / max(camera.width for camera in cameras))
+    small = [camera.scaled(scale) for camera in cameras]
+    images = [cv2.resize(image, (camera.width, camera.height), interpolation=cv2.INTER_AREA) for camera, image in zip(small, medians, strict=True)]
+    rays = [floor_rays(camera) for camera in small]
+    centres = np.array([camera.center for camera in cameras])
+    top = float(np.mean(centres @ normal))
+    depth = top - float(rig_center(cameras) @ normal)  # the rig centre's depth below the cameras
+    if depth <= 0:
+        raise InputError("parallax segmenter: the cameras do not look down at a common point, so no floor lies below them; "
+                         "choose another segmenter (keypoints, background with a recorded plate)")
+    pairs = [(i, int(j)) for i in range(len(cameras)) for j in np.argsort(np.linalg.norm(centres - centres[i], axis=1))[1:3]]
+
+    def agreement(offset: float) -> float:
+        plane = Plane(normal, offset)
+        agree = total = 0
+        for i, j in pairs:
+            warp, valid = plane_warp(small[i], small[j], rays[i], plane)
+            warped = cv2.remap(images[j], warp, None, cv2.INTER_LINEAR)
+            agree += int((colour_difference(images[i], warped)[valid] < SWEEP_AGREEMENT).sum())
+            total += int(valid.sum())
+        return agree / total if total else 0.0
+
+    offsets = top - depth * np.linspace(*SWEEP_RANGE, SWEEP_STEPS)
+    best = int(np.argmax([agreement(float(offset)) for offset in offsets]))
+    offsets = np.linspace(offsets[max(best - 1, 0)], offsets[min(best + 1, SWEEP_STEPS - 1)], SWEEP_STEPS)
+    return Plane(normal, float(offsets[int(np.argmax([agreement(float(offset)) for offset in offsets]))]))
+
+
+def median_image(session: SessionReader, camera: str, samples: int) -> np.ndarray:
+    """The per-pixel median [H, W, 3] uint8 of ``samples`` frames spread over ``camera``'s sequence."""
+    frames = present_frames(session, camera)
+    picks = frames[np.unique(np.linspace(0, len(frames) - 1, min(samples, len(frames))).round().astype(int))]
+    return np.median(np.stack([session.frame(int(t), camera).rgb for t in picks]), axis=0).astype(np.uint8)
+
+
+def fill_holes(mask: np.ndarray) -> np.ndarray:
+    """``mask`` with every background region not connected to the image border filled."""
+    padded = np.pad(mask.astype(np.uint8), 1)
+    flood = padded.copy()
+    cv2.floodFill(flood, None, (0, 0), 1)
+    return (mask | (flood[1:-1, 1:-1] == 0)).astype(bool)
+
+
+@attrs.frozen
+class ParallaxSegmenter(PostProcessedSegmenter):
+    """The subject is what the cameras agree stands off the floor (module docstring): plane plus parallax
+    against the floor plane found from the calibration and the images, fused over voxels above the floor,
+    optionally refined against the session's plates. Needs at least 3 cameras that look down at a floor."""
+
+    threshold: float = parameter(15.0, doc="grey levels by which a camera's pixel must differ from another camera's colour at the same "
+                                           "floor point to disagree", validator=finite_positive)
+    majority: float = parameter(0.7, doc="share of the other cameras seeing a pixel's floor point that must disagree for it to be off-plane",
+                                validator=between(0, 1))
+    min_height: float = parameter(0.01, doc="metres above the floor where the voxels start (the floor's own unevenness)", validator=at_least(0))
+    voxels: int = parameter(60, doc="voxels along the reach (their size: the reach over this)", validator=at_least(4))
+    reach: float = parameter(0.5, doc="the voxels' horizontal reach from the rig centre, as a share of the cameras' horizontal "
+                                      "distance from it (a bystander at the rig's edge stays out)", validator=finite_positive)
+    agreement: float = parameter(0.8, doc="share of the cameras seeing a voxel that must find it off-plane for it to be the subject",
+                                 validator=between(0, 1))
+    passes: int = parameter(2, doc="passes: each after the first lets only the cameras whose last mask leaves a floor point "
+                                   "uncovered judge it", validator=at_least(1))
+    near: int = parameter(1, doc="pixels a camera's off-plane pixels may lie from its kept voxels' projection", validator=at_least(0))
+    refine: str = parameter("none", doc="none, or plate: keep only the mask's pixels near one that differs from the session's plate",
+                            validator=one_of("none", "plate"))
+    refine_threshold: float = parameter(30.0, doc="plate: grey levels a pixel must differ from the plate by", validator=finite_positive)
+    refine_radius: int = parameter(0, doc="plate: pixels a kept pixel may lie from one that differs from the plate", validator=at_least(0))
+    close_radius: int = parameter(2, doc="morphological closing of the mask, pixels (0 skips)", validator=at_least(0))
+    _cache: dict = attrs.field(factory=dict, init=False, repr=False, eq=False)
+
+    def raw(self, session: SessionReader, camera: str) -> Iterator[tuple[int, np.ndarray, np.ndarray | None]]:
+        plate = self._plate(session, camera) if self.refine == "plate" else None
+        for t in present_frames(session, camera):
+            mask = self._masks(session, int(t))[camera]
+            if plate is not None:
+                differs = colour_difference(session.frame(int(t), camera).rgb, plate) > self.refine_threshold
+                mask = mask & dilate(differs, self.refine_radius)
+            yield int(t), fill_holes(open_close(mask, 0, self.close_radius)), None
+
+    def _plate(self, session: SessionReader, camera: str) -> np.ndarray:
+        plate = session.plate(camera)
+        if plate is None:
+            raise InputError(f"{session.url}: camera {camera!r} has no plate for the parallax segmenter's refine = plate: estimate "
+                             f"plates with `mmcsplat plates {session.url}` after a first segmentation, or set refine = none")
+        return plate
+
+    def floor(self, session: SessionReader) -> Plane:
+        """The session's floor plane (computed once per session)."""
+        key = ("floor", str(session.url))
+        if key not in self._cache:
+            cameras = [session.camera(name) for name in session.camera_names]
+            if len(cameras) < 3:
+                raise InputError(f"{session.url}: the parallax segmenter needs at least 3 cameras, got {len(cameras)}; "
+                                 "choose another segmenter (keypoints, background)")
+            medians = [median_image(session, name, SWEEP_SAMPLES) for name in session.camera_names]
+            self._cache[key] = sweep_floor(cameras, medians, floor_normal(cameras))
+        return self._cache[key]
+
+    def _masks(self, session: SessionReader, t: int) -> dict[str, np.ndarray]:
+        """Every camera's geometric mask at frame ``t``. Each needs every camera's image of the frame and
+        the session's cameras are segmented one after another, so a frame's masks are kept once made (bit
+        packed: an eighth of a byte per pixel and camera)."""
+        key = ("frame", str(session.url), t)
+        if key not in self._cache:
+            names = [name for name in session.camera_names if session.present(name)[t]]
+            cameras = [session.camera(name) for name in names]
+            images = [session.frame(t, name).rgb for name in names]
+            masks = self._fused(session, cameras, self._off_plane(session, cameras, images))
+            for _ in range(self.passes - 1):
+                masks = self._fused(session, cameras, self._off_plane(session, cameras, images, masks))
+            self._cache[key] = {name: (np.packbits(mask), mask.shape) for name, mask in zip(names, masks, strict=True)}
+        return {name: np.unpackbits(bits, count=int(np.prod(shape))).reshape(shape).astype(bool) for name, (bits, shape) in self._cache[key].items()}
+
+    def _fused(self, session: SessionReader, cameras: Sequence[Camera], off: Sequence[np.ndarray]) -> list[np.ndarray]:
+        """Each camera's ``off``-plane pixels near the projection of the voxels most cameras agree on."""
+        kept = self._voxels(session, cameras, off)
+        masks = []
+        for camera, off_plane in zip(cameras, off, strict=True):
+            footprint = np.zeros((camera.height, camera.width), np.uint8)
+            pixels = np.round(camera.project(kept)).astype(int) if len(kept) else np.zeros((0, 2), int)
+            inside = np.all((pixels >= 0) & (pixels < [camera.width, camera.height]), axis=1)
+            footprint[pixels[inside, 1], pixels[inside, 0]] = 1
+            masks.append(off_plane & dilate(open_close(footprint.astype(bool), 0, 2), self.near))
+        return masks
+
+    def _off_plane(self, session: SessionReader, cameras: Sequence[Camera], images: Sequence[np.ndarray],
+                   masks: Sequence[np.ndarray] | None = None) -> list[np.ndarray]:
+        """Per camera, [H, W] bool: the pixels most other cameras disagree with at their floor point. With
+        the cameras' ``masks`` of an earlier pass, a camera whose mask covers the floor point (the subject
+        hides it there) has no say, and a pixel no camera sees the floor point of keeps its mask."""
+        plane = self.floor(session)
+        off = []
+        for i, camera in enumerate(cameras):
+            key = ("rays", str(session.url), camera.name)
+            if key not in self._cache:
+                self._cache[key] = floor_rays(camera)
+            votes = np.zeros((camera.height, camera.width), np.int32)
+            seen = np.zeros_like(votes)
+            for j, other in enumerate(cameras):
+                if j == i:
+                    continue
+                warp_key = ("warp", str(session.url), camera.name, other.name)
+                if warp_key not in self._cache:
+                    self._cache[warp_key] = plane_warp(camera, other, self._cache[key], plane)
+                warp, valid = self._cache[warp_key]
+                if masks is not None:
+                    hidden = cv2.remap(dilate(masks[j], self.near).astype(np.uint8), warp, None, cv2.INTER_NEAREST)
+                    valid = valid & (hidden == 0)
+                warped = cv2.remap(images[j], warp, None, cv2.INTER_LINEAR)
+                seen += valid
+                votes += valid & (range_difference(images[i], warped) > self.threshold)
+            decided = (seen > 0) & (votes > self.majority * seen)
+            off.append(decided if masks is None else decided | ((seen == 0) & masks[i]))
+        return off
+
+    def _voxels(self, session: SessionReader, cameras: Sequence[Camera], off: Sequence[np.ndarray]) -> np.ndarray:
+        """Centres [N, 3] of the voxels above the floor, within the rig, that most cameras seeing them find off-plane."""
+        key = ("grid", str(session.url))
+        if key not in self._cache:
+            self._cache[key] = self._grid(cameras, self.floor(session))
+        grid = self._cache[key]
+        # Camera by camera, dropping a voxel once too many cameras miss it for it ever to reach the agreement:
+        # most voxels are empty air, gone after a few cameras.
+        alive = np.arange(len(grid))
+        seen, inside = np.zeros(len(grid), int), np.zeros(len(grid), int)
+        for view in zip(cameras, off, strict=True):
+            _, sees, on_mask = next(mask_hits(grid[alive], [view]))
+            seen[alive] += sees
+            inside[alive] += on_mask
+            alive = alive[seen[alive] - inside[alive] <= (1 - self.agreement) * len(cameras)]
+        alive = alive[(seen[alive] >= 2) & (inside[alive] >= self.agreement * seen[alive])]
+        return grid[alive]
+
+    def _grid(self, cameras: Sequence[Camera], plane: Plane) -> np.ndarray:
+        """Voxel centres [N, 3] over the floor ``plane``: within ``reach`` of the rig centre's foot, from
+        ``min_height`` up to twice the rig centre's height above the floor (at least half the reach)."""
+        normal = plane.normal
+        centre = rig_center(cameras)
+        foot = centre - plane.height(centre[None])[0] * normal
+        horizontal = [camera.center - foot - plane.height(camera.center[None])[0] * normal for camera in cameras]
+        reach = self.reach * float(np.mean(np.linalg.norm(horizontal, axis=1)))
+        top = max(2 * float(plane.height(centre[None])[0]), reach / 2)
+        a = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
+        a /= np.linalg.norm(a)
+        b = np.cross(normal, a)
+        size = reach / self.voxels
+        across = np.arange(-reach, reach + 1e-9, size)
+        up = np.arange(self.min_height + size / 2, top, size)
+        u, v, h = np.meshgrid(across, across, up, indexing="ij")
+        keep = np.hypot(u, v).ravel() <= reach
+        points = foot + u.ravel()[:, None] * a + v.ravel()[:, None] * b + h.ravel()[:, None] * normal
+        return points[keep]
