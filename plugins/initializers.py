@@ -1,8 +1,9 @@
 """Initializers of the first-frame fit: where Gaussians start, what the image loss sees, what is pruned.
 
-They compose (a configuration lists several): `random` or `visual-hull` places the Gaussians, `masked`
-masks the targets and prunes far Gaussians, `sparsity-pruned` prunes isolated ones, `depth-supervised`
-adds a depth loss against a `depth-source` plugin's maps. The placing ones and `masked` size their start cube or pruning sphere to the
+They compose (a configuration lists several). `random` or `visual-hull` places the Gaussians; the fit
+shapers place none: `masked` masks the targets and prunes far Gaussians, `sparsity-pruned` prunes isolated
+ones, `in-view` those no training camera sees, `depth-supervised` adds a depth loss against a
+`depth-source` plugin's maps. The placing ones and `masked` size their start cube or pruning sphere to the
 subject's visual hull (``fit_region``) and refuse, when kept as configured, one that does not hold it.
 """
 

@@ -191,8 +191,15 @@ class RegionChoice:
 
 
 class Initializer(ABC):
-    """Places the first Gaussians and may shape the first-frame fit. Initializers compose: each hook has a
-    neutral default, so one initializer can add only pruning or only a loss term."""
+    """Places the first Gaussians or shapes the first-frame fit. Initializers compose: each hook has a
+    neutral default, so one initializer can add only pruning or only a loss term.
+
+    Two roles share this kind. A *placing* initializer (``random``, ``visual-hull``) implements
+    :meth:`initial_gaussians`; a *fit shaper* (``masked``, ``sparsity-pruned``, ``in-view``,
+    ``depth-supervised``) places nothing and shapes what the fit sees and keeps — its targets
+    (:meth:`prepare_target`), extra loss terms (:meth:`extra_loss`) or pruning (:meth:`prune_mask`). They
+    stay one kind, configured as ``[[initializer]]`` tables, because a configuration composes them in one
+    ordered list and every saved run and study records them there."""
 
     def fit_region(self, scene: SceneContext) -> RegionChoice | None:
         """The region this initializer needs for ``scene``'s subject when its configured start or pruning
