@@ -19,6 +19,7 @@ import attrs
 import numpy as np
 
 from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.plugin_api.registration import PluginBuilder
 from mmcsplat.scene.camera import Camera
 from mmcsplat.scene.visual_hull import hull_cells, region_reach
 from mmcsplat.storage.curves import TrainingCurve
@@ -26,8 +27,6 @@ from mmcsplat.storage.curves import TrainingCurve
 if TYPE_CHECKING:  # heavy imports only for type checkers
     import torch
 
-    from mmcsplat.configuration.config import Config
-    from mmcsplat.configuration.registry import Registry
     from mmcsplat.storage.session import SessionReader
     from mmcsplat.storage.session.format import SessionFrame
     from mmcsplat.training.model import GaussianModel
@@ -305,8 +304,9 @@ class TrackingContext:
     backdrops: tuple[torch.Tensor, ...]
     scene_center: Sequence[float]
     scene_scale: float
-    config: Config
-    registry: Registry
+    #: Builds the plugins a method names in its own parameters (the ``deformation`` method's densifier),
+    #: found where the pipeline's own plugins are.
+    plugins: PluginBuilder
     views: Callable[[int], list[TrainingView]]
     progress: bool = True
     overwrite: bool = False
