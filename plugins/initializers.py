@@ -1,8 +1,10 @@
 """Initializers of the first-frame fit: where Gaussians start, what the image loss sees, what is pruned.
 
-They compose (a configuration lists several): `random` or `visual-hull` places the Gaussians, `masked`
-masks the targets and prunes far Gaussians, `sparsity-pruned` prunes isolated ones, `depth-supervised`
-adds a depth loss against a `depth-source` plugin's maps.
+They compose (a configuration lists several). `random` or `visual-hull` places the Gaussians; the fit
+shapers place none: `masked` masks the targets and prunes far Gaussians, `sparsity-pruned` prunes isolated
+ones, `in-view` those no training camera sees, `depth-supervised` adds a depth loss against a
+`depth-source` plugin's maps. The placing ones and `masked` size their start cube or pruning sphere to the
+subject's visual hull (``fit_region``) and refuse, when kept as configured, one that does not hold it.
 """
 
 from __future__ import annotations
@@ -16,11 +18,11 @@ import torch
 from scipy.spatial import cKDTree
 
 from mmcsplat.plugin_api.errors import InputError
-from mmcsplat.plugin_api.interfaces import DepthSource, Initializer, SceneContext
+from mmcsplat.plugin_api.interfaces import DepthSource, Initializer, RegionChoice, SceneContext
 from mmcsplat.plugin_api.parameters import at_least, finite_positive, parameter
 from mmcsplat.plugin_api.registration import PluginBuilder
 from mmcsplat.plugin_api.render_contract import Gaussians, RenderOutput
-from mmcsplat.scene.visual_hull import REGION_SHARE, hull_cells, in_hull, mask_hits, mask_votes, region_reach
+from mmcsplat.scene.visual_hull import REGION_SHARE, in_hull, mask_hits, mask_votes
 
 INITIAL_OPACITY = 0.1
 INITIAL_SEG = 0.5
@@ -66,36 +68,47 @@ def segmentation_start(points: np.ndarray, scene: SceneContext) -> np.ndarray | 
     return np.clip(share, 0.02, 0.98)
 
 
-def mask_views(scene: SceneContext) -> list[tuple[Any, np.ndarray]]:
-    """(camera, mask) of the training cameras with a mask in the image the fit trains on."""
-    views = []
-    for index, camera in enumerate(scene.cameras):
-        mask = scene.image(index).mask
-        if mask is not None:
-            views.append((camera, mask))
-    return views
+#: Metres a grown region holds beyond the subject's visual hull (the hull is looser than the subject already).
+REGION_MARGIN = 0.1
+
+
+def _region_size(reach: np.ndarray) -> float:
+    """The size, rounded up to 0.1 m, of a region holding every hull cell of ``reach`` with :data:`REGION_MARGIN` to spare."""
+    return float(np.ceil((reach.max() + REGION_MARGIN) * 10) / 10)
+
+
+def _held_share(reach: np.ndarray, size: float) -> float:
+    return float(np.mean(reach <= size))
+
+
+def grown_region(scene: SceneContext, parameter: str, size: float, cube: bool) -> RegionChoice | None:
+    """The region a start cube (``cube``: half side ``size``) or pruning sphere (radius ``size``) about the
+    rig centre grows to when it holds less than :data:`REGION_SHARE` of the subject's visual hull (the
+    region :func:`check_region` would refuse): the hull's reach plus :data:`REGION_MARGIN`, rounded up to
+    0.1 m. ``None`` when it holds the subject (a region is never shrunk) or the masks give no hull."""
+    reach = scene.subject_reach(cube)
+    if reach is None or _held_share(reach, size) >= REGION_SHARE:
+        return None
+    region = "start cube's half side" if cube else "pruning sphere's radius"
+    return RegionChoice(parameter, region, size, _region_size(reach), float(reach.max()))
 
 
 def check_region(scene: SceneContext, initializer: str, key: str, size: float, cube: bool) -> None:
     """Refuse, before any training, a start cube (``cube``: half side ``size``) or pruning sphere (radius
     ``size``) about the rig centre that holds less than :data:`REGION_SHARE` of the subject's visual hull
     (from the training cameras' masks) — a fit that would "complete" on a cloud of floaters beside a
-    subject it never covered — saying what to set."""
-    views = mask_views(scene)
-    if len(views) < 2:
+    subject it never covered — saying what to set. A fit grows such a region first unless told to keep it
+    (``mmcsplat fit --fixed-regions``)."""
+    reach = scene.subject_reach(cube)
+    if reach is None:
         return
-    center = np.asarray(scene.center, dtype=np.float64)
-    cells = hull_cells(views, center, max(2.0 * size, float(scene.scale))) - center
-    if not len(cells):
-        return
-    reach = region_reach(cells, cube)
-    inside = float(np.mean(reach <= size))
+    inside = _held_share(reach, size)
     if inside < REGION_SHARE:
         shape = f"the start cube of half side {size} m" if cube else f"the pruning sphere of radius {size} m"
-        needed = np.ceil(np.percentile(reach, 100) * 10 + 1) / 10
+        center = np.round(np.asarray(scene.center, dtype=np.float64), 2).tolist()
         raise InputError(f"initializer {initializer!r}: only {inside:.0%} of the subject's visual hull (from the masks) lies inside {shape} "
-                         f"about the rig centre {np.round(center, 2).tolist()}; it reaches {reach.max():.2f} m: set "
-                         f"--set initializer.{initializer}.{key}={needed:.1f} (or {key} in the configuration's [[initializer]] table)")
+                         f"about the rig centre {center}; it reaches {reach.max():.2f} m: set "
+                         f"--set initializer.{initializer}.{key}={_region_size(reach):.1f} (or {key} in the configuration's [[initializer]] table)")
 
 
 def _uniform_cube(count: int, center: np.ndarray, half_size: float, generator: torch.Generator) -> np.ndarray:
@@ -111,6 +124,9 @@ class RandomInitializer(Initializer):
     num_points: int = parameter(10_000, doc="Gaussians placed", validator=at_least(1))
     half_size: float = parameter(0.75, doc="half the cube's side, metres", validator=finite_positive)
 
+    def fit_region(self, scene: SceneContext) -> RegionChoice | None:
+        return grown_region(scene, "half_size", self.half_size, cube=True)
+
     def initial_gaussians(self, scene: SceneContext, generator: torch.Generator) -> Gaussians:
         check_region(scene, "random", "half_size", self.half_size, cube=True)
         points = _uniform_cube(self.num_points, scene.center, self.half_size, generator)
@@ -124,6 +140,9 @@ class MaskedInitializer(Initializer):
 
     radius: float = parameter(2.0, doc="Gaussians farther than this from the calibration centre are pruned, metres", validator=finite_positive)
     every: int = parameter(100, doc="iterations between prunings", validator=at_least(1))
+
+    def fit_region(self, scene: SceneContext) -> RegionChoice | None:
+        return grown_region(scene, "radius", self.radius, cube=False)
 
     def prepare_target(self, image: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
         if mask is None:
@@ -193,6 +212,9 @@ class VisualHullInitializer(Initializer):
     half_size: float = parameter(0.75, doc="half the side of the cube candidates are drawn in, metres", validator=finite_positive)
     tolerance: int = parameter(0, doc="views that see a candidate outside their mask and still keep it", validator=at_least(0))
     max_rounds: int = parameter(50, doc="rounds of candidate draws before giving up", validator=at_least(1))
+
+    def fit_region(self, scene: SceneContext) -> RegionChoice | None:
+        return grown_region(scene, "half_size", self.half_size, cube=True)
 
     def initial_gaussians(self, scene: SceneContext, generator: torch.Generator) -> Gaussians:
         views = []

@@ -11,15 +11,15 @@ def mmcsplat_initializers() -> list[Registration]:
         Registration("random", "mmcsplat.plugins.initializers:RandomInitializer",
                      "N Gaussians uniform in a cube around the calibration centre"),
         Registration("masked", "mmcsplat.plugins.initializers:MaskedInitializer",
-                     "images zeroed outside the subject mask; Gaussians far from the centre pruned"),
+                     "fit shaper: images zeroed outside the subject mask; Gaussians far from the centre pruned"),
         Registration("visual-hull", "mmcsplat.plugins.initializers:VisualHullInitializer",
                      "Gaussians sampled inside the intersection of the cameras' mask cones"),
         Registration("depth-supervised", "mmcsplat.plugins.initializers:DepthSupervisedInitializer",
-                     "L1 depth loss with a learnable per-camera scale and offset"),
+                     "fit shaper: L1 depth loss with a learnable per-camera scale and offset"),
         Registration("sparsity-pruned", "mmcsplat.plugins.initializers:SparsityPrunedInitializer",
-                     "prune Gaussians whose nearest neighbour is farther than 0.1 m"),
+                     "fit shaper: prune Gaussians whose nearest neighbour is farther than 0.1 m"),
         Registration("in-view", "mmcsplat.plugins.initializers:InViewInitializer",
-                     "prune Gaussians that no training camera sees (they never get a gradient)"),
+                     "fit shaper: prune Gaussians that no training camera sees (they never get a gradient)"),
     ]
 
 

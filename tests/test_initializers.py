@@ -15,7 +15,7 @@ from scipy.spatial import cKDTree
 from mmcsplat import Registration, hookimpl
 from mmcsplat.configuration.registry import PluginError, Registry, UnknownPluginError, default_registry
 from mmcsplat.plugin_api.errors import InputError
-from mmcsplat.plugin_api.interfaces import DepthSource
+from mmcsplat.plugin_api.interfaces import DepthSource, RegionChoice
 from mmcsplat.plugin_api.render_contract import Gaussians, RenderCameras
 from mmcsplat.plugins.initializers import segmentation_start
 from mmcsplat.storage.session import SessionReader
@@ -342,17 +342,46 @@ def test_depth_maps_are_copied_from_the_sessions_read_only_frames(scene):
 # ------------------------------------------------------------------------------------------- regions
 
 
+def use_region(plugin, scene) -> None:
+    """What checks a plugin's region: placing Gaussians, or the masked initializer's first pruning."""
+    if hasattr(plugin, "radius"):
+        plugin.prune_mask(0, points_at(np.array([scene.center])), scene)
+    else:
+        plugin.initial_gaussians(scene, seeded(0))
+
+
 @pytest.mark.parametrize(("name", "params", "message"), [
     ("random", {"half_size": 0.05}, r"initializer 'random': only \d+% of the subject's visual hull \(from the masks\) lies inside the start cube"),
     ("visual-hull", {"half_size": 0.05}, r"it reaches 0\.\d\d m: set --set initializer\.visual-hull\.half_size=0\.\d"),
     ("masked", {"radius": 0.05}, r"inside the pruning sphere of radius 0\.05 m .* set --set initializer\.masked\.radius=0\.\d"),
 ])
 def test_a_region_too_small_for_the_subject_is_refused_before_fitting_saying_what_to_set(scene, name, params, message):
-    def use(plugin):
-        if name == "masked":
-            return plugin.prune_mask(0, points_at(np.array([scene.center])), scene)
-        return plugin.initial_gaussians(scene, seeded(0))
-
     with pytest.raises(InputError, match=message):
-        use(initializer(name, **params))
-    use(initializer(name))  # the defaults hold the test scene's subject
+        use_region(initializer(name, **params), scene)
+    use_region(initializer(name), scene)  # the defaults hold the test scene's subject
+
+
+REGIONS = [("random", "half_size", "start cube's half side", True), ("visual-hull", "half_size", "start cube's half side", True),
+           ("masked", "radius", "pruning sphere's radius", False)]
+
+
+@pytest.mark.parametrize(("name", "parameter", "region", "cube"), REGIONS)
+def test_a_region_too_small_for_the_subject_grows_to_the_hull_plus_10_cm_the_value_its_refusal_names(scene, name, parameter, region, cube):
+    reach = scene.subject_reach(cube)
+    choice = initializer(name, **{parameter: 0.05}).fit_region(scene)
+    needed = float(np.ceil((reach.max() + 0.1) * 10) / 10)
+    assert choice == RegionChoice(parameter, region, 0.05, needed, float(reach.max()))
+    with pytest.raises(InputError, match=rf"set --set initializer\.{name}\.{parameter}={needed:.1f} "):
+        use_region(initializer(name, **{parameter: 0.05}), scene)
+    grown = initializer(name, **{parameter: choice.chosen})
+    assert grown.fit_region(scene) is None  # it holds the subject now: accepted, and not grown again
+    use_region(grown, scene)
+    assert initializer(name).fit_region(scene) is None  # the defaults hold the test scene's subject
+    assert initializer(name, **{parameter: 50.0}).fit_region(scene) is None  # never shrunk
+
+
+def test_initializers_without_a_region_or_a_hull_keep_their_configuration(scene, bare_scene):
+    for name in ("sparsity-pruned", "in-view", "depth-supervised"):  # the neutral default
+        assert initializer(name).fit_region(scene) is None
+    assert bare_scene.subject_reach(cube=True) is None  # no masks, no hull: nothing to size a region by
+    assert initializer("random", half_size=0.05).fit_region(bare_scene) is None

@@ -98,7 +98,7 @@ def test_run_segments_a_capture_of_videos_and_a_calibration_with_parallax(sessio
 
     monkeypatch.setattr("mmcsplat.pipeline.segment.segment_session", lambda url, name, params=None, **kwargs: calls.append((name, params)))
     monkeypatch.setattr("mmcsplat.pipeline.plates.estimate_plates", lambda *args, **kwargs: calls.append(("plates", None)))
-    monkeypatch.setattr("mmcsplat.pipeline.regions.region_overrides", stop)
+    monkeypatch.setattr("mmcsplat.pipeline.fit.FirstFrameFit", stop)
     with pytest.raises(Stop):
         run_capture(sessions[2], tmp_path / "out", progress=False, log=lambda line: None)
     assert calls == [("parallax", {}), ("plates", None), ("parallax", {"refine": "plate"})]

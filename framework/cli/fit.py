@@ -1,8 +1,8 @@
 """Fit the first frame of a session: Gaussians optimised on the training cameras (resumes a killed run).
 
 With --folds, one fit per held-out camera (leave-one-camera-out) into RUN/<camera>/. Start and pruning
-regions too small for the subject's visual hull are grown to hold it (mmcsplat.pipeline.regions) unless
---fixed-regions.
+regions too small for the subject's visual hull are grown by their initializers to hold it, saying so,
+unless --fixed-regions.
 """
 
 from __future__ import annotations
@@ -33,7 +33,6 @@ def run(args: argparse.Namespace) -> int:
     from mmcsplat.configuration.config import load_config
     from mmcsplat.pipeline.evaluate import fit_signals
     from mmcsplat.pipeline.fit import FirstFrameFit
-    from mmcsplat.pipeline.regions import region_overrides
     from mmcsplat.storage.session import SessionReader, enclosing_session
 
     if (store := enclosing_session(args.out)) is not None:
@@ -42,11 +41,10 @@ def run(args: argparse.Namespace) -> int:
     session = SessionReader(args.session)
     plan = [(args.out / camera, [camera]) for camera in args.folds] if args.folds else [(args.out, args.holdout)]
     for out, holdout in plan:
-        grown = [] if args.fixed_regions else region_overrides(session, config, holdout)
-        if grown:
-            print(f"{out}: start and pruning regions grown to hold the subject's visual hull: {', '.join(grown)}")
-        fitted = load_config(args.config, [*args.overrides, *grown]) if grown else config
-        fit = FirstFrameFit(session, fitted, out, holdout=holdout, backend=args.backend, progress=not args.no_progress)
+        fit = FirstFrameFit(session, config, out, holdout=holdout, backend=args.backend, progress=not args.no_progress,
+                            grow_regions=not args.fixed_regions)
+        for grown in fit.grown_regions:
+            print(f"{out}: {grown}")
         info = fit.run()
         resumed = f", resumed from iteration {info.resumed_from}" if info.resumed_from is not None else ""
         print(f"{out}: {info.iterations} iterations{resumed}, {info.num_gaussians} Gaussians, {info.wall_s:.1f} s "

@@ -97,7 +97,6 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     from mmcsplat.pipeline.ingest import ingest
     from mmcsplat.pipeline.landmarks import track_landmarks
     from mmcsplat.pipeline.plates import estimate_plates
-    from mmcsplat.pipeline.regions import region_overrides
     from mmcsplat.pipeline.run_frames import RunStates
     from mmcsplat.pipeline.segment import segment_session
     from mmcsplat.pipeline.track import track_run
@@ -131,11 +130,10 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
         log(f"run: masks: {choice['detail']}")
 
     def fit() -> None:
-        reader = SessionReader(session)
-        grown = region_overrides(reader, load_config(settings.config, settings.overrides))
-        if grown:
-            log(f"run: start and pruning regions grown to hold the subject's visual hull: {', '.join(grown)}")
-        FirstFrameFit(reader, load_config(settings.config, [*settings.overrides, *grown]), run, progress=progress).run()
+        first = FirstFrameFit(SessionReader(session), load_config(settings.config, settings.overrides), run, progress=progress)
+        for grown in first.grown_regions:
+            log(f"run: {grown}")
+        first.run()
 
     def landmarks() -> None:
         track_landmarks(run, "trc", {"path": str(joints)}, keypoints="openpose" if keypoints else None,

@@ -8,6 +8,7 @@ and the final Gaussians.
 
 from __future__ import annotations
 
+import copy
 import logging
 import re
 import time
@@ -87,7 +88,11 @@ def select_cameras(session: SessionReader, holdout: Sequence[str] | None) -> tup
 
 
 class FirstFrameFit:
-    """One first-frame fit, configured by a :class:`Config`; ``run()`` trains (resuming if possible)."""
+    """One first-frame fit, configured by a :class:`Config`; ``run()`` trains (resuming if possible).
+
+    Start and pruning regions too small for the subject's visual hull are grown by their initializers
+    before anything trains (:attr:`grown_regions` says how); ``grow_regions=False`` keeps them as
+    configured, and the initializer then refuses one that does not hold the subject."""
 
     def __init__(
         self,
@@ -98,6 +103,7 @@ class FirstFrameFit:
         backend: str | None = None,
         registry: Registry | None = None,
         progress: bool = True,
+        grow_regions: bool = True,
     ) -> None:
         if re.match(r"[A-Za-z][A-Za-z0-9+.-]+:/", str(out)):  # a URL, even once Path() has folded its '//'
             raise InputError(f"--out {out}: a run directory is a local folder, not a URL (sessions may be URLs, runs may not)")
@@ -127,7 +133,32 @@ class FirstFrameFit:
         self.image_frames = sorted({t for t, _ in self.images})
         self.scene = SceneContext(session, tuple(self.train_cameras[index] for index in first_seen), self.settings.frame, center,
                                   rig_scale(session.cameras, center), tuple(first_seen.values()) if len(self.image_frames) > 1 else ())
+        #: One line per start or pruning region grown to hold the subject (also in run.json's warnings).
+        self.grown_regions = self._grow_regions() if grow_regions else []
         self.views = self._load_views()
+        self.warnings += self.grown_regions
+
+    def _grow_regions(self) -> list[str]:
+        """Let each initializer grow a start or pruning region too small for the subject
+        (:meth:`~mmcsplat.plugin_api.interfaces.Initializer.fit_region`) and build it again with the size it
+        chose; the configuration — run.json's record, the checkpoint's key, what tracking rebuilds — then
+        holds the values in force. Returns what was grown."""
+        values = copy.deepcopy(dict(self.config.values))
+        section = values.get("initializer")
+        tables = section if isinstance(section, list) else [section]
+        grown, notes = [], []
+        for index, (choice, initializer) in enumerate(zip(self.config.plugins("initializer"), self.initializers)):
+            region = initializer.fit_region(self.scene)
+            if region is not None:
+                tables[index][region.parameter] = region.chosen
+                grown.append(index)
+                notes.append(f"initializer {choice.name!r}: {region.describe()}")
+        if grown:
+            self.config = Config(self.config.source, values)
+            choices = self.config.plugins("initializer")
+            for index in grown:
+                self.initializers[index] = choices[index].build(self.registry)
+        return notes
 
     def _load_views(self) -> list[TrainingView]:
         frame = self.settings.frame

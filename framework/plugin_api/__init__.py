@@ -41,6 +41,7 @@ _LAZY = {
     "Landmarks": "interfaces",
     "KeypointObservations": "interfaces",
     "SceneContext": "interfaces",
+    "RegionChoice": "interfaces",
     "TrainingView": "interfaces",
     "TrackingContext": "interfaces",
     "Gaussians": "render_contract",

@@ -9,6 +9,7 @@ defined here beside the interfaces that receive them; the render contract is in
 
 from __future__ import annotations
 
+import functools
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
@@ -18,14 +19,14 @@ import attrs
 import numpy as np
 
 from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.plugin_api.registration import PluginBuilder
 from mmcsplat.scene.camera import Camera
+from mmcsplat.scene.visual_hull import hull_cells, region_reach
 from mmcsplat.storage.curves import TrainingCurve
 
 if TYPE_CHECKING:  # heavy imports only for type checkers
     import torch
 
-    from mmcsplat.configuration.config import Config
-    from mmcsplat.configuration.registry import Registry
     from mmcsplat.storage.session import SessionReader
     from mmcsplat.storage.session.format import SessionFrame
     from mmcsplat.training.model import GaussianModel
@@ -148,10 +149,63 @@ class SceneContext:
         """The image (colour, mask, depth) of ``cameras[index]`` the fit trains on."""
         return self.session.frame(self.frame_of(index), self.cameras[index].name)
 
+    def subject_reach(self, cube: bool) -> np.ndarray | None:
+        """[K] how far each cell of the subject's visual hull lies from ``center``: its largest coordinate
+        (``cube``: the half side of a cube about the centre that holds it) or its length (the radius of a
+        sphere); ``None`` when fewer than two training images have masks or the hull is empty. The hull is
+        carved once per scene, over a cube of half side ``scale``, from the masks of the images the fit
+        trains on: every initializer that sizes or checks a region reads the same one."""
+        cells = self._subject_hull
+        return None if cells is None else region_reach(cells, cube)
+
+    @functools.cached_property
+    def _subject_hull(self) -> np.ndarray | None:
+        """[K, 3] the subject's visual hull cells less ``center`` (:meth:`subject_reach`)."""
+        views = [(camera, self.image(index).mask) for index, camera in enumerate(self.cameras)]
+        views = [(camera, mask) for camera, mask in views if mask is not None]
+        if len(views) < 2:
+            return None
+        center = np.asarray(self.center, dtype=np.float64)
+        cells = hull_cells(views, center, float(self.scale)) - center
+        return cells if len(cells) else None
+
+
+@attrs.frozen
+class RegionChoice:
+    """A start or pruning region an initializer grew to hold the subject (:meth:`Initializer.fit_region`):
+    its parameter ``parameter`` (its own name for it, e.g. ``half_size``), which sizes ``region`` (what it
+    is, e.g. "start cube's half side"), grown from the ``configured`` metres to ``chosen``, for a subject
+    whose visual hull reaches ``reach`` metres from the rig centre."""
+
+    parameter: str
+    region: str
+    configured: float
+    chosen: float
+    reach: float
+
+    def describe(self) -> str:
+        """One line for the console and run.json: what was grown, from what, to what, and why."""
+        return (f"{self.region} grown from {self.configured:g} m to {self.chosen:g} m ({self.parameter}) to hold the subject's "
+                f"visual hull, which reaches {self.reach:.2f} m from the rig centre")
+
 
 class Initializer(ABC):
-    """Places the first Gaussians and may shape the first-frame fit. Initializers compose: each hook has a
-    neutral default, so one initializer can add only pruning or only a loss term."""
+    """Places the first Gaussians or shapes the first-frame fit. Initializers compose: each hook has a
+    neutral default, so one initializer can add only pruning or only a loss term.
+
+    Two roles share this kind. A *placing* initializer (``random``, ``visual-hull``) implements
+    :meth:`initial_gaussians`; a *fit shaper* (``masked``, ``sparsity-pruned``, ``in-view``,
+    ``depth-supervised``) places nothing and shapes what the fit sees and keeps — its targets
+    (:meth:`prepare_target`), extra loss terms (:meth:`extra_loss`) or pruning (:meth:`prune_mask`). They
+    stay one kind, configured as ``[[initializer]]`` tables, because a configuration composes them in one
+    ordered list and every saved run and study records them there."""
+
+    def fit_region(self, scene: SceneContext) -> RegionChoice | None:
+        """The region this initializer needs for ``scene``'s subject when its configured start or pruning
+        region is too small to hold it (:meth:`SceneContext.subject_reach`), or ``None`` to keep its
+        configuration (the default: no region, or one that holds the subject — never shrunk). The fit then
+        builds the initializer again with ``chosen`` as its ``parameter`` and records the choice."""
+        return None
 
     def initial_gaussians(self, scene: SceneContext, generator: torch.Generator) -> Gaussians | None:
         """Initial Gaussians, or ``None`` to leave placement to another initializer in the composition."""
@@ -250,8 +304,9 @@ class TrackingContext:
     backdrops: tuple[torch.Tensor, ...]
     scene_center: Sequence[float]
     scene_scale: float
-    config: Config
-    registry: Registry
+    #: Builds the plugins a method names in its own parameters (the ``deformation`` method's densifier),
+    #: found where the pipeline's own plugins are.
+    plugins: PluginBuilder
     views: Callable[[int], list[TrainingView]]
     progress: bool = True
     overwrite: bool = False

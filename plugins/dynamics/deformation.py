@@ -125,7 +125,7 @@ class _Run:
             self.field = DeformationField(settings.depth, settings.width, settings.frequencies, settings.skip)
         self.optimizer = torch.optim.Adam(self.field.parameters(), lr=settings.lr, eps=1e-15)
         table = settings.densifier_params()
-        self.densifier: Densifier = context.registry.create("densifier", table.pop("name"), **table)
+        self.densifier: Densifier = context.plugins.create("densifier", table.pop("name"), **table)
         self.densify_state = self.densifier.initialize_state(context.scene_scale)
         self.generator = torch.Generator().manual_seed(settings.seed)
         self.times = normalised_times(session, context.frames)
