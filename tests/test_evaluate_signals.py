@@ -19,9 +19,9 @@ from mmcsplat.analysis.drift import detect_drift
 from mmcsplat.analysis.rendered_views import HULL_COVERAGE_LIMIT, HULL_MASK, SESSION_MASK, heldout_mask
 from mmcsplat.cli import main
 from mmcsplat.pipeline.evaluate import failure_signals
-from mmcsplat.pipeline.fit import load_fitted
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.storage.tracks import TrackReader, TrackWriter
+from mmcsplat.training.fitted_run import FittedRun
 
 FRAMES = 3
 
@@ -29,7 +29,7 @@ FRAMES = 3
 def write_true_tracks(run: Path, frames: int, displace: Callable[[int, np.ndarray], np.ndarray] | None = None) -> Path:
     """``run``/tracks.zarr: the fitted true subject following its true motion (:func:`fitting_scene.moved`),
     its centres at frame t passed through ``displace(t, means)`` when given."""
-    _, params, _, _ = load_fitted(run)
+    params = FittedRun.load(run).params
     static = {name: params[name] for name in ("log_scales", "opacity_logits", "color_logits", "seg_logits")}
     with TrackWriter(run, num_frames=frames, static=static, method="truth", attrs={"first_frame": 0}) as writer:
         for t in range(frames):
@@ -138,7 +138,7 @@ def test_a_heldout_view_scored_unmasked_says_why(tracked_run, capsys, monkeypatc
 
 
 def test_the_drift_verdict_says_how_many_gaussians_left_and_since_when(tracked_run, tmp_path):
-    reader = SessionReader(load_fitted(tracked_run)[0].session)
+    reader = SessionReader(FittedRun.load(tracked_run).info.session)
     run = write_fitted_run(tmp_path / "run", reader.url)
     away = np.zeros(len(subject().means), dtype=bool)
     away[:20] = True  # 20 of the 150 Gaussians fly 40 cm up from frame 2 on
