@@ -4,7 +4,8 @@ Besides the scores it records the share of opacity mass outside the masks' visua
 per camera, the share of its mask on the other cameras' visual hull (low: wrong extrinsics or mask). A
 run with tracks (`mmcsplat track`) also gets tracking errors against ground truth, the held-out masked
 PSNR of every frame and a drift report; when no ground-truth point has a Gaussian nearby at the first
-tracked frame, the tracking errors are null, `tracking_error` says why and evaluate warns."""
+tracked frame, the tracking errors are null, `tracking_error` says why and evaluate warns. A run with
+landmarks (`mmcsplat landmarks`) gets their lost landmarks (`lost_landmarks`: which, from which frame)."""
 
 from __future__ import annotations
 
@@ -24,6 +25,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from mmcsplat.analysis.lost_landmarks import lost_line
     from mmcsplat.pipeline.evaluate import evaluate
 
     metrics = evaluate(args.run, backend=args.backend, ground_truth=args.ground_truth)
@@ -40,4 +42,6 @@ def run(args: argparse.Namespace) -> int:
             continue
         value = metrics.get(key)
         print(f"{key:<22} {value:.3f}" if isinstance(value, float) else f"{key:<22} {value}")
+    if "lost_landmarks" in metrics:
+        print(f"{'lost_landmarks':<22} {lost_line(metrics['lost_landmarks'])}")
     return 0

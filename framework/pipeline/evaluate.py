@@ -15,6 +15,7 @@ from mmcsplat.analysis.trajectory_error import evaluate_tracks
 from mmcsplat.analysis.visual_hull import FLOATER_MARGIN_PX, dilated, eroded, floater_share, mask_agreement, projected_hull_mask
 from mmcsplat.configuration.registry import Registry, default_registry
 from mmcsplat.pipeline.fit import fitted_background, load_fitted
+from mmcsplat.pipeline.landmarks import recorded_lost
 from mmcsplat.plugin_api.errors import MissingFileError
 from mmcsplat.plugin_api.render_contract import gaussians_from_params
 from mmcsplat.scene.camera import Camera
@@ -95,7 +96,8 @@ def evaluate_run(run: Path, registry: Registry | None = None, backend: str | Non
     """Score one run directory and write its metrics.json; returns the metrics. A run with tracks
     (``mmcsplat track``) also gets the tracking metrics of :mod:`mmcsplat.analysis.trajectory_error` (against
     ``ground_truth``, or the one found beside the session's source) and the drift report of
-    :mod:`mmcsplat.analysis.drift`. ``floater_share`` is the share of opacity mass outside the visual hull of the
+    :mod:`mmcsplat.analysis.drift`; one with landmarks (``mmcsplat landmarks``) gets their ``lost_landmarks``
+    record. ``floater_share`` is the share of opacity mass outside the visual hull of the
     session's masks at the fitted frame, ``mask_agreement`` per camera the share of its mask on the hull
     of the other cameras' masks (:mod:`mmcsplat.analysis.visual_hull`; low for a camera with wrong extrinsics)."""
     registry = registry or default_registry()
@@ -162,6 +164,8 @@ def evaluate_run(run: Path, registry: Registry | None = None, backend: str | Non
         metrics.update(evaluate_tracks(Path(run), session, info.heldout_cameras, ground_truth, renderer, psnr, background))
         report = detect_drift(TrackReader(run), session, info.train_cameras)
         metrics.update(drift=report.drift, drift_per_frame=report.counts, drift_foreground=report.foreground)
+    if (lost := recorded_lost(run)) is not None:
+        metrics["lost_landmarks"] = lost
     write_json_atomic(Path(run) / METRICS_FILE, metrics)
     return metrics
 
