@@ -8,7 +8,8 @@ scored on the full image only, and a warning says why. A run with tracks (`mmcsp
 tracking errors against ground truth, the held-out scores of every frame (the table shows their mean
 beside the fitted frame's) and a drift report saying how many Gaussians left the subject and since which
 frame; when no ground-truth point has a Gaussian nearby at the first tracked frame, the tracking errors
-are null, `tracking_error` says why and evaluate warns."""
+are null, `tracking_error` says why and evaluate warns. A run with landmarks (`mmcsplat landmarks`) gets
+their lost landmarks (`lost_landmarks`: which, from which frame)."""
 
 from __future__ import annotations
 
@@ -58,6 +59,7 @@ def table(metrics: dict[str, Any]) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
+    from mmcsplat.analysis.lost_landmarks import lost_line
     from mmcsplat.pipeline.evaluate import evaluate
 
     metrics = evaluate(args.run, backend=args.backend, ground_truth=args.ground_truth, allow_incomplete=args.allow_incomplete,
@@ -72,4 +74,6 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(metrics, indent=2))
         return 0
     print("\n".join(table(metrics)))
+    if "lost_landmarks" in metrics:
+        print(f"{'lost_landmarks':<22} {lost_line(metrics['lost_landmarks'])}")
     return 0

@@ -7,7 +7,9 @@ without tracks gives the fitted frame alone). Sources (`mmcsplat plugins landmar
 Where the source knows the landmarks at later frames too, the carried ones are scored against them (3D,
 mm); --keypoints scores them against 2D detections in every camera (px). Their movement measures (speeds,
 paths, ranges, rhythms, left/right symmetry, knee, elbow, hip and shoulder flexion) go to RUN/movement.json
-and RUN/movement.csv. `mmcsplat export RUN --trc/--csv/--c3d` writes the landmarks for OpenSim, Pose2Sim and
+and RUN/movement.csv. Every frame, each landmark is judged against the training cameras' subject masks:
+the landmarks the tracks lost (off the masks in most cameras for 3 frames or more) and from which frame are
+printed and recorded in RUN/landmarks.json. `mmcsplat export RUN --trc/--csv/--c3d` writes the landmarks for OpenSim, Pose2Sim and
 motion-lab tools; `mmcsplat report RUN` plots them.
 """
 
@@ -32,9 +34,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from mmcsplat.analysis.lost_landmarks import lost_line
     from mmcsplat.cli.main import CommandError
     from mmcsplat.pipeline.landmarks import track_landmarks
-    from mmcsplat.storage.run import LANDMARKS_CSV, MOVEMENT_CSV, MOVEMENT_JSON
+    from mmcsplat.storage.run import LANDMARKS_CSV, LANDMARKS_INFO, MOVEMENT_CSV, MOVEMENT_JSON
 
     if args.anchors < 1 or not args.max_distance > 0:
         raise CommandError(f"--anchors must be ≥ 1 and --max-distance > 0, got {args.anchors} and {args.max_distance}")
@@ -49,6 +52,7 @@ def run(args: argparse.Namespace) -> int:
           + (f"; left out (no subject Gaussian within {args.max_distance * 100:.0f} cm): {', '.join(info['unbound'])}" if info["unbound"] else ""))
     print(f"{args.run / MOVEMENT_JSON} and {MOVEMENT_CSV}: the movement measures, {len(result.movement['joint_angles'])} joint angles"
           + (f" ({len(result.movement['joint_angles_left_out'])} left out: their landmarks are absent)" if result.movement["joint_angles_left_out"] else ""))
+    print(f"{args.run / LANDMARKS_INFO}: {lost_line(info['lost'])}")
     accuracy = info.get("accuracy_3d")
     if accuracy and accuracy["median_mm"] is not None:
         moving = (f"; where they moved > 1 cm: {accuracy['moving_median_mm']:.1f} mm against {accuracy['still_moving_median_mm']:.1f} mm held still"

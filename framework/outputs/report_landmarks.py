@@ -1,7 +1,7 @@
 """The "Movement" section of a run's report: the landmarks of ``RUN/landmarks.csv`` as a clinician reads
 them — where each hand and foot went and how fast, how far and how alike the two sides moved, at which
-frequencies, how far the knees, elbows, hips and shoulders bent — with their accuracy
-(``RUN/landmarks.json``) and the overlay video. The measures are read from ``RUN/movement.json`` (computed
+frequencies, how far the knees, elbows, hips and shoulders bent — with the landmarks the tracks lost and
+their accuracy (``RUN/landmarks.json``) and the overlay video. The measures are read from ``RUN/movement.json`` (computed
 by the landmarks step from the tables of :mod:`mmcsplat.analysis.movement`), each shown with its table
 entry's label, unit and sentence. Every figure and table carries one plain sentence on what it shows."""
 
@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from mmcsplat.analysis.lost_landmarks import lost_line, lost_names
 from mmcsplat.analysis.movement import limb_landmarks, movement_summary, speed, speed_spectrum
 from mmcsplat.outputs.report_html import command, esc, image, table, video
 from mmcsplat.storage.landmark_formats import read_landmark_csv
@@ -177,6 +178,21 @@ def accuracy_rows(info: dict[str, Any]) -> list[tuple[str, str]]:
     return rows
 
 
+def lost_html(record: dict[str, Any]) -> str:
+    """The landmarks the tracks lost (RUN/landmarks.json's ``lost``): a sentence, and a table of the lost
+    ones with the first frame and the number of frames each was lost."""
+    rule = record["rule"]
+    parts = [f"<h3>Lost landmarks</h3><p>Where the tracks stopped following the images: a landmark is lost at the frames where it "
+             f"and the Gaussians carrying it fell off the subject mask (by more than {rule['tolerance']:.1%} of the image diagonal) "
+             f"in most training cameras, for {rule['consecutive']} frames in a row or more. {esc(lost_line(record))}.</p>"]
+    lost = lost_names(record)
+    if lost:
+        parts.append(table(["landmark", "first lost frame", "frames lost"],
+                           [(name, entry["first_lost_frame"], len(entry["lost_frames"]))
+                            for name, entry in sorted(lost.items(), key=lambda item: (item[1]["first_lost_frame"], item[0]))]))
+    return "".join(parts)
+
+
 def landmarks_section(run: Path, videos: list[tuple[bytes, str]]) -> str:
     """The section's HTML; ``videos`` are the landmark overlay videos found in RUN/renders (payload, name)."""
     path = Path(run) / LANDMARKS_CSV
@@ -200,6 +216,8 @@ def landmarks_section(run: Path, videos: list[tuple[bytes, str]]) -> str:
         if len(times) >= 8:
             parts.append(image(spectrum_chart(times, limbs), "frequency of the limb movements",
                                "At which rhythms the limbs moved: peaks are the frequencies of repeated movements (short recordings resolve them coarsely)."))
+    if info.get("lost"):
+        parts.append(lost_html(info["lost"]))
     movement_path = Path(run) / MOVEMENT_JSON  # a run carried before movement.json existed: the same tables, computed here
     parts += measures_html(json.loads(movement_path.read_text()) if movement_path.is_file() else movement_summary(names, times, positions), times)
     rows = accuracy_rows(info)

@@ -14,6 +14,7 @@ from mmcsplat.analysis.rendered_views import SESSION_MASK, ScoringMask, heldout_
 from mmcsplat.analysis.trajectory_error import evaluate_tracks
 from mmcsplat.analysis.visual_hull import FLOATER_MARGIN_PX, dilated, eroded, floater_share, mask_agreement
 from mmcsplat.configuration.registry import Registry, default_registry
+from mmcsplat.pipeline.landmarks import recorded_lost
 from mmcsplat.plugin_api.errors import MissingFileError
 from mmcsplat.plugin_api.render_contract import gaussians_from_params
 from mmcsplat.scene.camera import Camera
@@ -94,7 +95,8 @@ def evaluate_run(run: Path, registry: Registry | None = None, backend: str | Non
     (``mmcsplat track``) also gets the tracking metrics of :mod:`mmcsplat.analysis.trajectory_error` (against
     ``ground_truth``, or the one found beside the session's source) and the drift report of
     :mod:`mmcsplat.analysis.drift` (the verdict explained in ``drift_summary``), and the held-out cameras'
-    scores at every tracked frame (:func:`~mmcsplat.analysis.rendered_views.tracked_heldout_scores`). A
+    scores at every tracked frame (:func:`~mmcsplat.analysis.rendered_views.tracked_heldout_scores`); one
+    with landmarks (``mmcsplat landmarks``) gets their ``lost_landmarks`` record. A
     held-out camera without a mask is scored in the training cameras' hull as it projects there
     (:func:`~mmcsplat.analysis.rendered_views.heldout_mask`), or on the full image only with the reason in
     ``per_camera[…]["unmasked"]`` and ``warnings``. ``floater_share`` is the share of opacity mass outside the
@@ -175,6 +177,8 @@ def evaluate_run(run: Path, registry: Registry | None = None, backend: str | Non
         report = detect_drift(TrackReader(run), session, info.train_cameras)
         metrics.update(drift=report.drift, drift_summary=report.explain(), drift_since_frame=report.since, drift_gaussians=len(report.drifted),
                        drift_per_frame=report.counts, drift_foreground=report.foreground)
+    if (lost := recorded_lost(run)) is not None:
+        metrics["lost_landmarks"] = lost
     write_json_atomic(Path(run) / METRICS_FILE, metrics)
     return metrics
 

@@ -6,13 +6,16 @@ capture's joints) at the run's fitted frame are bound to the subject's Gaussians
 its frames (:mod:`mmcsplat.analysis.landmark_binding`). Where the source also knows the landmarks at later
 frames, the carried ones are scored against them (3D, mm); where a keypoint source gives 2D detections,
 the carried landmarks are projected into each camera and scored against them (px), beside the detector's
-own disagreement with the source's 3D landmarks.
+own disagreement with the source's 3D landmarks. Every frame, each landmark is judged against the training
+cameras' subject masks, and the frames where the tracks lost it are recorded
+(:mod:`mmcsplat.analysis.lost_landmarks`).
 """
 
 from __future__ import annotations
 
 import csv
 import io
+import json
 import warnings
 from pathlib import Path
 from typing import Any
@@ -21,6 +24,7 @@ import attrs
 import numpy as np
 
 from mmcsplat.analysis.landmark_binding import ANCHORS, MAX_DISTANCE, bind_landmarks, carry, confidence, landmark_accuracy
+from mmcsplat.analysis.lost_landmarks import LostRule, lost_record, off_at_frame
 from mmcsplat.analysis.movement import joint_angle_accuracy, movement_rows, movement_summary
 from mmcsplat.configuration.registry import Registry, default_registry
 from mmcsplat.pipeline.run_frames import RunStates
@@ -119,10 +123,14 @@ def track_landmarks(run: str | Path, source: str, params: dict[str, Any] | None 
     with run_lock(run), run_log(run) as log:
         carried = np.empty((len(frames), len(reference.names), 3))
         spread = np.empty((len(frames), len(reference.names)))
+        rule, off, judged = LostRule(), np.zeros((len(frames), len(reference.names)), dtype=bool), np.zeros(len(frames), dtype=bool)
         for k in range(len(frames)):
             params_k = states.params(k)
-            carried[k], spread[k] = carry(binding, params_k["means"].detach().numpy().astype(np.float64),
-                                          params_k["quats"].detach().numpy().astype(np.float64))
+            means = params_k["means"].detach().numpy().astype(np.float64)
+            carried[k], spread[k] = carry(binding, means, params_k["quats"].detach().numpy().astype(np.float64))
+            off_k = off_at_frame(session, states.info.train_cameras, int(frames[k]), binding, carried[k], means, rule)
+            judged[k] = off_k is not None
+            off[k] = False if off_k is None else off_k
         times = session.frame_times[frames]
         write_landmark_csv(run / LANDMARKS_CSV, reference.names, frames, times, carried,
                            extra={"spread_mm": spread * 1000, "confidence": confidence(spread)})
@@ -134,6 +142,8 @@ def track_landmarks(run: str | Path, source: str, params: dict[str, Any] | None 
             "spread_median_mm": float(np.nanmedian(spread) * 1000) if np.isfinite(spread).any() else None,
             "incomplete": bool(unfinished), "unfinished": unfinished,
         }
+        info["lost"] = lost_record(reference.names, binding.bound, frames, off, judged, rule,
+                                   {camera.name: rule.tolerance_px(camera) for camera in states.train_cameras})
         if len(frames) > 1 and np.isfinite(reference.positions[1:]).any():
             info["accuracy_3d"] = attrs.asdict(landmark_accuracy(reference.names, carried, reference.positions))
             info["accuracy_joint_angles"] = joint_angle_accuracy(reference.names, carried, reference.positions)
@@ -148,6 +158,13 @@ def track_landmarks(run: str | Path, source: str, params: dict[str, Any] | None 
             warnings.warn(f"landmarks {', '.join(binding.unbound)}: no subject Gaussian within {max_distance * 100:.0f} cm at frame "
                           f"{states.first_frame} — left out (NaN), not invented", stacklevel=2)
     return LandmarkRun(Landmarks(reference.names, frames, carried, source=f"carried by {run}"), spread, info, movement)
+
+
+def recorded_lost(run: str | Path) -> dict[str, Any] | None:
+    """The ``lost`` record of RUN/landmarks.json (:func:`~mmcsplat.analysis.lost_landmarks.lost_record`);
+    ``None`` for a run without landmarks or carried before lost landmarks were recorded."""
+    path = Path(run) / LANDMARKS_INFO
+    return json.loads(path.read_text()).get("lost") if path.is_file() else None
 
 
 def _accuracy_2d(registry: Registry, name: str, params: dict[str, Any] | None, session: SessionReader, heldout: set[str],
