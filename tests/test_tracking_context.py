@@ -12,6 +12,9 @@ from mmcsplat import Registration, hookimpl
 from mmcsplat.configuration.registry import Registry
 from mmcsplat.pipeline.track import track_run
 from mmcsplat.plugin_api.interfaces import Densifier, Dynamics, TrackingContext
+from mmcsplat.storage.tracks import TrackWriter
+
+MOVING = ("means", "quats")
 
 
 class MarkedDensifier(Densifier):
@@ -30,6 +33,10 @@ class DensifierBuildingDynamics(Dynamics):
 
     def track(self, context: TrackingContext, out) -> dict:
         densifier = context.plugins.create("densifier", "marked")
+        static = {name: value for name, value in context.params.items() if name not in MOVING}
+        with TrackWriter(out, num_frames=len(context.frames), static=static, method="densifier-building") as writer:
+            for k in range(len(context.frames)):  # tracks it must write: the fitted Gaussians held still
+                writer.write_frame(k, **{name: context.params[name] for name in MOVING})
         return {"densifier": type(densifier).__name__, "state": densifier.initialize_state(context.scene_scale)}
 
 
