@@ -94,6 +94,7 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     from mmcsplat.outputs.report import write_report
     from mmcsplat.pipeline.evaluate import evaluate
     from mmcsplat.pipeline.fit import FirstFrameFit
+    from mmcsplat.pipeline.flow import compute_flow, flow_complete
     from mmcsplat.pipeline.ingest import ingest
     from mmcsplat.pipeline.landmarks import track_landmarks
     from mmcsplat.pipeline.plates import estimate_plates
@@ -148,10 +149,10 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
         # Into a hidden sibling renamed into place: a session half segmented is not a session.
         Step("ingest + masks + plates", session.exists, lambda: made_in_place(session, prepare)),
         Step("first-frame fit", lambda: fit_complete(run), fit),
+        Step("optical flow", lambda: flow_complete(session), lambda: compute_flow(session, progress=progress)),
         Step("track (iterative)", lambda: fresh([run / TRACKS_DIR, run / TRACK_INFO], [run / RUN_INFO]),
              lambda: track_run(run, dynamics="iterative", overrides=[f"dynamics.iterations={settings.track_iterations}"], progress=progress,
                                overwrite=True)),
-        Step("evaluate", lambda: fresh([run / METRICS_FILE], [run / TRACK_INFO]), lambda: evaluate(run)),
     ]
     if joints is not None:
         steps += [
@@ -159,7 +160,10 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
             Step("render landmarks", lambda: bool(rendered("landmarks_*.mp4")) and fresh(rendered("landmarks_*.mp4"), [run / LANDMARKS_CSV]),
                  lambda: render_landmarks(run, _made(renders), progress=progress)),
         ]
+    # After the landmarks, so that metrics.json carries their lost-landmark record.
+    scored = [run / TRACK_INFO, *([run / LANDMARKS_INFO] if joints is not None else [])]
     steps += [
+        Step("evaluate", lambda: fresh([run / METRICS_FILE], scored), lambda: evaluate(run)),
         Step("render trajectories", lambda: bool(rendered("trajectories_*.png")) and fresh(rendered("trajectories_*.png"), [run / TRACK_INFO]),
              lambda: render_trajectories(RunRenderer(RunStates(run), progress=progress), _made(renders))),
         Step("report", lambda: fresh([run / REPORT_FILE], [run / METRICS_FILE]), lambda: write_report(run)),

@@ -175,9 +175,10 @@ def run_demo(out: Path, settings: DemoSettings = DemoSettings(), progress: bool 
              lambda: FirstFrameFit(SessionReader(paths.session), config, run, backend=settings.backend, progress=progress).run()),
         Step(f"track ({method})", lambda: fresh([paths.tracks, paths.track_info], [fitted]),
              lambda: track_run(run, dynamics=method, overrides=track_overrides, backend=settings.backend, progress=progress, overwrite=True)),
-        Step("evaluate", lambda: fresh([paths.metrics], [paths.track_info]), lambda: evaluate(run, backend=settings.backend)),
         Step("landmarks", lambda: fresh([paths.landmarks_csv, paths.landmarks_info, paths.landmarks_trc, paths.movement], [paths.track_info]),
              landmarks),
+        # After the landmarks, so that metrics.json carries their lost-landmark record.
+        Step("evaluate", lambda: fresh([paths.metrics], [paths.track_info, paths.landmarks_info]), lambda: evaluate(run, backend=settings.backend)),
         Step("render trajectories", lambda: fresh([paths.trajectories_video, paths.trajectories_strip], [paths.track_info]), render_trajectories_step),
         Step("render landmarks", lambda: fresh([paths.landmarks_video], [paths.landmarks_csv]),
              lambda: render_landmarks(run, paths.renders, SYNTHETIC_HELDOUT[0], progress=progress)),

@@ -94,6 +94,13 @@ def flow_pair(first: np.ndarray, second: np.ndarray, dis: cv2.DISOpticalFlow) ->
     return FlowPair(forward, backward, consistency(forward, backward), consistency(backward, forward))
 
 
+def flow_complete(url: str | os.PathLike, cameras: Sequence[str] | None = None, preset: str = DEFAULT_PRESET) -> bool:
+    """Whether the session holds the flow of ``cameras`` (default: its training cameras) computed with ``preset``."""
+    stored = SessionFlow(url)
+    names = tuple(cameras) if cameras else SessionReader(url, cache_bytes=0).train_cameras
+    return stored.method == method_record(preset) and stored.cameras_with_flow == names
+
+
 def compute_flow(url: str | os.PathLike, cameras: Sequence[str] | None = None, preset: str = DEFAULT_PRESET, *,
                  progress: bool = True) -> list[FlowSummary]:
     """Compute and store the flow of ``cameras`` (default: the session's training cameras), resuming an
@@ -105,8 +112,7 @@ def compute_flow(url: str | os.PathLike, cameras: Sequence[str] | None = None, p
     names = tuple(cameras) if cameras else session.train_cameras
     for name in names:
         session.camera(name)
-    stored = SessionFlow(url)
-    if stored.method == method_record(preset) and stored.cameras_with_flow == names:
+    if flow_complete(url, names, preset):
         return [FlowSummary(name, 0, int(pair_present(session.present(name)).sum()), None, None) for name in names]
     summaries = []
     with FlowWriter(url, method=method_record(preset), cameras=names) as writer:
