@@ -55,6 +55,13 @@ def test_flow_loss_and_coarse_to_fine_track_the_subject(scene):
     assert error < 0.3 * standing, (error, standing)
 
 
+def test_coarse_iterations_must_leave_full_size_ones(scene, capsys):
+    root, session = scene
+    run = write_fitted_run(root / "all-coarse", session, TRUTH)
+    assert main(["track", str(run), "--no-progress", "--set", "dynamics.iterations=10", "--set", "dynamics.coarse_iterations=10"]) != 0
+    assert "dynamics.coarse_iterations" in capsys.readouterr().err
+
+
 def test_flow_loss_without_flow_is_an_error_naming_the_session(tmp_path, capsys):
     session = write_session(tmp_path / "scene.zarr", frames=2, truth=TRUTH)
     run = write_fitted_run(tmp_path / "run", session, TRUTH)

@@ -15,7 +15,9 @@ first frame's scene (its depth maps, its region), and pruning would change the s
 frame of the tracks holds.
 
 Options: ``lambda_flow`` adds the flow loss (:mod:`mmcsplat.training.motion_image`: the rendered motion
-since the previous frame against the session's observed flow on the subject's pixels); ``stop_window``
+since the previous frame against the session's observed flow on the subject's pixels);
+``coarse_iterations`` fits each frame's first steps at reduced resolution
+(:mod:`mmcsplat.training.coarse_views`); ``stop_window``
 ends a frame's fit when its loss stops improving (:class:`~mmcsplat.training.loop.PlateauStop`), with
 ``iterations`` the cap; ``track.json`` records each frame's iterations.
 """
@@ -96,11 +98,11 @@ class IterativeDynamics(Dynamics):
                                    "optical flow on the subject's pixels, in pixels (0: off; needs `mmcsplat flow`)", validator=at_least(0))
     stop_window: int = parameter(0, doc="end a frame's fit when the mean loss over this many steps stops improving (0: always "
                                  "`iterations`, the cap)", validator=at_least(0))
+    stop_tolerance: float = parameter(0.0, doc="relative improvement of that mean below which the frame has converged",
+                                      validator=at_least(0))
     coarse_iterations: int = parameter(0, doc="each frame's first steps at 1/coarse_factor resolution, so a limb that moved "
                                        "more than its width still has a gradient (0: off)", validator=at_least(0))
     coarse_factor: int = parameter(2, doc="resolution reduction of the coarse steps (pixel blocks averaged)", validator=at_least(2))
-    stop_tolerance: float = parameter(0.0, doc="relative improvement of that mean below which the frame has converged",
-                                      validator=at_least(0))
 
     # ------------------------------------------------------------------------------------------ setup
 
@@ -128,6 +130,9 @@ class IterativeDynamics(Dynamics):
         """Fit every frame after the first; returns per-frame results and the neighbour graph's size."""
         from tqdm import tqdm
 
+        if 0 < self.iterations <= self.coarse_iterations:
+            raise InputError(f"dynamics.coarse_iterations = {self.coarse_iterations} leaves none of the {self.iterations} iterations per frame "
+                             "at full size: set it below dynamics.iterations")
         model = self._model(context)
         params = model.params
         foreground = torch.sigmoid(params["seg_logits"].detach()[:, 0]) > self.foreground
@@ -252,13 +257,16 @@ class IterativeDynamics(Dynamics):
                 gaussians = with_motion(gaussians, previous_means, view_cameras)
             return Sample(view, view_cameras, gaussians)
 
-        def remember(step: Step) -> None:  # each camera's last loss and PSNR (from every 10th step on, all of the last pass)
-            if step.number >= self.iterations - len(views) or step.number % 10 == 0:
+        def remember(step: Step) -> None:  # each camera's last full-size loss and PSNR (every 10th step, all of the last pass;
+            # all of them when the frame may stop early)
+            last_pass = step.number >= self.iterations - len(views) or step.number % 10 == 0 or stop is not None
+            if step.number >= stages.coarse_steps and last_pass:
                 recent[step.view.index] = (step.loss.item(), step.psnr())
 
         run = functools.partial(loop.run, sample=sample, record=remember, where=f"frame {t}", desc=f"frame {t}",
                                 progress=context.progress, leave=False)
-        run(range(stages.coarse_steps))  # the stopping rule judges the full-size steps only: their losses compare
+        if stages.coarse_steps:  # the stopping rule judges the full-size steps only: their losses compare
+            run(range(stages.coarse_steps))
         done = run(range(stages.coarse_steps, self.iterations), stop=stop)
         last = np.array(list(recent.values())).reshape(-1, 2)
         mean = last.mean(axis=0).tolist() if len(last) else [None, None]
