@@ -13,10 +13,18 @@ Each step is the fit's training step (:class:`~mmcsplat.training.loop.TrainingLo
 its extra loss term. It leaves out the initializers' extra losses and pruning: they are defined on the
 first frame's scene (its depth maps, its region), and pruning would change the set of Gaussians every
 frame of the tracks holds.
+
+Options: ``lambda_flow`` adds the flow loss (:mod:`mmcsplat.training.motion_image`: the rendered motion
+since the previous frame against the session's observed flow on the subject's pixels);
+``coarse_iterations`` fits each frame's first steps at reduced resolution
+(:mod:`mmcsplat.training.coarse_views`); ``stop_window``
+ends a frame's fit when its loss stops improving (:class:`~mmcsplat.training.loop.PlateauStop`), with
+``iterations`` the cap; ``track.json`` records each frame's iterations.
 """
 
 from __future__ import annotations
 
+import functools
 import logging
 import time
 from pathlib import Path
@@ -26,14 +34,18 @@ import attrs
 import numpy as np
 import torch
 
+from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.interfaces import Dynamics, TrackingContext, TrainingView
 from mmcsplat.plugin_api.parameters import above, at_least, between, one_of, parameter
 from mmcsplat.plugin_api.render_contract import RenderCameras, RenderOutput
 from mmcsplat.scene.gaussian_table import GAUSSIAN_PARAMETERS
+from mmcsplat.storage.session.flow import FlowPair, SessionFlow, pair_present
 from mmcsplat.storage.tracks import TrackWriter
+from mmcsplat.training.coarse_views import CoarseToFine
 from mmcsplat.training.flow_prediction import FlowGuidance, FlowPrediction
-from mmcsplat.training.loop import LossTerm, Sample, Step, TrainingLoop
+from mmcsplat.training.loop import LossTerm, PlateauStop, Sample, Step, TrainingLoop
 from mmcsplat.training.model import GaussianModel
+from mmcsplat.training.motion_image import FlowLoss, with_motion
 from mmcsplat.training.schedule import CameraSchedule
 
 from .rigidity import NeighbourGraph, RigidityPrior
@@ -52,6 +64,7 @@ class FrameResult:
     CPU time is the steadier measure)."""
 
     frame: int
+    iterations: int
     loss: float | None
     psnr: float | None
     cameras: int
@@ -81,6 +94,15 @@ class IterativeDynamics(Dynamics):
     predict: str = parameter("flow", doc="each frame's start: 'flow' moves the foreground by the session's optical flow lifted to 3D "
                              "(constant velocity without flow), 'constant-velocity' moves everything by its last change",
                              validator=one_of("flow", "constant-velocity"))
+    lambda_flow: float = parameter(0.0, doc="weight of the flow loss: rendered motion since the previous frame against the session's "
+                                   "optical flow on the subject's pixels, in pixels (0: off; needs `mmcsplat flow`)", validator=at_least(0))
+    stop_window: int = parameter(0, doc="end a frame's fit when the mean loss over this many steps stops improving (0: always "
+                                 "`iterations`, the cap)", validator=at_least(0))
+    stop_tolerance: float = parameter(0.0, doc="relative improvement of that mean below which the frame has converged",
+                                      validator=at_least(0))
+    coarse_iterations: int = parameter(0, doc="each frame's first steps at 1/coarse_factor resolution, so a limb that moved "
+                                       "more than its width still has a gradient (0: off)", validator=at_least(0))
+    coarse_factor: int = parameter(2, doc="resolution reduction of the coarse steps (pixel blocks averaged)", validator=at_least(2))
 
     # ------------------------------------------------------------------------------------------ setup
 
@@ -108,12 +130,19 @@ class IterativeDynamics(Dynamics):
         """Fit every frame after the first; returns per-frame results and the neighbour graph's size."""
         from tqdm import tqdm
 
+        if 0 < self.iterations <= self.coarse_iterations:
+            raise InputError(f"dynamics.coarse_iterations = {self.coarse_iterations} leaves none of the {self.iterations} iterations per frame "
+                             "at full size: set it below dynamics.iterations")
         model = self._model(context)
         params = model.params
         foreground = torch.sigmoid(params["seg_logits"].detach()[:, 0]) > self.foreground
         graph = NeighbourGraph.build(params["means"], foreground, self.neighbours, self.lambda_w)
         prior = RigidityPrior(graph)
-        loop = TrainingLoop(model, context.renderer, context.settings, lambda_seg=self.lambda_seg, terms=[self._rigidity(prior, model)])
+        flow = self._loss_flow(context)
+        flow_loss = FlowLoss(self.lambda_flow) if flow is not None else None
+        terms = [self._rigidity(prior, model), *([flow_loss] if flow_loss is not None else [])]
+        loop = TrainingLoop(model, context.renderer, context.settings, lambda_seg=self.lambda_seg, terms=terms)
+        stop = PlateauStop(self.stop_window, tolerance=self.stop_tolerance) if self.stop_window else None
         cameras = RenderCameras.each(context.cameras)
         generator = torch.Generator().manual_seed(self.seed)
         static = {name: params[name].detach() for name in self._static_names()}
@@ -130,11 +159,13 @@ class IterativeDynamics(Dynamics):
                 prior.remember(params["means"], params["quats"])
                 previous = self._predict(model, previous, motion, context.frames[k - 1])
                 model.reset_moments(RESET_EACH_FRAME)
-                result = self._fit_frame(loop, context, cameras, t, generator)
+                if flow_loss is not None:
+                    flow_loss.observe(self._flow_pairs(flow, context, t))
+                result = self._fit_frame(loop, context, cameras, t, generator, previous[0] if flow_loss is not None else None, stop)
                 results.append(result)
                 writer.write_frame(k, **self._dynamic(model))
                 if result.loss is not None:
-                    context.curve.log(step=k * self.iterations, frame=t, loss=result.loss, psnr=result.psnr, gaussians=model.count)
+                    context.curve.log(step=sum(r.iterations for r in results), frame=t, loss=result.loss, psnr=result.psnr, gaussians=model.count)
                     frames.set_postfix(loss=f"{result.loss:.4f}", psnr=f"{result.psnr:.2f}")
         return {
             "iterations_per_frame": self.iterations,
@@ -142,6 +173,7 @@ class IterativeDynamics(Dynamics):
             "neighbour_distance_median_m": float(graph.distances.median()),
             "frames": [attrs.asdict(result) for result in results],
             "prediction": "constant-velocity" if motion is None else "flow",
+            "flow_loss": flow_loss is not None,
             **({"flow_fallback_gaussians": motion.fallbacks} if motion is not None else {}),
         }
 
@@ -151,6 +183,26 @@ class IterativeDynamics(Dynamics):
             rigid, rot, iso = prior.losses(model.params["means"], model.params["quats"])
             return self.lambda_rigid * rigid + self.lambda_rot * rot + self.lambda_iso * iso
         return term
+
+    def _loss_flow(self, context: TrackingContext) -> SessionFlow | None:
+        """The session's flow for the flow loss when ``lambda_flow`` asks for it; an error naming the session
+        when it cannot be had."""
+        if self.lambda_flow == 0:
+            return None
+        if context.frames.step != 1:
+            raise InputError(f"dynamics.lambda_flow needs consecutive frames (the flow links frame t to t+1), but the frames step by "
+                             f"{context.frames.step}: track every frame or set dynamics.lambda_flow=0")
+        flow = SessionFlow(context.session.url)
+        if not any(flow.has(camera.name) for camera in context.cameras):
+            raise InputError(f"dynamics.lambda_flow needs the optical flow of {context.session.url}, which has none in the training "
+                             f"cameras: run `mmcsplat flow {context.session.url}` or set dynamics.lambda_flow=0")
+        return flow
+
+    @staticmethod
+    def _flow_pairs(flow: SessionFlow, context: TrackingContext, t: int) -> dict[str, FlowPair]:
+        """Each training camera's stored flow from session frame ``t − 1`` to ``t``, where it has that pair."""
+        return {camera.name: flow.pair(t - 1, camera.name) for camera in context.cameras
+                if flow.has(camera.name) and pair_present(flow.present(camera.name))[t - 1]}
 
     @staticmethod
     def _unit(quats: torch.Tensor) -> torch.Tensor:
@@ -188,24 +240,34 @@ class IterativeDynamics(Dynamics):
         return means, quats
 
     def _fit_frame(self, loop: TrainingLoop, context: TrackingContext, cameras: tuple[RenderCameras, ...], t: int,
-                   generator: torch.Generator) -> FrameResult:
+                   generator: torch.Generator, previous_means: torch.Tensor | None, stop: PlateauStop | None) -> FrameResult:
+        """Fit session frame ``t``; with ``previous_means`` each render carries the motion image since them."""
         began, cpu = time.perf_counter(), time.process_time()
         views = context.views(t)
         if not views:
-            return FrameResult(t, None, None, 0, time.perf_counter() - began, time.process_time() - cpu)
+            return FrameResult(t, 0, None, None, 0, time.perf_counter() - began, time.process_time() - cpu)
         schedule = CameraSchedule(len(views), generator)
+        stages = CoarseToFine(views, cameras, self.coarse_factor, min(self.coarse_iterations, self.iterations))
         recent: dict[int, tuple[float, float]] = {}
 
         def sample(step: int) -> Sample:
-            view = views[schedule.next()]
-            return Sample(view, cameras[view.index], loop.model.gaussians())
+            view, view_cameras = stages.at(step, schedule.next())
+            gaussians = loop.model.gaussians()
+            if previous_means is not None:
+                gaussians = with_motion(gaussians, previous_means, view_cameras)
+            return Sample(view, view_cameras, gaussians)
 
-        def remember(step: Step) -> None:  # each camera's last loss and PSNR (from every 10th step on, all of the last pass)
-            if step.number >= self.iterations - len(views) or step.number % 10 == 0:
+        def remember(step: Step) -> None:  # each camera's last full-size loss and PSNR (every 10th step, all of the last pass;
+            # all of them when the frame may stop early)
+            last_pass = step.number >= self.iterations - len(views) or step.number % 10 == 0 or stop is not None
+            if step.number >= stages.coarse_steps and last_pass:
                 recent[step.view.index] = (step.loss.item(), step.psnr())
 
-        loop.run(range(self.iterations), sample, record=remember, where=f"frame {t}", desc=f"frame {t}", progress=context.progress,
-                 leave=False)
+        run = functools.partial(loop.run, sample=sample, record=remember, where=f"frame {t}", desc=f"frame {t}",
+                                progress=context.progress, leave=False)
+        if stages.coarse_steps:  # the stopping rule judges the full-size steps only: their losses compare
+            run(range(stages.coarse_steps))
+        done = run(range(stages.coarse_steps, self.iterations), stop=stop)
         last = np.array(list(recent.values())).reshape(-1, 2)
         mean = last.mean(axis=0).tolist() if len(last) else [None, None]
-        return FrameResult(t, mean[0], mean[1], len(views), time.perf_counter() - began, time.process_time() - cpu)
+        return FrameResult(t, done, mean[0], mean[1], len(views), time.perf_counter() - began, time.process_time() - cpu)
