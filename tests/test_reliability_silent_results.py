@@ -125,6 +125,23 @@ def test_missing_or_garbled_metadata_names_the_array(fitted):
         SessionReader(session)
 
 
+def test_a_capture_moved_after_ingest_says_its_ground_truth_is_gone(fitted, tmp_path, capsys):
+    import zarr
+
+    session, run = fitted
+    assert main(["track", str(run), "--dynamics", "iterative", "--set", "dynamics.iterations=2", "--no-progress"]) == 0
+    group = zarr.open_group(str(session), mode="r+")
+    moved = tmp_path / "capture" / "ground_truth.zarr"  # recorded at ingest, then the capture moved
+    group.attrs["provenance"] = {**group.attrs["provenance"], "reader": {"ground_truth": str(moved)}}
+    capsys.readouterr()
+    assert main(["evaluate", str(run), "--no-progress"]) == 0
+    err = capsys.readouterr().err
+    assert f"tracking errors not measured: the capture's ground truth {moved} (recorded at ingest) is gone" in err
+    assert "pass --ground-truth PATH" in err
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["tracking_median_mm"] is None and "is gone" in metrics["tracking_error"]
+
+
 # ------------------------------------------------------------------ a run is bound to its recording
 
 

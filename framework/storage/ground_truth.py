@@ -39,6 +39,15 @@ def ground_truth_beside(session: SessionReader) -> Path | None:
     return candidate if candidate.is_dir() else None
 
 
+def ground_truth_gone(session: SessionReader) -> Path | None:
+    """The ground truth the session's capture shipped at ingest (recorded in its provenance) when it is no
+    longer there: the capture was moved or deleted, and tracking cannot be scored without ``--ground-truth``."""
+    recorded = session.provenance.get("reader", {}).get("ground_truth")
+    if not recorded or Path(recorded).is_dir():
+        return None
+    return Path(recorded)
+
+
 class GroundTruthReader:
     """A capture's ground truth, opened from the capture folder or from the zarr group itself. ``frames`` are a frame index (→ [P, 3]), a slice or a sequence of indices (→ [T', P, 3])."""
 
