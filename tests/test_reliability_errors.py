@@ -165,3 +165,17 @@ def test_a_landmark_source_without_its_file_says_what_to_set(scene, tmp_path, ca
     assert main(["landmarks", str(run), "--source", "trc"]) == 2
     err = capsys.readouterr().err
     assert "landmarks 'trc': set path=… (the .trc file), a required parameter (--set path=VALUE" in err and err.count("\n") == 1
+
+
+@pytest.mark.parametrize("target, message", [("folder", "is a folder: name a file to write"), ("missing/x.trc", "its folder")])
+def test_a_landmark_export_onto_a_folder_or_below_a_missing_one_names_it(tmp_path, capsys, target, message):
+    import numpy as np
+
+    from mmcsplat.storage.landmark_formats import write_landmark_csv
+
+    run = write_fitted_run(tmp_path / "run", write_session(tmp_path / "s.zarr", frames=1))
+    write_landmark_csv(run / "landmarks.csv", ["knee"], np.array([0]), np.array([0.0]), np.zeros((1, 1, 3)))
+    (tmp_path / "folder").mkdir()
+    assert main(["export", str(run), "--trc", str(tmp_path / target)]) == 2
+    err = capsys.readouterr().err
+    assert message in err and str(tmp_path / target) in err and ".tmp" not in err
