@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rig_fixtures as rig
-from fitting_scene import write_config, write_fitted_run, write_session
+from fitting_scene import subject, write_config, write_fitted_run, write_session
 
 from mmcsplat.cli.main import main
 from mmcsplat.storage.calibration import write_calibration
@@ -171,6 +171,23 @@ def test_a_run_refuses_a_session_replaced_by_another_recording(fitted, tmp_path,
     assert f"run {run} was fitted on another recording than {session} holds" in err and "re-fit with a new --out" in err
     assert len(err.strip().splitlines()) == 1
     assert not (run / "tracks.zarr").exists() and not (run / "metrics.json").exists() and not (tmp_path / "export").exists()
+
+
+@pytest.mark.parametrize("command", [["evaluate"], ["export", "--ply", "EXPORT"]])
+def test_tracks_copied_from_another_run_are_refused(fitted, tmp_path, capsys, command):
+    import shutil
+
+    session, run = fitted
+    other = write_fitted_run(tmp_path / "other", session, truth=subject(seed=1))
+    assert main(["track", str(other), "--dynamics", "iterative", "--set", "dynamics.iterations=1", "--no-progress"]) == 0
+    shutil.copytree(other / "tracks.zarr", run / "tracks.zarr")
+    capsys.readouterr()
+    args = [str(tmp_path / "export") if arg == "EXPORT" else arg for arg in command]
+    assert main([args[0], str(run), *args[1:]]) == 2
+    err = capsys.readouterr().err
+    assert f"{run / 'tracks.zarr'} were tracked from another fit than {run / 'checkpoint.pt'}" in err and "--overwrite" in err
+    assert not (run / "metrics.json").exists() and not (tmp_path / "export").exists()
+    assert main(["evaluate", str(other)]) == 0  # the run they belong to reads them
 
 
 def test_a_session_replaced_by_a_shorter_one_is_another_recording(fitted, capsys):
