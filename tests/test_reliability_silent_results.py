@@ -142,6 +142,24 @@ def test_a_capture_moved_after_ingest_says_its_ground_truth_is_gone(fitted, tmp_
     assert metrics["tracking_median_mm"] is None and "is gone" in metrics["tracking_error"]
 
 
+def test_the_ground_truth_of_another_capture_is_refused(tmp_path, capsys):
+    captures = {}
+    for seed in (0, 1):
+        captures[seed] = tmp_path / f"capture{seed}"
+        assert main(["synth", str(captures[seed]), "--num-frames", "2", "--num-cameras", "4", "--width", "48", "--height", "36",
+                     "--seed", str(seed), "--no-progress"]) == 0
+    assert main(["ingest", str(captures[0]), str(tmp_path / "s.zarr"), "--no-progress"]) == 0
+    run = write_fitted_run(tmp_path / "run", tmp_path / "s.zarr")
+    assert main(["track", str(run), "--dynamics", "iterative", "--set", "dynamics.iterations=1", "--no-progress"]) == 0
+    capsys.readouterr()
+    other = captures[1] / "ground_truth.zarr"
+    assert main(["evaluate", str(run), "--ground-truth", str(other), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert f"{other} is the ground truth of another capture than session {tmp_path / 's.zarr'} was ingested from" in err
+    assert not (run / "metrics.json").exists()
+    assert main(["evaluate", str(run), "--ground-truth", str(captures[0] / "ground_truth.zarr"), "--no-progress"]) == 0
+
+
 # ------------------------------------------------------------------ a run is bound to its recording
 
 

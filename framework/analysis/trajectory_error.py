@@ -130,7 +130,9 @@ def evaluate_tracks(run: Path, session: SessionReader, heldout: list[str], groun
             metrics["tracking_error"] = (f"the capture's ground truth {gone} (recorded at ingest) is gone — the capture was moved or deleted: "
                                          "pass --ground-truth PATH")
         return metrics
-    truth = GroundTruthReader(path).points("surface_points", session.capture_frames(frames), "the tracks need frame")
+    reader = GroundTruthReader(path)
+    reader.require_truth_of(session)
+    truth = reader.points("surface_points", session.capture_frames(frames), "the tracks need frame")
     metrics.update(tracking_ground_truth=str(path), tracking_ground_truth_points=int(truth.shape[1]))
     try:
         accuracy = tracking_accuracy(tracks, truth, session.camera(heldout[0]) if heldout else None)
