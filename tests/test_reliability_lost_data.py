@@ -155,3 +155,14 @@ def test_a_landmark_export_replaces_only_its_own_kind_of_file(tmp_path, capsys):
     assert main(["export", str(run), *arguments]) == 0
     assert main(["export", str(run), *arguments]) == 0  # an export run again replaces its own files
 
+
+
+def test_report_out_replaces_only_a_report(tmp_path, capsys):
+    run = write_fitted_run(tmp_path / "run", write_session(tmp_path / "s.zarr", frames=1))
+    notes = tmp_path / "notes.html"
+    notes.write_text("<html>the clinician's own page</html>\n")
+    assert main(["report", str(run), "--out", str(notes)]) == 2
+    assert f"{notes} exists and is not an mmcsplat report" in capsys.readouterr().err
+    assert notes.read_text() == "<html>the clinician's own page</html>\n"
+    assert main(["report", str(run)]) == 0
+    assert main(["report", str(run)]) == 0  # a report written again replaces its own page
