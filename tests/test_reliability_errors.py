@@ -179,3 +179,13 @@ def test_a_landmark_export_onto_a_folder_or_below_a_missing_one_names_it(tmp_pat
     assert main(["export", str(run), "--trc", str(tmp_path / target)]) == 2
     err = capsys.readouterr().err
     assert message in err and str(tmp_path / target) in err and ".tmp" not in err
+
+
+@pytest.mark.parametrize("command", [["render", "--depth", "--no-progress"], ["track", "--no-progress"]])
+def test_a_run_whose_session_moved_says_where_it_belongs(tmp_path, capsys, command):
+    session = write_session(tmp_path / "s.zarr", frames=1)
+    run = write_fitted_run(tmp_path / "run", session)
+    session.rename(tmp_path / "moved.zarr")
+    assert main([command[0], str(run), *command[1:]]) == 2
+    err = capsys.readouterr().err
+    assert f"its session {session} cannot be opened" in err and "put the session back at that path" in err and err.count("\n") == 1

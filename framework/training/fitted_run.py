@@ -61,7 +61,8 @@ class FittedRun:
         try:
             session = SessionReader(self.info.session)
         except FileNotFoundError as error:
-            raise MissingFileError(f"{self.path}: its session {self.info.session} cannot be opened ({error})") from error
+            raise MissingFileError(f"{self.path}: its session {self.info.session} cannot be opened ({error}); moved or deleted? put the "
+                                   f"session back at that path (the run is bound to it)") from error
         require_same_recording(self.path, self.info, session)
         return session
 
