@@ -167,6 +167,15 @@ def test_a_landmark_source_without_its_file_says_what_to_set(scene, tmp_path, ca
     assert "landmarks 'trc': set path=… (the .trc file), a required parameter (--set path=VALUE" in err and err.count("\n") == 1
 
 
+@pytest.mark.parametrize("source", ["trc", "csv"])
+def test_a_landmark_file_left_empty_says_what_to_set(scene, tmp_path, capsys, source):
+    session, _, _ = scene
+    run = write_fitted_run(tmp_path / "run", session)
+    assert main(["landmarks", str(run), "--source", source, "--set", "path="]) == 2
+    err = capsys.readouterr().err
+    assert f"landmarks '{source}': path is empty: set path=… to a file" in err and err.count("\n") == 1
+
+
 @pytest.mark.parametrize("target, message", [("folder", "is a folder: name a file to write"), ("missing/x.trc", "its folder")])
 def test_a_landmark_export_onto_a_folder_or_below_a_missing_one_names_it(tmp_path, capsys, target, message):
     import numpy as np
