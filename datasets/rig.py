@@ -207,5 +207,6 @@ class RigRecording(Recording):
     def describe(self) -> dict:
         """The reader's provenance, with the ground truth's path where the capture has one (its masks are
         the truth to score against, not masks the capture brings: ``mmcsplat run`` does not fit on them)."""
-        truth = {"ground_truth": str(self._ground_truth.path)} if self._ground_truth else {}
+        truth = {"ground_truth": str(self._ground_truth.path),
+                 "ground_truth_identity": GroundTruthReader(self._ground_truth.path).identity} if self._ground_truth else {}
         return {**self._provenance, **truth}

@@ -165,3 +165,36 @@ def test_a_landmark_source_without_its_file_says_what_to_set(scene, tmp_path, ca
     assert main(["landmarks", str(run), "--source", "trc"]) == 2
     err = capsys.readouterr().err
     assert "landmarks 'trc': set path=… (the .trc file), a required parameter (--set path=VALUE" in err and err.count("\n") == 1
+
+
+@pytest.mark.parametrize("source", ["trc", "csv"])
+def test_a_landmark_file_left_empty_says_what_to_set(scene, tmp_path, capsys, source):
+    session, _, _ = scene
+    run = write_fitted_run(tmp_path / "run", session)
+    assert main(["landmarks", str(run), "--source", source, "--set", "path="]) == 2
+    err = capsys.readouterr().err
+    assert f"landmarks '{source}': path is empty: set path=… to a file" in err and err.count("\n") == 1
+
+
+@pytest.mark.parametrize("target, message", [("folder", "is a folder: name a file to write"), ("missing/x.trc", "its folder")])
+def test_a_landmark_export_onto_a_folder_or_below_a_missing_one_names_it(tmp_path, capsys, target, message):
+    import numpy as np
+
+    from mmcsplat.storage.landmark_formats import write_landmark_csv
+
+    run = write_fitted_run(tmp_path / "run", write_session(tmp_path / "s.zarr", frames=1))
+    write_landmark_csv(run / "landmarks.csv", ["knee"], np.array([0]), np.array([0.0]), np.zeros((1, 1, 3)))
+    (tmp_path / "folder").mkdir()
+    assert main(["export", str(run), "--trc", str(tmp_path / target)]) == 2
+    err = capsys.readouterr().err
+    assert message in err and str(tmp_path / target) in err and ".tmp" not in err
+
+
+@pytest.mark.parametrize("command", [["render", "--depth", "--no-progress"], ["track", "--no-progress"]])
+def test_a_run_whose_session_moved_says_where_it_belongs(tmp_path, capsys, command):
+    session = write_session(tmp_path / "s.zarr", frames=1)
+    run = write_fitted_run(tmp_path / "run", session)
+    session.rename(tmp_path / "moved.zarr")
+    assert main([command[0], str(run), *command[1:]]) == 2
+    err = capsys.readouterr().err
+    assert f"its session {session} cannot be opened" in err and "put the session back at that path" in err and err.count("\n") == 1

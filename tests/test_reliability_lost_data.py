@@ -134,3 +134,35 @@ def test_a_failed_export_leaves_no_file_that_looks_whole(tmp_path, capsys):
     assert main(["export", str(run), "--ply", str(out), "--no-progress"]) == 2
     assert "tracks.zarr: means, frame 2" in capsys.readouterr().err
     assert not out.exists() and [p.name for p in tmp_path.iterdir() if p.name.startswith(".ply")] == []
+
+
+def test_a_landmark_export_replaces_only_its_own_kind_of_file(tmp_path, capsys):
+    import numpy as np
+
+    from mmcsplat.storage.landmark_formats import write_landmark_csv
+
+    session = write_session(tmp_path / "s.zarr", frames=1)
+    run = write_fitted_run(tmp_path / "run", session)
+    write_landmark_csv(run / "landmarks.csv", ["knee"], np.array([0]), np.array([0.0]), np.zeros((1, 1, 3)))
+    notes = {kind: tmp_path / f"notes.{kind}" for kind in ("trc", "csv", "c3d")}
+    for kind, path in notes.items():
+        path.write_text("the clinician's own notes\n")
+        assert main(["export", str(run), f"--{kind}", str(path)]) == 2
+        assert f"{path} exists and is not a {kind.upper()} file" in capsys.readouterr().err
+        assert path.read_text() == "the clinician's own notes\n"
+    exported = {kind: tmp_path / f"landmarks.{kind}" for kind in notes}
+    arguments = [argument for kind, path in exported.items() for argument in (f"--{kind}", str(path))]
+    assert main(["export", str(run), *arguments]) == 0
+    assert main(["export", str(run), *arguments]) == 0  # an export run again replaces its own files
+
+
+
+def test_report_out_replaces_only_a_report(tmp_path, capsys):
+    run = write_fitted_run(tmp_path / "run", write_session(tmp_path / "s.zarr", frames=1))
+    notes = tmp_path / "notes.html"
+    notes.write_text("<html>the clinician's own page</html>\n")
+    assert main(["report", str(run), "--out", str(notes)]) == 2
+    assert f"{notes} exists and is not an mmcsplat report" in capsys.readouterr().err
+    assert notes.read_text() == "<html>the clinician's own page</html>\n"
+    assert main(["report", str(run)]) == 0
+    assert main(["report", str(run)]) == 0  # a report written again replaces its own page

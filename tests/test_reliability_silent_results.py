@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rig_fixtures as rig
-from fitting_scene import write_config, write_fitted_run, write_session
+from fitting_scene import subject, write_config, write_fitted_run, write_session
 
 from mmcsplat.cli.main import main
 from mmcsplat.storage.calibration import write_calibration
@@ -125,6 +125,41 @@ def test_missing_or_garbled_metadata_names_the_array(fitted):
         SessionReader(session)
 
 
+def test_a_capture_moved_after_ingest_says_its_ground_truth_is_gone(fitted, tmp_path, capsys):
+    import zarr
+
+    session, run = fitted
+    assert main(["track", str(run), "--dynamics", "iterative", "--set", "dynamics.iterations=2", "--no-progress"]) == 0
+    group = zarr.open_group(str(session), mode="r+")
+    moved = tmp_path / "capture" / "ground_truth.zarr"  # recorded at ingest, then the capture moved
+    group.attrs["provenance"] = {**group.attrs["provenance"], "reader": {"ground_truth": str(moved)}}
+    capsys.readouterr()
+    assert main(["evaluate", str(run), "--no-progress"]) == 0
+    err = capsys.readouterr().err
+    assert f"tracking errors not measured: the capture's ground truth {moved} (recorded at ingest) is gone" in err
+    assert "pass --ground-truth PATH" in err
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["tracking_median_mm"] is None and "is gone" in metrics["tracking_error"]
+
+
+def test_the_ground_truth_of_another_capture_is_refused(tmp_path, capsys):
+    captures = {}
+    for seed in (0, 1):
+        captures[seed] = tmp_path / f"capture{seed}"
+        assert main(["synth", str(captures[seed]), "--num-frames", "2", "--num-cameras", "4", "--width", "48", "--height", "36",
+                     "--seed", str(seed), "--no-progress"]) == 0
+    assert main(["ingest", str(captures[0]), str(tmp_path / "s.zarr"), "--no-progress"]) == 0
+    run = write_fitted_run(tmp_path / "run", tmp_path / "s.zarr")
+    assert main(["track", str(run), "--dynamics", "iterative", "--set", "dynamics.iterations=1", "--no-progress"]) == 0
+    capsys.readouterr()
+    other = captures[1] / "ground_truth.zarr"
+    assert main(["evaluate", str(run), "--ground-truth", str(other), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert f"{other} is the ground truth of another capture than session {tmp_path / 's.zarr'} was ingested from" in err
+    assert not (run / "metrics.json").exists()
+    assert main(["evaluate", str(run), "--ground-truth", str(captures[0] / "ground_truth.zarr"), "--no-progress"]) == 0
+
+
 # ------------------------------------------------------------------ a run is bound to its recording
 
 
@@ -154,6 +189,23 @@ def test_a_run_refuses_a_session_replaced_by_another_recording(fitted, tmp_path,
     assert f"run {run} was fitted on another recording than {session} holds" in err and "re-fit with a new --out" in err
     assert len(err.strip().splitlines()) == 1
     assert not (run / "tracks.zarr").exists() and not (run / "metrics.json").exists() and not (tmp_path / "export").exists()
+
+
+@pytest.mark.parametrize("command", [["evaluate"], ["export", "--ply", "EXPORT"]])
+def test_tracks_copied_from_another_run_are_refused(fitted, tmp_path, capsys, command):
+    import shutil
+
+    session, run = fitted
+    other = write_fitted_run(tmp_path / "other", session, truth=subject(seed=1))
+    assert main(["track", str(other), "--dynamics", "iterative", "--set", "dynamics.iterations=1", "--no-progress"]) == 0
+    shutil.copytree(other / "tracks.zarr", run / "tracks.zarr")
+    capsys.readouterr()
+    args = [str(tmp_path / "export") if arg == "EXPORT" else arg for arg in command]
+    assert main([args[0], str(run), *args[1:]]) == 2
+    err = capsys.readouterr().err
+    assert f"{run / 'tracks.zarr'} were tracked from another fit than {run / 'checkpoint.pt'}" in err and "--overwrite" in err
+    assert not (run / "metrics.json").exists() and not (tmp_path / "export").exists()
+    assert main(["evaluate", str(other)]) == 0  # the run they belong to reads them
 
 
 def test_a_session_replaced_by_a_shorter_one_is_another_recording(fitted, capsys):

@@ -25,7 +25,7 @@ from scipy.spatial import cKDTree
 
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.scene.camera import Camera
-from mmcsplat.storage.ground_truth import GroundTruthReader, ground_truth_beside
+from mmcsplat.storage.ground_truth import GroundTruthReader, ground_truth_beside, ground_truth_gone
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.storage.tracks import TrackReader
 
@@ -114,7 +114,8 @@ def _pixel_errors(camera: Camera, estimate: np.ndarray, actual: np.ndarray) -> n
 def evaluate_tracks(run: Path, session: SessionReader, heldout: list[str], ground_truth: str | Path | None = None) -> dict[str, Any]:
     """The tracking metrics of ``run``: ``tracking_median_mm``, ``tracking_p90_mm``,
     ``tracking_2d_median_px`` (in the first of the ``heldout`` cameras; ``None`` when no ground truth is
-    found, and ``None`` with the reason in ``tracking_error`` when no ground-truth point is followed),
+    found, and ``None`` with the reason in ``tracking_error`` when no ground-truth point is followed or the
+    capture's ground truth recorded at ingest is gone),
     ``tracking_followed_points``, ``tracking_per_frame_median_mm``, ``tracking_num_gaussians`` (the tracked
     model's size: a method that densifies while tracking ends larger than the first-frame fit, whose size
     is ``num_gaussians``). The held-out views' scores at every frame are
@@ -125,8 +126,13 @@ def evaluate_tracks(run: Path, session: SessionReader, heldout: list[str], groun
     path = Path(ground_truth) if ground_truth is not None else ground_truth_beside(session)
     if path is None:
         metrics.update(tracking_median_mm=None, tracking_p90_mm=None, tracking_2d_median_px=None)
+        if (gone := ground_truth_gone(session)) is not None:  # else a capture without ground truth: nothing to say
+            metrics["tracking_error"] = (f"the capture's ground truth {gone} (recorded at ingest) is gone — the capture was moved or deleted: "
+                                         "pass --ground-truth PATH")
         return metrics
-    truth = GroundTruthReader(path).points("surface_points", session.capture_frames(frames), "the tracks need frame")
+    reader = GroundTruthReader(path)
+    reader.require_truth_of(session)
+    truth = reader.points("surface_points", session.capture_frames(frames), "the tracks need frame")
     metrics.update(tracking_ground_truth=str(path), tracking_ground_truth_points=int(truth.shape[1]))
     try:
         accuracy = tracking_accuracy(tracks, truth, session.camera(heldout[0]) if heldout else None)

@@ -7,9 +7,26 @@ from __future__ import annotations
 from pathlib import Path
 
 from mmcsplat.pipeline.run_frames import RunStates
-from mmcsplat.plugin_api.errors import MissingFileError
+from mmcsplat.plugin_api.errors import MissingFileError, OutputExistsError
 from mmcsplat.storage.landmark_formats import read_landmark_csv, write_c3d, write_landmark_csv, write_trc
 from mmcsplat.storage.run import LANDMARKS_CSV
+
+#: Where and with what each format's files begin (a C3D's second byte is 0x50, its first a block number):
+#: an existing file is replaced only when it is of the kind exported.
+SIGNATURES = {"trc": (0, b"PathFileType"), "csv": (0, b"frame,time,name,"), "c3d": (1, b"\x50")}
+
+
+def require_replaceable(path: Path, kind: str) -> None:
+    """Refuse to replace an existing file at ``path`` unless it is a ``kind`` file (a landmarks export run
+    again): a user's notes named like the output are never overwritten."""
+    if not path.is_file() or path.stat().st_size == 0:
+        return
+    offset, signature = SIGNATURES[kind]
+    with open(path, "rb") as handle:
+        start = handle.read(offset + len(signature))
+    if start[offset:] != signature:
+        raise OutputExistsError(f"{path} exists and is not a {kind.upper()} file: export replaces only its own kind of file — "
+                                "move it or name another")
 
 
 def export_landmarks(run: str | Path, trc: str | Path | None = None, csv: str | Path | None = None, c3d: str | Path | None = None) -> list[Path]:
@@ -17,6 +34,9 @@ def export_landmarks(run: str | Path, trc: str | Path | None = None, csv: str | 
     source = Path(run) / LANDMARKS_CSV
     if not source.is_file():
         raise MissingFileError(f"{source} does not exist: `mmcsplat landmarks {run} --source …` carries landmarks first")
+    for kind, path in (("trc", trc), ("csv", csv), ("c3d", c3d)):
+        if path is not None:
+            require_replaceable(Path(path), kind)
     names, frames, times, positions, extra = read_landmark_csv(source)
     rate = RunStates(run).session.fps
     written = []

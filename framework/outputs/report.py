@@ -17,9 +17,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from mmcsplat.configuration.registry import Registry
-from mmcsplat.outputs.report_html import command, esc, image, markdown_html, page, table, video
+from mmcsplat.outputs.report_html import PAGE_START, command, esc, image, markdown_html, page, table, video
 from mmcsplat.outputs.video import encode_png
-from mmcsplat.plugin_api.errors import InputError, MissingFileError
+from mmcsplat.plugin_api.errors import InputError, MissingFileError, OutputExistsError
 from mmcsplat.storage.atomic import write_text_atomic
 from mmcsplat.storage.completeness import require_finished
 from mmcsplat.storage.curves import STAGES, read_curves
@@ -78,6 +78,11 @@ def write_report(path: Path, out: Path | None = None, backend: str | None = None
     path = Path(path)
     text = run_report(path, backend, registry, allow_incomplete) if report_kind(path) == "run" else study_report(path)
     target = Path(out) if out is not None else path / REPORT_FILE
+    if target.is_file() and target.stat().st_size:
+        with open(target, "rb") as handle:
+            if handle.read(len(PAGE_START.encode())) != PAGE_START.encode():
+                raise OutputExistsError(f"{target} exists and is not an mmcsplat report: report replaces only its own pages — move it or "
+                                        "name another --out")
     target.parent.mkdir(parents=True, exist_ok=True)
     write_text_atomic(target, text)
     return target

@@ -80,10 +80,13 @@ def table(header: Sequence[str] | None, rows: Sequence[Sequence[object]]) -> str
     return f"<table>{head}<tbody>{''.join(body)}</tbody></table>"
 
 
+#: How every page begins: ``report --out`` replaces an existing file only when it begins so.
+PAGE_START = "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n<title>"
+
+
 def page(title: str, sections: Sequence[str]) -> str:
     """The whole document: ``title`` as <title> and <h1>, then the ``sections`` (HTML)."""
-    return ("<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
-            f"<title>{esc(title)}</title>\n<style>{STYLE}</style>\n</head>\n<body>\n<h1>{esc(title)}</h1>\n"
+    return (f"{PAGE_START}{esc(title)}</title>\n<style>{STYLE}</style>\n</head>\n<body>\n<h1>{esc(title)}</h1>\n"
             + "\n".join(sections) + "\n</body>\n</html>\n")
 
 

@@ -12,7 +12,6 @@ import torch
 from mmcsplat.plugin_api.errors import InputError, MissingFileError
 from mmcsplat.plugin_api.render_contract import Gaussians, gaussians_from_params
 from mmcsplat.scene.camera import Camera
-from mmcsplat.storage.recording import require_same_recording
 from mmcsplat.storage.run import TRACKS_DIR
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.storage.tracks import TrackReader
@@ -32,8 +31,8 @@ class RunStates:
         self.fitted = FittedRun.load(self.run)
         self.info = self.fitted.info
         self.tracks = TrackReader(self.run) if (self.run / TRACKS_DIR).exists() else None
-        if self.tracks is not None and self.tracks.fingerprint is not None:  # tracks older than fingerprints: the session is checked
-            require_same_recording(self.run, self.info, self.tracks)
+        if self.tracks is not None:
+            self.fitted.require_own_tracks(self.tracks)
         self._fitted = None if self.tracks is not None else {name: value.detach().float() for name, value in self.fitted.params.items()}
         first = self.tracks.attrs.get("first_frame", self.info.frame) if self.tracks is not None else self.info.frame
         self.first_frame = int(first)

@@ -144,7 +144,7 @@ def track_run(
             if tracks_token(run) in (None, before):
                 raise PluginError(f"dynamics plugin {choice.name!r} returned from track() without writing its tracks "
                                   f"({run / TRACKS_DIR}): a defect of the plugin")
-            stamp_recording(run, session.fingerprint)
+            stamp_recording(run, session.fingerprint, fitted.digest)
         except BaseException as error:
             context.curve.write(run)  # what was logged before the stop: a failed track's curve shows why
             log.error("tracking stopped: %s", f"{type(error).__name__}: {error}" if str(error) else type(error).__name__)

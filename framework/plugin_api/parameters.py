@@ -39,6 +39,12 @@ def parameter(default: Any = attrs.NOTHING, *, doc: str, factory: Callable[[], A
     return attrs.field(default=default, factory=factory, validator=validator, converter=converter, metadata={DOC: doc}, kw_only=kw_only)
 
 
+def non_empty(_instance: Any, field: attrs.Attribute, value: Any) -> None:
+    """Validator: the value (a file's path, a name) is not the empty string, which would read as the current folder."""
+    if value is not None and not str(value).strip():
+        raise ValueError(f"{field.name} is empty: set {field.name}=… to a file")
+
+
 def at_least(bound: float) -> Callable[[Any, Any, Any], None]:
     """Validator: the value (when not ``None``) is ≥ ``bound``."""
     return _bound(lambda value: value >= bound, f"≥ {bound}")

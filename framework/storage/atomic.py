@@ -13,7 +13,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from mmcsplat.plugin_api.errors import MmcsplatError
+from mmcsplat.plugin_api.errors import MissingFileError, MmcsplatError, OutputExistsError
 
 #: The errors of a file system that has no room left (a full disk, an exhausted quota).
 NO_SPACE = (errno.ENOSPC, errno.EDQUOT)
@@ -36,8 +36,13 @@ def disk_full(path: Path, error: BaseException) -> DiskFullError:
 @contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success it replaces ``path``, on error it is removed (a full
-    disk as :class:`DiskFullError`)."""
+    disk as :class:`DiskFullError`). A ``path`` that is a folder, or whose folder does not exist, is refused
+    naming it."""
     path = Path(path)
+    if path.is_dir():  # else os.replace fails naming the temporary file, not the user's path
+        raise OutputExistsError(f"{path} is a folder: name a file to write")
+    if not path.parent.is_dir():
+        raise MissingFileError(f"cannot write {path}: its folder {path.parent} does not exist — create it or name another")
     handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     os.close(handle)
     os.chmod(temporary, 0o666 & ~_umask())  # mkstemp makes owner-only files; written files should not be

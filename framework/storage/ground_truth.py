@@ -11,6 +11,8 @@ Every array is read on first use, so a ground truth holding only some of them se
 
 from __future__ import annotations
 
+import hashlib
+import json
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -39,6 +41,15 @@ def ground_truth_beside(session: SessionReader) -> Path | None:
     return candidate if candidate.is_dir() else None
 
 
+def ground_truth_gone(session: SessionReader) -> Path | None:
+    """The ground truth the session's capture shipped at ingest (recorded in its provenance) when it is no
+    longer there: the capture was moved or deleted, and tracking cannot be scored without ``--ground-truth``."""
+    recorded = session.provenance.get("reader", {}).get("ground_truth")
+    if not recorded or Path(recorded).is_dir():
+        return None
+    return Path(recorded)
+
+
 class GroundTruthReader:
     """A capture's ground truth, opened from the capture folder or from the zarr group itself. ``frames`` are a frame index (→ [P, 3]), a slice or a sequence of indices (→ [T', P, 3])."""
 
@@ -53,6 +64,22 @@ class GroundTruthReader:
             self.group = zarr.open_group(str(self.path), mode="r")
         except Exception as error:
             raise InputError(f"{self.path}: not a ground truth, not a readable zarr group ({error})") from error
+
+    @property
+    def identity(self) -> str:
+        """A 128-bit BLAKE2b digest of the group's attributes (the synthesizer's configuration, seed, frame
+        times and scene): ingest records it, so that another capture's ground truth is never scored against."""
+        text = json.dumps(self.group.attrs.asdict(), sort_keys=True, default=str)
+        return hashlib.blake2b(text.encode(), digest_size=16).hexdigest()
+
+    def require_truth_of(self, session: SessionReader) -> None:
+        """Refuse this ground truth for ``session`` when the session was ingested from a capture whose
+        ground truth was another (sessions ingested before identities were recorded are not checked)."""
+        reader = session.provenance.get("reader", {})
+        recorded = reader.get("ground_truth_identity")
+        if recorded is not None and recorded != self.identity:
+            raise InputError(f"{self.path} is the ground truth of another capture than session {session.url} was ingested from "
+                             f"({reader.get('ground_truth')}): give that capture's ground_truth.zarr")
 
     def attribute(self, name: str) -> Any:
         """The group attribute ``name`` (``fps``, ``num_frames``, ``seed``)."""

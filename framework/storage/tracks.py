@@ -8,7 +8,8 @@ On-disk layout (format version 1)::
                                       num_frames T, num_gaussians N, method, static [names],
                                       dynamic [names], attrs {…the method's own metadata},
                                       recording (the session's fingerprint, stamped by ``track``
-                                      once the tracks are complete; absent in older tracks)
+                                      once the tracks are complete; absent in older tracks),
+                                      fit (the digest of the fit tracked from, stamped with it)
         <static name>    [N, ...]     parameters that do not change over time (e.g. opacity_logits)
         <dynamic name>   [T, N, ...]  float32, one frame per chunk (at least means and quats)
 
@@ -182,12 +183,12 @@ def tracks_token(run: Path) -> tuple[int, int] | None:
     return status.st_ino, status.st_mtime_ns
 
 
-def stamp_recording(run: Path, fingerprint: str | None) -> None:
-    """Record in ``run``'s complete tracks the fingerprint of the recording they were tracked on (one
-    attribute write)."""
+def stamp_recording(run: Path, fingerprint: str | None, fit: str) -> None:
+    """Record in ``run``'s complete tracks the fingerprint of the recording they were tracked on and the
+    digest of the fit they start from (one attribute write)."""
     import zarr
 
-    zarr.open_group(str(Path(run) / TRACKS_DIR), mode="r+", zarr_format=3).attrs["recording"] = fingerprint
+    zarr.open_group(str(Path(run) / TRACKS_DIR), mode="r+", zarr_format=3).attrs.update({"recording": fingerprint, "fit": fit})
 
 
 class TrackReader:
@@ -223,6 +224,7 @@ class TrackReader:
         except (KeyError, TypeError, ValueError) as error:
             raise InputError(f"{damaged} (attribute {error}); track the run again with `mmcsplat track {run} --overwrite`") from error
         self._fingerprint = attributes.get("recording")
+        self.fit: str | None = attributes.get("fit")  # the digest of the fit tracked from (None: tracks older than it)
         self._static = {name: torch.from_numpy(read_stored(open_stored(group, name, str(self.path)), None, f"{self.path}: static {name}"))
                         for name in self.static}
         self._arrays = {name: open_stored(group, name, str(self.path)) for name in self.dynamic}

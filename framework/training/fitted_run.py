@@ -7,6 +7,7 @@ it needs the checkpoint reader and the backdrops of this room, which sits above 
 
 from __future__ import annotations
 
+import hashlib
 from functools import cached_property
 from pathlib import Path
 
@@ -18,6 +19,7 @@ from mmcsplat.storage.recording import require_same_recording
 from mmcsplat.storage.run import CHECKPOINT, RUN_INFO
 from mmcsplat.storage.run_info import RunInfo
 from mmcsplat.storage.session import SessionReader
+from mmcsplat.storage.tracks import TrackReader
 
 from .backdrop import Background, camera_backdrop, parse_background
 from .checkpoint import read_checkpoint
@@ -59,9 +61,30 @@ class FittedRun:
         try:
             session = SessionReader(self.info.session)
         except FileNotFoundError as error:
-            raise MissingFileError(f"{self.path}: its session {self.info.session} cannot be opened ({error})") from error
+            raise MissingFileError(f"{self.path}: its session {self.info.session} cannot be opened ({error}); moved or deleted? put the "
+                                   f"session back at that path (the run is bound to it)") from error
         require_same_recording(self.path, self.info, session)
         return session
+
+    @cached_property
+    def digest(self) -> str:
+        """A 128-bit BLAKE2b digest of the fitted Gaussians' parameters: ``track`` records it in the tracks
+        (``fit``), so that tracks are only ever read with the fit they start from."""
+        digest = hashlib.blake2b(digest_size=16)
+        for name in sorted(self.params):
+            digest.update(name.encode())
+            digest.update(self.params[name].detach().cpu().contiguous().reshape(-1).view(torch.uint8).numpy().tobytes())
+        return digest.hexdigest()
+
+    def require_own_tracks(self, tracks: TrackReader) -> None:
+        """Refuse ``tracks`` (read from this run) unless made on this run's recording from this fit: tracks
+        copied from another run scored or rendered as this one's would be a silent wrong result. Tracks
+        older than these records are not checked."""
+        if tracks.fingerprint is not None:
+            require_same_recording(self.path, self.info, tracks)
+        if tracks.fit is not None and tracks.fit != self.digest:
+            raise InputError(f"{tracks.path} were tracked from another fit than {self.path / CHECKPOINT} (copied from another run?): "
+                             f"track the run again with `mmcsplat track {self.path} --overwrite`")
 
     @cached_property
     def settings(self) -> FitSettings:

@@ -18,7 +18,7 @@ import attrs
 import numpy as np
 
 from mmcsplat.plugin_api.interfaces import Landmarks, LandmarkSource
-from mmcsplat.plugin_api.parameters import one_of, parameter
+from mmcsplat.plugin_api.parameters import non_empty, one_of, parameter
 from mmcsplat.storage.calibration import metres_per_unit
 from mmcsplat.storage.landmark_formats import CSV_SHORT_COLUMNS, TRC_CONVENTIONS, read_landmark_csv, read_trc
 from mmcsplat.storage.session import SessionReader
@@ -38,7 +38,7 @@ def _rows_at(table_frames: np.ndarray, positions: np.ndarray, wanted: np.ndarray
 class TrcLandmarks(LandmarkSource):
     """Marker trajectories of a TRC file (units from its header)."""
 
-    path: str = parameter(doc="the .trc file", kw_only=True)
+    path: str = parameter(doc="the .trc file", validator=non_empty, kw_only=True)
     convention: str = parameter("pose2sim", doc="axes: pose2sim (Y-up: a point is (Z, X, Y) in the calibration's frame) or none (as written)",
                                 validator=one_of(*TRC_CONVENTIONS))
 
@@ -52,7 +52,7 @@ class TrcLandmarks(LandmarkSource):
 class CsvLandmarks(LandmarkSource):
     """Landmarks of a CSV file: one frame (``name,x,y,z``) or many (``frame,time,name,x,y,z``)."""
 
-    path: str = parameter(doc="the .csv file", kw_only=True)
+    path: str = parameter(doc="the .csv file", validator=non_empty, kw_only=True)
     units: str = parameter("m", doc="unit of x, y, z: m or mm", validator=one_of("m", "mm"))
 
     def read(self, session: SessionReader, frames: Sequence[int]) -> Landmarks:

@@ -34,5 +34,6 @@ class SyntheticJoints(LandmarkSource):
         if not path.exists():
             raise MissingFileError(f"synthetic joints: {path} does not exist (a synthetic capture's ground truth)")
         truth = GroundTruthReader(path)
+        truth.require_truth_of(session)
         positions = truth.points("joints", session.capture_frames(frames), "the session needs capture frame")
         return Landmarks(tuple(truth.names("joints")), frames, positions, source=f"synthetic joints {path}")
