@@ -1,6 +1,6 @@
 """``mmcsplat run CAPTURE --out DIR``: a user's own capture end to end, with defaults that work on a real
-rig (docs/real-data.md): ingest → masks → plates → masks refined against them → first-frame fit → track →
-evaluate → landmarks → renders → report.
+rig (docs/real-data.md): ingest → masks → plates → masks refined against them → first-frame fit → optical
+flow → flow-guided track → landmarks → evaluate → renders → report.
 
 - Masks: the capture's own when it brings them for every training camera (Dynamic3DGaussians ``seg/``,
   a ``masks/`` folder per camera, RGBA alpha: whatever its reader ingests); else, with 2D keypoints
