@@ -80,7 +80,7 @@ def test_evaluate_reports_why_nothing_was_followed_instead_of_failing(tmp_path):
     zarr.open_group(str(path), mode="w", zarr_format=3).create_array("surface_points", data=truth)
     (tmp_path / "run").mkdir()
     write_tracks(tmp_path / "run", truth + [0.5, 0, 0])  # the whole fit 50 cm off the subject
-    metrics = evaluate_tracks(tmp_path / "run", SimpleNamespace(capture_frames=lambda frames: np.asarray(frames)), [], path)
+    metrics = evaluate_tracks(tmp_path / "run", SimpleNamespace(capture_frames=lambda frames: np.asarray(frames), provenance={}, url="s.zarr"), [], path)
     assert metrics["tracking_median_mm"] is metrics["tracking_p90_mm"] is metrics["tracking_2d_median_px"] is None
     assert (metrics["tracking_followed_points"], metrics["tracking_ground_truth_points"]) == (0, P)
     assert metrics["tracking_error"].startswith("no ground-truth surface point has a Gaussian within 10 mm at the first tracked frame")
