@@ -204,3 +204,12 @@ def every_renderer() -> list:
     registry = default_registry()
     return [pytest.param(name, marks=pytest.mark.skipif(bool(reason := registry.get("renderer", name).unavailable_reason()), reason=str(reason)))
             for name in registry.names("renderer")]
+
+
+def write_flow_session(path: Path, frames: int, truth: Gaussians) -> Path:
+    """:func:`write_session` of ``truth`` (zoomed ×2) with its optical flow computed, for flow-guided tracking."""
+    from mmcsplat.pipeline.flow import compute_flow
+
+    session = write_session(path, frames=frames, zoom=2, truth=truth)
+    compute_flow(session, progress=False)
+    return session

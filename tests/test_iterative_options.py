@@ -7,10 +7,9 @@ import json
 
 import numpy as np
 import pytest
-from fitting_scene import moved, subject, write_fitted_run, write_session
+from fitting_scene import moved, subject, write_fitted_run, write_flow_session, write_session
 
 from mmcsplat.cli import main
-from mmcsplat.pipeline.flow import compute_flow
 from mmcsplat.pipeline.track import TRACK_INFO
 from mmcsplat.storage.tracks import TrackReader
 
@@ -22,9 +21,7 @@ FAST = ["dynamics.iterations=40", "dynamics.means_lr=1e-3"]
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory):
     root = tmp_path_factory.mktemp("iterative-options")
-    session = write_session(root / "scene.zarr", frames=FRAMES, zoom=2, truth=TRUTH)
-    compute_flow(session, progress=False)
-    return root, session
+    return root, write_flow_session(root / "scene.zarr", FRAMES, TRUTH)
 
 
 def tracked(root, session, name, *settings) -> tuple[dict, float]:
