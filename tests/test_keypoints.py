@@ -339,6 +339,11 @@ def test_keypoint_sources_need_a_folder_or_files_and_name_a_stranger(tmp_path):
     (tmp_path / "notes.txt").write_text("")
     with pytest.raises(ValueError, match=r"notes\.txt is not a \.analysis\.h5 or \.slp file"):
         default_registry().create("landmarks", "sleap", files=[str(tmp_path / "notes.txt")]).keypoint_files()
+    for folder in ("a", "b"):
+        (tmp_path / folder).mkdir()
+        (tmp_path / folder / "cam_0.slp").write_bytes(b"")
+    with pytest.raises(ValueError, match="several files are named 'cam_0'"):
+        default_registry().create("landmarks", "sleap", files=[str(tmp_path / "a" / "cam_0.slp"), str(tmp_path / "b" / "cam_0.slp")]).keypoint_files()
 
 
 def test_run_reads_openpose_sleap_or_deeplabcut_keypoints_from_a_folder_or_a_file(scene, tmp_path):

@@ -70,7 +70,11 @@ class TableKeypoints(TriangulatedKeypoints):
                     raise MissingFileError(f"{self.described}: file {path} does not exist")
                 if self.label(path) is None:
                     raise InputError(f"{self.described}: {path} is not a {' or '.join(self.SUFFIXES)} file")
-            return (paths[0].parent if paths else Path(".")), {path.parent / self.label(path): path for path in paths}
+            labels = [self.label(path) for path in paths]
+            repeated = sorted({label for label in labels if labels.count(label) > 1})
+            if repeated:
+                raise InputError(f"{self.described}: several files are named {repeated[0]!r}: name one file per camera")
+            return (paths[0].parent if paths else Path(".")), {path.parent / label: path for path, label in zip(paths, labels, strict=True)}
         folder = Path(self.folder)
         if not folder.is_dir():
             raise MissingFileError(f"{self.described}: folder {folder} does not exist")
