@@ -64,12 +64,12 @@ def mmcsplat_segmenters() -> list[Registration]:
     segmenters = "mmcsplat.plugins.segmenters"
     return [
         Registration("onnx-semantic", f"{segmenters}.onnx_semantic:OnnxSemanticSegmenter",
-                     "any ONNX semantic-segmentation model (a local file and its sidecar) on onnxruntime's CPU",
+                     "any ONNX semantic-segmentation model (a local file, or a URL fetched once by its SHA-256, and its sidecar) on onnxruntime's CPU",
                      unavailable=needs_modules("onnxruntime")),
         Registration("background", f"{segmenters}.background:BackgroundSegmenter",
                      "OpenCV background subtraction over each camera's sequence (MOG2, KNN or median)"),
         Registration("keypoints", f"{segmenters}.keypoints:KeypointSegmenter",
-                     "the filled skeleton of 2D keypoints (OpenPose JSON), optionally refined against the clean plate"),
+                     "the filled skeleton of 2D keypoints (OpenPose, SLEAP, DeepLabCut), optionally refined against the clean plate"),
         Registration("parallax", f"{segmenters}.parallax:ParallaxSegmenter",
                      "what the calibrated cameras agree stands off the floor (plane plus parallax, fused over voxels): no keypoints, plates or model"),
         Registration("precomputed", f"{segmenters}.precomputed:PrecomputedSegmenter",

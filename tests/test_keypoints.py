@@ -195,8 +195,10 @@ def test_sleap_analysis_h5_keypoints_triangulate(scene, tmp_path):
         default_registry().create("landmarks", "sleap", folder=str(tmp_path), track=2).read(reader, range(FRAMES))
 
 
-def write_slp(path: Path, names: list[str], labelled: dict[int, list[tuple[int, int, np.ndarray, np.ndarray]]], format_id: float = 1.2) -> None:
-    """A SLEAP labels file: ``labelled[frame]`` lists (instance type, track, [L, 2] points, [L] scores) per instance."""
+def write_slp(path: Path, names: list[str], labelled: dict[int, list[tuple[int, int, np.ndarray, np.ndarray]]], format_id: float = 1.2,
+              links: list[dict] = ()) -> None:
+    """A SLEAP labels file: ``labelled[frame]`` lists (instance type, track, [L, 2] points, [L] scores) per instance;
+    ``links`` are its skeleton's edges as SLEAP stores them."""
     import h5py
 
     frames, instances, points, predicted = [], [], [], []
@@ -208,7 +210,7 @@ def write_slp(path: Path, names: list[str], labelled: dict[int, list[tuple[int, 
             for (x, y), s in zip(xy, score):
                 table.append((x, y, bool(np.isfinite(x)), True) if kind == 0 else (x, y, bool(np.isfinite(x)), True, s))
     point = [("x", "<f8"), ("y", "<f8"), ("visible", "?"), ("complete", "?")]
-    metadata = {"version": "2.0.0", "skeletons": [{"nodes": [{"id": k} for k in range(len(names))]}], "nodes": [{"name": n, "weight": 1.0} for n in names]}
+    metadata = {"version": "2.0.0", "skeletons": [{"nodes": [{"id": k} for k in range(len(names))], "links": list(links)}], "nodes": [{"name": n, "weight": 1.0} for n in names]}
     with h5py.File(path, "w") as file:
         file.create_group("metadata").attrs["json"] = np.bytes_(json.dumps(metadata).encode())
         file["metadata"].attrs["format_id"] = format_id
@@ -248,3 +250,133 @@ def test_sleap_slp_keypoints_prefer_user_labels_and_triangulate(scene, tmp_path)
     expected[1, 1] = np.nan
     expected[2] = np.nan
     np.testing.assert_allclose(landmarks.positions, expected, atol=1e-6)
+
+
+#: A mouse-like skeleton that bends at a right angle (nose → spine → tail), in metres; SLEAP declares its edges.
+MOUSE = {"nose": (0.0, 0.0, 0.25), "spine": (0.0, 0.0, 0.0), "tail": (0.25, 0.1, 0.0)}
+MOUSE_EDGES = [("nose", "spine"), ("spine", "tail")]
+
+
+def _segment(session: Path, tmp_path: Path, source: str) -> SessionReader:
+    import shutil
+
+    copy = tmp_path / "masked.zarr"
+    shutil.copytree(session, copy)
+    assert main(["segment", str(copy), "--segmenter", "keypoints", "--set", f"source={source}", "--no-progress"]) == 0
+    return SessionReader(copy)
+
+
+def _distance_to_segment(point: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
+    share = np.clip(np.dot(point - a, b - a) / np.dot(b - a, b - a), 0, 1)
+    return float(np.linalg.norm(point - (a + share * (b - a))))
+
+
+def _mouse_pixels(camera) -> np.ndarray:
+    return camera.project(np.array(list(MOUSE.values())))
+
+
+def test_sleap_skeleton_masks_follow_the_edges_the_file_declares(scene, tmp_path):
+    """Node names no human skeleton has: the mask is the file's edges drawn thick, so the inside of the bend
+    (within the keypoints' hull, away from both edges) stays out."""
+    import h5py
+
+    session, _ = scene
+    folder = tmp_path / "sleap"
+    folder.mkdir()
+    for camera in SessionReader(session).cameras:
+        xy = np.repeat(_mouse_pixels(camera)[None], FRAMES, axis=0)  # [frames, nodes, 2]
+        with h5py.File(folder / f"{camera.name}.analysis.h5", "w") as file:
+            file["tracks"] = xy[None].transpose(0, 3, 2, 1)  # [tracks, 2, nodes, frames], as SLEAP writes it
+            file["node_names"] = np.array([name.encode() for name in MOUSE])
+            file["edge_names"] = np.array([(a.encode(), b.encode()) for a, b in MOUSE_EDGES])
+    observed = default_registry().create("landmarks", "sleap", folder=str(folder)).observations(SessionReader(session), range(FRAMES))
+    assert observed[0].edges == tuple(MOUSE_EDGES)
+    reader = _segment(session, tmp_path, f'{{name="sleap", folder="{folder}"}}')
+    checked = 0
+    for camera in reader.cameras:
+        mask, (nose, spine, tail) = reader.frame(1, camera.name).mask, _mouse_pixels(camera)
+        for point in (nose, spine, tail, (nose + spine) / 2, (spine + tail) / 2):
+            assert mask[int(round(point[1])), int(round(point[0]))], camera.name
+        width = 0.3 * max(np.linalg.norm(nose - spine), np.linalg.norm(spine - tail), np.linalg.norm(nose - tail))
+        inside = (nose + spine + tail) / 3  # inside the hull of the three keypoints
+        if min(_distance_to_segment(inside, nose, spine), _distance_to_segment(inside, spine, tail)) > width / 2 + 2:
+            assert not mask[int(round(inside[1])), int(round(inside[0]))], camera.name
+            checked += 1
+    assert checked >= 2
+
+
+def test_deeplabcut_masks_without_a_skeleton_are_the_keypoints_hull(scene, tmp_path):
+    """DeepLabCut declares no edges: the convex hull of the keypoints (with a disk around each), read from
+    the files named one per camera."""
+    import pickle
+
+    import h5py
+
+    session, _ = scene
+    columns = [("DLC_resnet50", name, coord) for name in MOUSE for coord in ("x", "y", "likelihood")]
+    files = []
+    for camera in SessionReader(session).cameras:
+        row = [v for x, y in _mouse_pixels(camera) for v in (x, y, 0.95)]
+        records = np.zeros(FRAMES, dtype=[("index", "<i8"), ("values_block_0", "<f8", (len(columns),))])
+        records["index"], records["values_block_0"] = np.arange(FRAMES), [row] * FRAMES
+        files.append(tmp_path / f"{camera.name}DLC_resnet50.h5")
+        with h5py.File(files[-1], "w") as file:
+            group = file.create_group("df_with_missing")
+            group.create_dataset("table", data=records)
+            group.attrs["non_index_axes"] = np.bytes_(pickle.dumps([(1, columns)], 0))
+    listed = ", ".join(f'"{path}"' for path in files)
+    reader = _segment(session, tmp_path, f"{{name=\"deeplabcut\", files=[{listed}]}}")
+    for camera in reader.cameras:
+        mask, corners = reader.frame(2, camera.name).mask, _mouse_pixels(camera)
+        for point in (*corners, corners.mean(axis=0)):
+            assert mask[int(round(point[1])), int(round(point[0]))], camera.name
+        assert 0.002 < mask.mean() < 0.5
+
+
+def test_keypoint_sources_need_a_folder_or_files_and_name_a_stranger(tmp_path):
+    with pytest.raises(ValueError, match="give either folder .* or files, not neither"):
+        default_registry().create("landmarks", "sleap")
+    (tmp_path / "notes.txt").write_text("")
+    with pytest.raises(ValueError, match=r"notes\.txt is not a \.analysis\.h5 or \.slp file"):
+        default_registry().create("landmarks", "sleap", files=[str(tmp_path / "notes.txt")]).keypoint_files()
+    for folder in ("a", "b"):
+        (tmp_path / folder).mkdir()
+        (tmp_path / folder / "cam_0.slp").write_bytes(b"")
+    with pytest.raises(ValueError, match="several files are named 'cam_0'"):
+        default_registry().create("landmarks", "sleap", files=[str(tmp_path / "a" / "cam_0.slp"), str(tmp_path / "b" / "cam_0.slp")]).keypoint_files()
+
+
+def test_run_reads_openpose_sleap_or_deeplabcut_keypoints_from_a_folder_or_a_file(scene, tmp_path):
+    from mmcsplat.jobs.capture import keypoint_source
+
+    _, openpose = scene
+    assert keypoint_source(openpose) == {"name": "openpose", "folder": str(openpose)}
+    for name in ("cam_0.analysis.h5", "cam_0.slp", "cam_0.csv", "cam_0DLC.h5"):
+        (tmp_path / name).write_bytes(b"")
+    assert keypoint_source(tmp_path / "cam_0.analysis.h5") == {"name": "sleap", "files": [str(tmp_path / "cam_0.analysis.h5")]}
+    assert keypoint_source(tmp_path / "cam_0DLC.h5") == {"name": "deeplabcut", "files": [str(tmp_path / "cam_0DLC.h5")]}
+    assert keypoint_source(tmp_path) == {"name": "sleap", "folder": str(tmp_path)}  # SLEAP files before DeepLabCut's
+    for name in ("cam_0.analysis.h5", "cam_0.slp"):
+        (tmp_path / name).unlink()
+    assert keypoint_source(tmp_path) == {"name": "deeplabcut", "folder": str(tmp_path)}
+    with pytest.raises(ValueError, match=r"keypoint file .*notes\.txt is neither SLEAP"):
+        (tmp_path / "notes.txt").write_text("")
+        keypoint_source(tmp_path / "notes.txt")
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(ValueError, match="keypoint folder .*empty holds no OpenPose camera folders"):
+        keypoint_source(empty)
+
+
+def test_sleap_labels_files_declare_their_body_edges_not_their_symmetries(tmp_path):
+    from mmcsplat.plugins.landmarks.sleap import read_sleap_edges
+
+    body = {"py/reduce": [{"py/type": "sleap.skeleton.EdgeType"}, {"py/tuple": [1]}]}
+    symmetry = {"py/reduce": [{"py/type": "sleap.skeleton.EdgeType"}, {"py/tuple": [2]}]}
+    links = [{"source": 0, "target": 1, "type": body}, {"source": 1, "target": 2, "type": {"py/id": 1}},  # py/id 1: the body type again
+             {"source": 0, "target": 2, "type": symmetry}, {"source": 2, "target": 0, "type": {"py/id": 2}}]
+    write_slp(tmp_path / "cam.slp", ["snout", "ear", "tail"], {0: [(0, -1, np.zeros((3, 2)), np.ones(3))]}, links=links)
+    assert read_sleap_edges(tmp_path / "cam.slp") == (("snout", "ear"), ("ear", "tail"))
+    write_slp(tmp_path / "bad.slp", ["snout"], {}, links=[{"source": 0, "target": 4}])
+    with pytest.raises(ValueError, match=r"bad\.slp: a skeleton link does not name two of its 1 nodes"):
+        read_sleap_edges(tmp_path / "bad.slp")

@@ -209,6 +209,32 @@ def test_onnx_semantic_names_a_missing_model_or_sidecar(tmp_path: Path) -> None:
         _segmenter("onnx-semantic", model=str(model), sidecar=str(tmp_path / "other.json"))
 
 
+
+def test_onnx_semantic_fetches_a_model_by_url_once_and_checks_its_checksum(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import hashlib
+
+    from local_server import serve
+
+    monkeypatch.setenv("MMCSPLAT_CACHE", str(tmp_path / "cache"))
+    model = _model(tmp_path)
+    digest = hashlib.sha256(model.read_bytes()).hexdigest()
+    rgb, regions = _scene()
+    session = SessionReader(_session(tmp_path / "s.zarr", {"a": [rgb]}))
+    sidecar = str(model.with_suffix(".json"))
+    with serve({"/tiny.onnx": model.read_bytes()}) as (base, requested):
+        for _ in range(2):  # the second segmenter reads the cached copy
+            segmenter = _segmenter("onnx-semantic", model=f"{base}/tiny.onnx", sha256=digest, sidecar=sidecar)
+            assert segmenter.path == tmp_path / "cache" / "downloads" / digest / "tiny.onnx"
+            _, mask, _ = next(iter(segmenter.segment(session, "a")))
+            np.testing.assert_array_equal(mask, regions["red"] | regions["blue"])
+        assert requested == ["/tiny.onnx"]
+        with pytest.raises(ValueError, match="is a URL: give its sha256"):
+            _segmenter("onnx-semantic", model=f"{base}/tiny.onnx", sidecar=sidecar)
+        with pytest.raises(ValueError, match="is a URL: give sidecar"):
+            _segmenter("onnx-semantic", model=f"{base}/tiny.onnx", sha256=digest)
+    with pytest.raises(ValueError, match=r"tiny\.onnx: SHA-256 .* is not the expected"):  # a local model is checked too
+        _segmenter("onnx-semantic", model=str(model), sha256=hashlib.sha256(b"another model").hexdigest())
+
 # ---------------------------------------------------------------------------------------------- background
 
 

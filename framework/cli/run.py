@@ -1,7 +1,7 @@
 """Run your own capture end to end: ingest, masks, plates, fit, track, evaluate, landmarks, renders, report.
 
 For a rig's own folder (a Pose2Sim project, an anipose session, videos beside a calibration): ingests it at
---scale, makes subject masks from its 2D keypoints (pose_2d/ or --keypoints; else a background median),
+--scale, makes subject masks from its 2D keypoints (pose_2d/ or --keypoints: OpenPose, SLEAP or DeepLabCut; else a background median),
 estimates clean plates with the subject masked out and refines the masks against them, fits the first
 frame with the start region sized from the masks' visual hull, tracks the sequence, evaluates on the
 held-out cameras, carries the joints of a TRC file (the capture's single *.trc, or --joints) and scores
@@ -28,7 +28,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_frames(parser, "the frame indices to use (default: all)")
     add_names(parser, "--cameras", "use only these cameras (default: all): leaves out a broken one, which is then never read or checked")
     add_names(parser, "--holdout", "cameras kept for evaluation (default: the capture format's, else none)")
-    parser.add_argument("--keypoints", help="folder of OpenPose JSON per camera (default: CAPTURE/pose_2d when it exists)")
+    parser.add_argument("--keypoints", help="2D keypoints: a folder of OpenPose JSON folders per camera, or of SLEAP (.slp, .analysis.h5) or "
+                        "DeepLabCut (.csv, .h5) files per camera, or one such file (default: CAPTURE/pose_2d when it exists)")
     parser.add_argument("--joints", help="TRC file of joints to carry as landmarks (default: the capture's single *.trc)")
     parser.add_argument("--config", default=DEFAULT_CONFIG, help=f"configuration to fit with (default: {DEFAULT_CONFIG})")
     add_settings(parser, "override a configuration value (repeatable)")

@@ -4,8 +4,9 @@ flow → flow-guided track → landmarks → evaluate → renders → report.
 
 - Masks: the capture's own when it brings them for every training camera (Dynamic3DGaussians ``seg/``,
   a ``masks/`` folder per camera, RGBA alpha: whatever its reader ingests); else, with 2D keypoints
-  (``--keypoints DIR``, default ``CAPTURE/pose_2d`` when it exists) the skeleton-then-plate path of the
-  ``keypoints`` segmenter; without, against the capture's recorded plates (``background``, method
+  (``--keypoints PATH``, default ``CAPTURE/pose_2d`` when it exists: a folder of OpenPose camera folders,
+  of SLEAP or of DeepLabCut files, or one such file; see :func:`keypoint_source`) the skeleton-then-plate
+  path of the ``keypoints`` segmenter; without, against the capture's recorded plates (``background``, method
   ``plate``) or, with nothing but videos and a calibration, the ``parallax`` segmenter (what the cameras
   agree stands off the floor: a still trunk too), refined against plates estimated with its masks held
   out. Which masks were used is printed and recorded in ``DIR/masks.json``. A capture ingested with
@@ -85,6 +86,29 @@ def found(capture: Path, given: str | None, pattern: str, what: str) -> Path | N
     return matches[0].resolve() if matches else None
 
 
+def keypoint_source(path: Path) -> dict[str, Any]:
+    """The landmarks plugin (``name``) and parameters that read the 2D keypoints at ``path``: a SLEAP file
+    (``.slp``, ``.analysis.h5``) or a DeepLabCut one (``.csv``, ``.h5``), or a folder of OpenPose camera folders
+    of JSON files, else of SLEAP files, else of DeepLabCut files."""
+    lower = path.name.lower()
+    if path.is_file():
+        if lower.endswith((".slp", ".analysis.h5")):
+            return {"name": "sleap", "files": [str(path)]}
+        if lower.endswith((".csv", ".h5")):
+            return {"name": "deeplabcut", "files": [str(path)]}
+        raise InputError(f"keypoint file {path} is neither SLEAP (.slp, .analysis.h5) nor DeepLabCut (.csv, .h5): give one of those, "
+                         "or a folder of OpenPose camera folders")
+    entries = sorted(path.iterdir())
+    if any(entry.is_dir() and any(entry.glob("*.json")) for entry in entries):
+        return {"name": "openpose", "folder": str(path)}
+    if any(entry.is_file() and entry.name.lower().endswith((".slp", ".analysis.h5")) for entry in entries):
+        return {"name": "sleap", "folder": str(path)}
+    if any(entry.is_file() and entry.suffix.lower() in (".csv", ".h5") for entry in entries):
+        return {"name": "deeplabcut", "folder": str(path)}
+    raise InputError(f"keypoint folder {path} holds no OpenPose camera folders of JSON files, no SLEAP (.slp, .analysis.h5) and no "
+                     "DeepLabCut (.csv, .h5) files")
+
+
 def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings = CaptureSettings(), progress: bool = True,
                 log: Callable[[str], None] = print) -> CaptureResult:
     """Run every step into ``out`` (module docstring); ``log`` gets one line per step."""
@@ -106,7 +130,10 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     capture, out = Path(capture).resolve(), Path(out).resolve()
     if not capture.is_dir():
         raise InputError(f"capture {capture} is not a folder")
-    keypoints = found(capture, settings.keypoints, "pose_2d", "keypoint folder")
+    keypoints = found(capture, settings.keypoints, "pose_2d", "keypoints")
+    source = keypoint_source(keypoints) if keypoints else None
+    if source:
+        log(f"run: keypoints: {source['name']} from {keypoints}")
     joints = found(capture, settings.joints, "*.trc", "joints TRC file")
     load_config(settings.config, settings.overrides)  # a bad configuration fails before anything runs
     out.mkdir(parents=True, exist_ok=True)
@@ -116,7 +143,6 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
         ingest(capture, partial, calibration=Path(settings.calibration) if settings.calibration else None, units=settings.units,
                frames=slice(*settings.frames), scale=settings.scale, cameras=list(settings.cameras) or None, holdout=list(settings.holdout),
                overwrite=True, progress=progress)
-        source = {"name": "openpose", "folder": str(keypoints)} if keypoints else None
         recorded = any(SessionReader(partial).plate(name) is not None for name in SessionReader(partial).camera_names)
         segmenter, first, refined = ("keypoints", {"source": source}, {"source": source, "refine": "plate"}) if source else \
             ("background", {"method": "median"}, {"method": "plate"}) if recorded else ("parallax", {}, {"refine": "plate"})
@@ -137,8 +163,8 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
         first.run()
 
     def landmarks() -> None:
-        track_landmarks(run, "trc", {"path": str(joints)}, keypoints="openpose" if keypoints else None,
-                        keypoint_params={"folder": str(keypoints)} if keypoints else None)
+        track_landmarks(run, "trc", {"path": str(joints)}, keypoints=source["name"] if source else None,
+                        keypoint_params={key: value for key, value in source.items() if key != "name"} if source else None)
 
     renders = run / RENDERS_DIR
 

@@ -384,13 +384,15 @@ class Landmarks:
 class KeypointObservations:
     """2D detections of landmarks in one camera: ``pixels[k, j]`` (u, v) of landmark ``names[j]`` at session
     frame ``frames[k]`` in the session's (undistorted) image of the camera, ``confidence[k, j]`` in [0, 1]
-    (0 where nothing was detected)."""
+    (0 where nothing was detected). ``edges`` are the pairs of names the source's file links in its
+    skeleton (a SLEAP skeleton's edges; empty where the file declares none)."""
 
     camera: str
     names: tuple[str, ...] = attrs.field(converter=tuple)
     frames: np.ndarray = attrs.field(converter=lambda value: np.asarray(value, dtype=np.int64))
     pixels: np.ndarray = attrs.field(converter=_positions)
     confidence: np.ndarray = attrs.field(converter=_positions)
+    edges: tuple[tuple[str, str], ...] = attrs.field(default=(), converter=lambda pairs: tuple((str(a), str(b)) for a, b in pairs))
 
 
 class LandmarkSource(ABC):

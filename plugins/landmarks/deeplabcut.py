@@ -2,7 +2,7 @@
 triangulated in the session's cameras.
 
 Layout: one file per camera in ``folder`` (``vid-camA.csv`` or ``vid-camA.h5``; the CSVs when the folder
-has both), matched to the session's cameras by name like videos, or by ``camera_map``. Both hold one table:
+has both), or named by ``files``, matched to the session's cameras by name like videos, or by ``camera_map``. Both hold one table:
 a column per (scorer, body part, coordinate) — ``x, y, likelihood`` per body part, with an
 ``individuals`` level between scorer and body part in multi-animal files, read for their first
 individual — and a row per frame of the video, indexed by the frame number. Likelihoods below
@@ -17,6 +17,7 @@ individual — and a row per frame of the video, indexed by the frame number. Li
   pickle, read here by an unpickler that builds lists, tuples and strings only (a file asking for
   anything else is refused, never run).
 
+The files declare no skeleton (a mask drawn from them is the points' hull, ``segmenters/keypoints.py``).
 The detections are mapped into the stored images and triangulated by :mod:`.triangulation`.
 """
 
@@ -27,6 +28,7 @@ import io
 import pickle
 from collections.abc import Sequence
 from pathlib import Path
+from typing import ClassVar
 
 import attrs
 import numpy as np
@@ -119,18 +121,16 @@ def read_deeplabcut_h5(path: Path) -> KeypointTable:
 class DeepLabCutKeypoints(TableKeypoints):
     """DeepLabCut CSV or HDF5 keypoints per camera, triangulated (module docstring)."""
 
-    folder: str = parameter(doc="the folder of one DeepLabCut CSV or HDF5 file per camera (anipose: pose-2d)", kw_only=True)
+    folder: str | None = parameter(None, doc="the folder of one DeepLabCut CSV or HDF5 file per camera (anipose: pose-2d)")
+    files: tuple[str, ...] | None = parameter(None, doc="the DeepLabCut files themselves, one per camera (instead of folder)")
     min_confidence: float = parameter(0.6, doc="detections of lower likelihood are not used (anipose's default score threshold)",
                                       validator=between(0, 1))
 
+    SUFFIXES: ClassVar[tuple[str, ...]] = (".csv", ".h5")
+
     @property
     def described(self) -> str:
-        return f"DeepLabCut keypoints {self.folder}"
-
-    def files(self, folder: Path) -> dict[str, Path]:
-        """The folder's CSVs, else its ``.h5`` files, by stem."""
-        found = sorted(folder.glob("*.csv")) or sorted(folder.glob("*.h5"))
-        return {path.stem: path for path in found}
+        return f"DeepLabCut keypoints {self.where}"
 
     def read_table(self, path: Path) -> KeypointTable:
         return read_deeplabcut_csv(path) if path.suffix.lower() == ".csv" else read_deeplabcut_h5(path)

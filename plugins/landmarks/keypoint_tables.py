@@ -1,6 +1,7 @@
 """What the keypoint sources that read one table per camera (``deeplabcut``, ``sleap``) share: the files
-of a folder matched to the session's cameras, each read as (names, frame numbers, [T, L, 3] table of x, y,
-confidence in the recorded video's pixels), and turned into observations in the stored images' pixels.
+of a folder (or the files named) matched to the session's cameras, each read as (names, frame numbers,
+[T, L, 3] table of x, y, confidence in the recorded video's pixels) and the skeleton edges it declares, and
+turned into observations in the stored images' pixels.
 """
 
 from __future__ import annotations
@@ -8,6 +9,7 @@ from __future__ import annotations
 from abc import abstractmethod
 from collections.abc import Sequence
 from pathlib import Path
+from typing import ClassVar
 
 import attrs
 import numpy as np
@@ -26,29 +28,67 @@ KeypointTable = tuple[tuple[str, ...], np.ndarray, np.ndarray]
 
 @attrs.frozen
 class TableKeypoints(TriangulatedKeypoints):
-    """Keypoints read from one file per camera in ``folder``, triangulated; subclasses say which files and
-    how to read one."""
+    """Keypoints read from one file per camera, in ``folder`` or named by ``files``, triangulated; subclasses
+    say which file suffixes they read and how to read one."""
 
-    folder: str = parameter(doc="the folder of one keypoint file per camera", kw_only=True)
+    folder: str | None = parameter(None, doc="the folder of one keypoint file per camera")
+    files: tuple[str, ...] | None = parameter(None, doc="the keypoint files themselves, one per camera (instead of folder)")
     min_confidence: float = parameter(0.6, doc="detections of lower confidence are not used", validator=between(0, 1))
     camera_map: dict | None = parameter(None, doc="session camera name → its file's name (without the suffix), where the names differ")
 
-    @abstractmethod
-    def files(self, folder: Path) -> dict[str, Path]:
-        """The keypoint files of ``folder`` by the name they are matched to cameras with."""
+    #: The file suffixes read, in order of preference: a folder's files of the first suffix it has are used.
+    SUFFIXES: ClassVar[tuple[str, ...]] = ()
+
+    @property
+    def where(self) -> str:
+        """The folder or the files, as the user gave them."""
+        return self.folder if self.folder is not None else ", ".join(self.files or ())
+
+    def __attrs_post_init__(self) -> None:
+        if (self.folder is None) == (self.files is None):
+            raise InputError(f"{self.described}: give either folder (one file per camera) or files, not {'both' if self.folder else 'neither'}")
 
     @abstractmethod
     def read_table(self, path: Path) -> KeypointTable:
         """One camera's keypoints."""
 
-    def observations(self, session: SessionReader, frames: Sequence[int]) -> list[KeypointObservations]:
-        """Every camera's detections at ``frames``, in the stored images' pixels."""
+    def read_edges(self, path: Path) -> tuple[tuple[str, str], ...]:
+        """The skeleton edges (pairs of keypoint names) a file declares; none by default."""
+        return ()
+
+    def label(self, path: Path) -> str | None:
+        """The name ``path`` is matched to a camera by (its name less the suffix), or None when this source does not read it."""
+        suffix = next((suffix for suffix in self.SUFFIXES if path.name.lower().endswith(suffix)), None)
+        return path.name[: -len(suffix)] if suffix else None
+
+    def keypoint_files(self) -> tuple[Path, dict[Path, Path]]:
+        """The folder the files are matched in, and the files by the path named after their camera label."""
+        if self.files is not None:
+            paths = [Path(path) for path in self.files]
+            for path in paths:
+                if not path.is_file():
+                    raise MissingFileError(f"{self.described}: file {path} does not exist")
+                if self.label(path) is None:
+                    raise InputError(f"{self.described}: {path} is not a {' or '.join(self.SUFFIXES)} file")
+            labels = [self.label(path) for path in paths]
+            repeated = sorted({label for label in labels if labels.count(label) > 1})
+            if repeated:
+                raise InputError(f"{self.described}: several files are named {repeated[0]!r}: name one file per camera")
+            return (paths[0].parent if paths else Path(".")), {path.parent / label: path for path, label in zip(paths, labels, strict=True)}
         folder = Path(self.folder)
         if not folder.is_dir():
             raise MissingFileError(f"{self.described}: folder {folder} does not exist")
+        for suffix in self.SUFFIXES:
+            found = sorted(path for path in folder.iterdir() if path.is_file() and path.name.lower().endswith(suffix))
+            if found:
+                return folder, {folder / self.label(path): path for path in found}
+        return folder, {}
+
+    def observations(self, session: SessionReader, frames: Sequence[int]) -> list[KeypointObservations]:
+        """Every camera's detections at ``frames``, in the stored images' pixels."""
         cameras = [session.camera(name) for name in session.camera_names]
-        # Matched by name: the file's own path when its stem is the name, else a stand-in path named after it.
-        files = {folder / label: path for label, path in self.files(folder).items()}
+        # Matched by name: a stand-in path named after each file's label.
+        folder, files = self.keypoint_files()
         matched = {name: files[path] for name, path in match_cameras(cameras, list(files), "keypoint file", folder, self.camera_map).items()}
         recorded = recorded_cameras(session)
         capture = session.capture_frames(frames)
@@ -69,5 +109,5 @@ class TableKeypoints(TriangulatedKeypoints):
             if camera.name in recorded:
                 pixels = to_session_pixels(pixels, recorded[camera.name], camera)
             confidence[confidence < self.min_confidence] = 0.0
-            result.append(KeypointObservations(camera.name, parts, frames, pixels, confidence))
+            result.append(KeypointObservations(camera.name, parts, frames, pixels, confidence, self.read_edges(matched[camera.name])))
         return result

@@ -17,12 +17,18 @@ session's cameras by name (without ``.analysis.h5`` / ``.slp``) like videos, or 
   user-labelled point, the score for a predicted one, 0 where not visible. Files older than format 1.1
   put pixel centres at +0.5: their points are shifted by −0.5 to mmcsplat's (and OpenCV's) integer
   centres.
+
+The skeleton's edges (for masks drawn from the keypoints, ``segmenters/keypoints.py``): an analysis
+file's ``edge_names`` [edges, 2] (source, destination node names); a labels file's skeleton ``links``
+(``source`` and ``target`` index the ``nodes`` list; only body edges, type 1, not symmetries).
+Files are found in ``folder`` or named one per camera by ``files``.
 """
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import ClassVar
 
 import attrs
 import numpy as np
@@ -37,6 +43,8 @@ LABELS_SUFFIX = ".slp"
 #: The .slp format version from which pixel centres are at integer coordinates.
 CENTRED_FORMAT = 1.1
 USER, PREDICTED = 0, 1
+#: SLEAP's type of a body edge (2 marks a symmetry: a left and right pair, not a link of the body).
+BODY_EDGE = 1
 
 
 def _names(raw: np.ndarray) -> tuple[str, ...]:
@@ -106,6 +114,39 @@ def read_sleap_labels(path: Path, track: int = 0) -> KeypointTable:
     return names, np.asarray(numbers, dtype=np.int64), np.asarray(table, dtype=np.float64).reshape(len(numbers), len(names), 3)
 
 
+def read_sleap_edges(path: Path) -> tuple[tuple[str, str], ...]:
+    """The (source, destination) node names of the skeleton's body edges in a SLEAP file (none where it declares none)."""
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as file:
+            if path.name.endswith(ANALYSIS_SUFFIX):
+                pairs = np.asarray(file["edge_names"][()]) if "edge_names" in file else np.empty((0, 2))
+                if pairs.ndim == 2 and pairs.shape[0] == 2 and pairs.shape[1] != 2:  # written transposed, for MATLAB
+                    pairs = pairs.T
+                return tuple((_text(a), _text(b)) for a, b in pairs.reshape(-1, 2))
+            metadata = json.loads(_text(file["metadata"].attrs["json"]))
+    except (OSError, KeyError, ValueError) as error:
+        raise InputError(f"{path}: its skeleton cannot be read ({error})") from None
+    names = [node["name"] for node in metadata.get("nodes", [])]
+    skeletons = metadata.get("skeletons", [])
+    try:
+        return tuple((names[link["source"]], names[link["target"]]) for link in (skeletons[0].get("links", []) if skeletons else [])
+                     if _edge_type(link.get("type", {})) == BODY_EDGE)
+    except (IndexError, TypeError, KeyError) as error:
+        raise InputError(f"{path}: a skeleton link does not name two of its {len(names)} nodes ({error})") from None
+
+
+def _edge_type(value) -> int:
+    """A link's type as SLEAP stores it: a pickled EdgeType (``py/reduce``, its value the tuple's first item), a
+    reference ``py/id`` to an earlier one (whose number is the type's, as SLEAP writes the body type first), or absent (a body edge)."""
+    if isinstance(value, dict) and "py/reduce" in value:
+        return int(value["py/reduce"][1]["py/tuple"][0])
+    if isinstance(value, dict) and "py/id" in value:
+        return int(value["py/id"])
+    return BODY_EDGE
+
+
 def _text(value) -> str:
     return value.decode() if isinstance(value, bytes) else str(value)
 
@@ -128,22 +169,20 @@ def _instance(instances: np.ndarray, track: int):
 class SleapKeypoints(TableKeypoints):
     """SLEAP keypoints (``.analysis.h5`` or ``.slp``) per camera, triangulated (module docstring)."""
 
-    folder: str = parameter(doc="the folder of one SLEAP .analysis.h5 or .slp file per camera", kw_only=True)
+    folder: str | None = parameter(None, doc="the folder of one SLEAP .analysis.h5 or .slp file per camera")
+    files: tuple[str, ...] | None = parameter(None, doc="the SLEAP files themselves, one per camera (instead of folder)")
     min_confidence: float = parameter(0.3, doc="points of a lower score are not used (user-labelled visible points score 1)",
                                       validator=between(0, 1))
     track: int = parameter(0, doc="the track (animal) to read, where the files are tracked")
 
+    SUFFIXES: ClassVar[tuple[str, ...]] = (ANALYSIS_SUFFIX, LABELS_SUFFIX)
+
     @property
     def described(self) -> str:
-        return f"SLEAP keypoints {self.folder}"
-
-    def files(self, folder: Path) -> dict[str, Path]:
-        """The folder's ``*.analysis.h5``, else its ``*.slp``, by name without that suffix."""
-        for suffix in (ANALYSIS_SUFFIX, LABELS_SUFFIX):
-            found = sorted(path for path in folder.iterdir() if path.is_file() and path.name.endswith(suffix))
-            if found:
-                return {path.name[: -len(suffix)]: path for path in found}
-        return {}
+        return f"SLEAP keypoints {self.where}"
 
     def read_table(self, path: Path) -> KeypointTable:
         return read_sleap_analysis(path, self.track) if path.name.endswith(ANALYSIS_SUFFIX) else read_sleap_labels(path, self.track)
+
+    def read_edges(self, path: Path) -> tuple[tuple[str, str], ...]:
+        return read_sleap_edges(path)

@@ -1,11 +1,20 @@
-"""``keypoints``: subject masks from 2D keypoints (OpenPose JSON, as Pose2Sim users already have), for
-captures with no clean plate and no segmentation model.
+"""``keypoints``: subject masks from 2D keypoints (OpenPose JSON, as Pose2Sim users already have; SLEAP or
+DeepLabCut files, as animal labs have), for captures with no clean plate and no segmentation model.
 
-The skeleton of each frame's detections is drawn filled: the torso as the polygon of shoulders and
-hips, each limb as a thick segment, the head as a disk — widths in proportion to the subject's torso
-length in that camera (median over the frames), so near and far views get alike masks. This coarse
-silhouette is already a mask (``refine = "none"``). With a clean plate (recorded, or estimated by
-``mmcsplat plates`` with these masks excluding the subject), ``refine = "plate"`` keeps the pixels that
+Each frame's detections are drawn filled, in one of three shapes chosen by what the keypoints name:
+
+- a human skeleton (the keypoints include shoulders and hips by OpenPose's names): the torso as the
+  polygon of shoulders and hips, each limb as a thick segment, the head as a disk — widths in proportion
+  to the subject's torso length in that camera (median over the frames), so near and far views get
+  alike masks;
+- any other skeleton the file declares (a SLEAP skeleton's edges: a mouse's nose–head–spine–tail): each
+  edge as a thick segment and each keypoint as a disk, as wide as ``BODY_WIDTH`` of the keypoints'
+  extent (the largest distance between two of a frame's keypoints, median over the frames);
+- keypoints without a skeleton (DeepLabCut files declare none): the convex hull of the frame's keypoints
+  with the same disks around each, since the keypoints lie inside the body, not on its outline.
+
+This coarse silhouette is already a mask (``refine = "none"``). With a clean plate (recorded, or estimated
+by ``mmcsplat plates`` with these masks excluding the subject), ``refine = "plate"`` keeps the pixels that
 differ from the plate within the silhouette grown by ``margin``: the body's true outline, and never a
 bystander or a moving object away from the subject, which plate differences alone would take.
 """
@@ -36,6 +45,9 @@ HEAD = ("Head", "Nose")
 #: Widths as shares of the torso length (neck to mid-hip): an adult's thigh is about a third of it.
 LIMB_WIDTH = 0.3
 HEAD_RADIUS = 0.3
+#: The body's width as a share of the keypoints' extent, for skeletons other than a human's: a mouse is
+#: about a third as wide as it is long from nose to tail base.
+BODY_WIDTH = 0.3
 
 
 def torso_length(observed: KeypointObservations) -> float | None:
@@ -50,11 +62,50 @@ def torso_length(observed: KeypointObservations) -> float | None:
     return float(np.median(np.linalg.norm(top - bottom, axis=-1)[visible])) if visible.any() else None
 
 
+def is_human(names: tuple[str, ...]) -> bool:
+    """Whether the keypoints include the torso's by OpenPose's names (drawn as a human skeleton)."""
+    return all(name in names for name in TORSO)
+
+
+def extent(observed: KeypointObservations) -> float | None:
+    """Median over the frames showing two keypoints or more of the largest pixel distance between two of them."""
+    spans = []
+    for points, seen in zip(observed.pixels, observed.confidence > 0, strict=True):
+        if seen.sum() >= 2:
+            shown = points[seen]
+            spans.append(np.linalg.norm(shown[:, None] - shown[None], axis=-1).max())
+    return float(np.median(spans)) if spans else None
+
+
+def _fixed(pixels: np.ndarray) -> np.ndarray:
+    """Pixels as cv2's shift=4 sub-pixel integer points."""
+    return np.round(pixels * 16).astype(np.int64).clip(-(2**27), 2**27).astype(np.int32)
+
+
+def outline_mask(pixels: np.ndarray, seen: np.ndarray, names: tuple[str, ...], edges: tuple[tuple[str, str], ...],
+                 shape: tuple[int, int], scale: float) -> np.ndarray:
+    """[H, W] bool: one frame's keypoints of a non-human skeleton, filled (module docstring): its ``edges``
+    drawn thick, or without edges the keypoints' convex hull; a disk around each keypoint. ``scale``: the extent."""
+    index = {name: j for j, name in enumerate(names)}
+    canvas = np.zeros(shape, dtype=np.uint8)
+    fixed = _fixed(pixels)
+    width = max(1, round(BODY_WIDTH * scale))
+    if edges:
+        for a, b in edges:
+            if a in index and b in index and seen[index[a]] and seen[index[b]]:
+                cv2.line(canvas, tuple(fixed[index[a]]), tuple(fixed[index[b]]), 1, width, cv2.LINE_AA, shift=4)
+    elif seen.sum() >= 3:
+        cv2.fillPoly(canvas, [cv2.convexHull(fixed[seen])], 1, cv2.LINE_AA, shift=4)
+    for point in fixed[seen]:
+        cv2.circle(canvas, tuple(point), round(width * 8), 1, -1, cv2.LINE_AA, shift=4)  # radius width / 2, in 1/16 px
+    return canvas.astype(bool)
+
+
 def skeleton_mask(pixels: np.ndarray, seen: np.ndarray, names: tuple[str, ...], shape: tuple[int, int], scale: float) -> np.ndarray:
     """[H, W] bool: the filled skeleton of one frame's keypoints ``pixels`` [K, 2] (``seen`` [K] bool)."""
     index = {name: j for j, name in enumerate(names)}
     canvas = np.zeros(shape, dtype=np.uint8)
-    fixed = np.round(pixels * 16).astype(np.int64).clip(-(2**27), 2**27).astype(np.int32)  # cv2's shift=4 sub-pixel points
+    fixed = _fixed(pixels)
 
     def usable(name: str) -> bool:
         return name in index and bool(seen[index[name]])
@@ -74,12 +125,14 @@ def skeleton_mask(pixels: np.ndarray, seen: np.ndarray, names: tuple[str, ...], 
 
 @attrs.frozen
 class KeypointSegmenter(PostProcessedSegmenter):
-    """Masks from the skeleton of 2D keypoints, optionally refined against the camera's clean plate."""
+    """Masks from the filled skeleton (or hull) of 2D keypoints, optionally refined against the camera's clean plate."""
 
     source: str | Mapping[str, Any] = parameter(
-        "openpose", doc='the landmarks plugin giving the 2D keypoints: its name, or a table of name and parameters ({ name = "openpose", folder = "pose_2d" })')
+        "openpose", doc='the landmarks plugin giving the 2D keypoints (openpose, sleap, deeplabcut): its name, or a table of name and parameters '
+            '({ name = "openpose", folder = "pose_2d" }, { name = "sleap", files = ["cam1.analysis.h5", …] })')
     refine: str = parameter("none", doc="none: the skeleton is the mask; plate: what differs from the clean plate inside it", validator=one_of("none", "plate"))
-    margin: float = parameter(0.3, doc="plate: the skeleton grown by this share of the torso length bounds the mask", validator=at_least(0))
+    margin: float = parameter(0.3, doc="plate: the skeleton grown by this share of its size (torso length, or the keypoints' extent) bounds the mask",
+                              validator=at_least(0))
     threshold: float = parameter(20.0, doc="plate: grey levels of difference from the plate that count as subject", validator=above(0))
     # Every piece of a mask bounded by the skeleton is the subject: refined against the plate, a body often
     # splits at the belt or the knees (the Pose2Sim demo's cam_01 kept only its legs as the central piece).
@@ -100,9 +153,11 @@ class KeypointSegmenter(PostProcessedSegmenter):
 
     def raw(self, session: SessionReader, camera: str) -> Iterator[tuple[int, np.ndarray, np.ndarray | None]]:
         observed = self._observations(session, camera)
-        scale = torso_length(observed)
+        human = is_human(observed.names)
+        scale = torso_length(observed) if human else extent(observed)
         if scale is None:
-            raise InputError(f"segmenter 'keypoints': camera {camera!r} never shows shoulders and hips together; its masks cannot be sized")
+            shown = "shoulders and hips together" if human else "two keypoints in one frame"
+            raise InputError(f"segmenter 'keypoints': camera {camera!r} never shows {shown}; its masks cannot be sized")
         stored = session.camera(camera)
         plate = session.plate(camera) if self.refine == "plate" else None
         if self.refine == "plate" and plate is None:
@@ -114,7 +169,9 @@ class KeypointSegmenter(PostProcessedSegmenter):
                 yield int(t), np.zeros((stored.height, stored.width), dtype=bool), None
                 continue
             k = where[0]
-            mask = skeleton_mask(observed.pixels[k], observed.confidence[k] > 0, observed.names, (stored.height, stored.width), scale)
+            seen, shape = observed.confidence[k] > 0, (stored.height, stored.width)
+            mask = skeleton_mask(observed.pixels[k], seen, observed.names, shape, scale) if human else \
+                outline_mask(observed.pixels[k], seen, observed.names, observed.edges, shape, scale)
             if plate is not None:
                 difference = np.abs(session.frame(int(t), camera).rgb.astype(np.int16) - plate.astype(np.int16)).max(axis=-1)
                 mask = open_close(difference > self.threshold, 1, 2) & dilate(mask, round(self.margin * scale))

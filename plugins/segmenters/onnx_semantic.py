@@ -1,6 +1,7 @@
 """``onnx-semantic``: any ONNX semantic-segmentation model, run with onnxruntime on the CPU.
 
-The model comes with a sidecar JSON file (format in docs/plugins.md, "Segmenters") giving its input
+The model is a local file, or an http(s) URL with its SHA-256: fetched once into the download cache
+(:mod:`mmcsplat.storage.downloads`), verified, and read from there offline afterwards. It comes with a sidecar JSON file (format in docs/plugins.md, "Segmenters") giving its input
 size, normalization, channel order and the label name of each class id. Per-pixel class ids are the
 argmax over the class axis, resized back to the image with nearest-neighbour, then remapped by a table
 of label names (the reference study counted ADE20K's ``toy``/``plaything`` as ``person``: infants lie
@@ -22,6 +23,7 @@ import numpy as np
 from mmcsplat.plugin_api.errors import InputError, MissingFileError
 from mmcsplat.plugin_api.parameters import at_least, parameter
 from mmcsplat.plugins.segmenters.postprocess import PostProcessedSegmenter, present_frames
+from mmcsplat.storage.downloads import fetch_cached, is_url, verify
 from mmcsplat.storage.session import SessionReader
 
 #: The reference study's table: toys and playthings count as the person (the infant holding them).
@@ -129,11 +131,12 @@ def _internal() -> Any:
 
 @attrs.define
 class OnnxSemanticSegmenter(PostProcessedSegmenter):
-    """Semantic segmentation with an ONNX model on onnxruntime's CPUExecutionProvider (nothing is
-    downloaded). Labels are stored as the remapped class ids of the sidecar (docs/plugins.md)."""
+    """Semantic segmentation with an ONNX model on onnxruntime's CPUExecutionProvider (a model given by URL is
+    fetched once into the cache). Labels are stored as the remapped class ids of the sidecar (docs/plugins.md)."""
 
-    model: str = parameter(doc="the .onnx file (required; a local file)", kw_only=True)
-    sidecar: str | None = parameter(None, doc="its JSON description (none: the model's path with suffix .json)")
+    model: str = parameter(doc="the .onnx file (required): a local file, or an http(s) URL fetched once into the cache", kw_only=True)
+    sha256: str | None = parameter(None, doc="the model file's SHA-256 (required with a URL; checked for a local file too)")
+    sidecar: str | None = parameter(None, doc="its JSON description, a local file (none: the local model's path with suffix .json)")
     subject: str = parameter("person", doc="the label whose pixels form the mask")
     remap: Mapping[str, str] | None = parameter(None, doc="label → the label it counts as (none: DEFAULT_REMAP, entries the model lacks skipped)")
     batch_size: int = parameter(4, doc="frames per inference call (a model with a fixed batch uses its own)", validator=at_least(1))
@@ -152,9 +155,7 @@ class OnnxSemanticSegmenter(PostProcessedSegmenter):
     def __attrs_post_init__(self) -> None:
         import onnxruntime
 
-        path = self.path = Path(self.model).expanduser()
-        if not path.is_file():
-            raise MissingFileError(f"ONNX model {path} does not exist (mmcsplat downloads nothing: point 'model' at a local .onnx file)")
+        path = self.path = self._model_file()
         self.description = Sidecar.load(Path(self.sidecar).expanduser() if self.sidecar else path.with_suffix(".json"))
         subjects = self.description.ids_of(self.subject)
         if len(subjects) != 1:
@@ -177,6 +178,21 @@ class OnnxSemanticSegmenter(PostProcessedSegmenter):
         batch = self._input.shape[0]
         self.fixed_batch = batch if isinstance(batch, int) else None
         self.frames_per_call = self.fixed_batch or self.batch_size
+
+    def _model_file(self) -> Path:
+        """The local model file: ``model`` itself, or its cached download; checked against ``sha256`` when given."""
+        if is_url(self.model):
+            if not self.sha256:
+                raise InputError(f"ONNX model {self.model} is a URL: give its sha256 too (the checksum the download is verified against)")
+            if not self.sidecar:
+                raise InputError(f"ONNX model {self.model} is a URL: give sidecar = the local path of its JSON description")
+            return fetch_cached(self.model, self.sha256)
+        path = Path(self.model).expanduser()
+        if not path.is_file():
+            raise MissingFileError(f"ONNX model {path} does not exist: point 'model' at a local .onnx file, or at a URL with its sha256")
+        if self.sha256:
+            verify(path, self.sha256)
+        return path
 
     def _port(self, ports: Sequence[Any], name: str | None, what: str) -> Any:
         """The model's input or output called ``name`` (its first one when ``name`` is None)."""
