@@ -33,7 +33,9 @@ from mmcsplat.plugin_api.errors import InputError
 ENVIRONMENT = "MMCSPLAT_THREADS"
 AUTO = "auto"
 RECHECK_S = 1.0  # seconds between choices: /proc/stat's 100 Hz ticks give ±0.02 of a core over this window
-BUSY_SHARE = 0.25  # a core the other processes use for more than this share of the time is theirs
+# A core the other processes use for more than this share of the time is theirs. Well below a half: a busy
+# process beside our two spinning threads on two cores gets only a half to two thirds of one (fair shares).
+BUSY_SHARE = 0.25
 
 logger = logging.getLogger(__name__)
 
