@@ -126,7 +126,7 @@ def test_the_environment_chooses_the_policy(monkeypatch):
         policy = ThreadPolicy.from_environment()
         assert policy.fixed is None and policy.ceiling <= threads_before and "at most" in policy.describe()
     finally:
-        torch.set_num_threads(threads_before)
+        threads.apply_threads(threads_before)  # numba's count too, where it is loaded
 
 
 def test_the_process_policy_is_made_and_logged_once(monkeypatch, caplog):
