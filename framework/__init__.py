@@ -14,7 +14,8 @@ import os
 # The CPU kernels run on numba's OpenMP threads (libgomp, as torch's own). Their wait policy is left to
 # the environment: libgomp's default spins briefly before sleeping, which the demo needs (passive
 # waiting made it 1.6× slower on an idle machine, 377 s against 235 s); on a machine shared with other
-# CPU-heavy work, OMP_WAIT_POLICY=PASSIVE keeps two threads as fast as one (docs/performance.md, "Threads").
+# CPU-heavy work, training leaves the busy cores to it instead (mmcsplat.training.threads;
+# docs/performance.md, "Threads").
 os.environ.setdefault("NUMBA_THREADING_LAYER", "omp")
 
 from .plugin_api.hookspecs import hookimpl  # noqa: E402

@@ -1,4 +1,5 @@
-"""`mmcsplat bench`: the benchmark scenes as ../shared/bench/README.md defines them, the interleaved timing
+"""`mmcsplat bench`: the benchmark scenes as ../shared/bench/README.md defines them and mmcsplat's own scene D
+(a real capture's first-frame fit: its size and the many tiles each Gaussian covers), the interleaved timing
 protocol, the report's verdicts on the speed-up targets, and the command end to end."""
 
 import json
@@ -11,9 +12,9 @@ import torch
 from mmcsplat import Registration, hookimpl
 from mmcsplat.bench.benchmark import BenchReport, SceneResult, Timing, build_scene, run_benchmark, to_json, to_markdown
 from mmcsplat.cli import main
-from mmcsplat.configuration.registry import Registry
+from mmcsplat.configuration.registry import Registry, default_registry
 from mmcsplat.plugin_api.interfaces import Renderer
-from mmcsplat.plugin_api.render_contract import RenderOutput
+from mmcsplat.plugin_api.render_contract import TILE_SIZE, RenderOutput
 
 
 def test_scene_a_is_drawn_in_readme_order():
@@ -46,6 +47,33 @@ def test_scenes_b_and_c_share_gaussians_and_look_at_the_origin():
         assert torch.allclose(rotation @ rotation.T, torch.eye(3), atol=1e-6)
         assert torch.allclose(rotation[2], -centre / centre.norm(), atol=1e-6)  # optical axis through the origin
         assert float(rotation[1, 2]) < 0  # image y points down in the world (z up)
+
+
+def tiles_covered(scene) -> torch.Tensor:
+    """[C, N] tiles each Gaussian touches in each camera, from the torch-cpu renderer's screen radii."""
+    with torch.no_grad():
+        radii = default_registry().create("renderer", "torch-cpu").render(scene.gaussians, scene.cameras).radii.float()
+    return torch.where(radii > 0, (2 * radii / TILE_SIZE + 1) ** 2, 0)
+
+
+def test_scene_d_is_a_real_capture_first_fit():
+    d = build_scene("D")
+    assert (d.gaussians.count, d.cameras.count, d.cameras.width, d.cameras.height) == (3000, 4, 272, 480)
+    f = 1675 * 272 / 1088
+    assert torch.allclose(d.cameras.K[0], torch.tensor([[f, 0, 136], [0, f, 240], [0, 0, 1.0]]))
+    for viewmat in d.cameras.viewmats:
+        centre = -viewmat[:3, :3].T @ viewmat[:3, 3]
+        assert torch.allclose(centre[:2].norm(), torch.tensor(3.5)) and math.isclose(float(centre[2]), 1.0, abs_tol=1e-5)
+    # the initializers' start: isotropic, opacity 0.1, inside a standing person's box
+    assert torch.equal(d.gaussians.log_scales[:, 0], d.gaussians.log_scales[:, 2])
+    assert torch.allclose(torch.sigmoid(d.gaussians.opacity_logits), torch.tensor(0.1))
+    assert float(d.gaussians.means[:, 2].min()) >= 0.05 - 1e-6 and float(d.gaussians.means[:, 2].max()) <= 1.75 + 1e-6
+
+
+def test_scene_d_gaussians_each_cover_many_tiles_unlike_scene_b():
+    d, b = tiles_covered(build_scene("D")), tiles_covered(build_scene("B"))
+    assert bool((d > 0).all())  # every Gaussian in every camera
+    assert float(d.median()) >= 9 and float(b.median()) <= 4
 
 
 class Stub(Renderer):

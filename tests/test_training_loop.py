@@ -1,7 +1,8 @@
 """The training driver (mmcsplat.training.loop) on the tiny fitting scene (tests/fitting_scene.py): extra
 loss terms are added to the per-view objective, pruning rules remove Gaussians, checkpoints come every N
 steps and after the last, a non-finite step names where it happened, and the stopping rule ends a
-training whose loss has stopped improving before its cap (and is off unless asked for)."""
+training whose loss has stopped improving before its cap (and is off unless asked for), and every step
+keeps the CPU thread count to the free cores."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from fitting_scene import scene_context, subject, write_session
 from mmcsplat.configuration.registry import default_registry
 from mmcsplat.plugin_api.render_contract import RenderCameras
 from mmcsplat.storage.session import SessionReader
+from mmcsplat.training import threads
 from mmcsplat.training.finite import FitError, NonFiniteError
 from mmcsplat.training.loop import PlateauStop, Sample, TrainingLoop
 from mmcsplat.training.model import GaussianModel, LearningRates
@@ -112,3 +114,17 @@ def test_the_stopping_rule_ends_a_flat_training_before_its_cap_and_is_off_by_def
     done = loop.run(range(100), sample, stop=PlateauStop(window=cameras, patience=2), checkpoint=saved.append, progress=False)
     assert done == 3 * cameras and saved == [done]  # the first block sets the mark, two more without a better one stop
     assert loop.run(range(2 * cameras), sample, progress=False) == 2 * cameras
+
+
+def test_every_step_keeps_the_thread_count_to_the_free_cores(scene, model, monkeypatch):
+    """The loop asks the process's thread policy before each step (mmcsplat.training.threads)."""
+    asked = []
+
+    class Policy:
+        def update(self):
+            asked.append(len(asked))
+            return 1
+
+    monkeypatch.setattr(threads, "_policy", Policy())
+    loop_of(model).run(range(0, 4), sampler(scene, model), progress=False)
+    assert asked == [0, 1, 2, 3]

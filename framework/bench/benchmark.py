@@ -1,5 +1,6 @@
-"""Renderer benchmark: the scenes of ../shared/bench/README.md, built exactly as written there, and the
-timing protocol of ``mmcsplat bench`` (warm-up reported apart, interleaved timed runs, peak memory).
+"""Renderer benchmark: the scenes of ../shared/bench/README.md (A, B, C), built exactly as written there,
+mmcsplat's own scene D (a real capture's first-frame fit at its start, :func:`build_scene`), and the timing
+protocol of ``mmcsplat bench`` (warm-up reported apart, interleaved timed runs, peak memory).
 
 Backends are reached through the registry only; ``torch-reference`` is the baseline of the speed-ups.
 """
@@ -31,7 +32,8 @@ from mmcsplat.plugin_api.render_contract import Gaussians, RenderCameras, viewma
 from mmcsplat.storage.memory import release_freed_memory
 
 BASELINE = "torch-reference"
-SCENES = {"A": "random-2k", "B": "infant-10k", "C": "infant-10k-ring8"}
+SCENES = {"A": "random-2k", "B": "infant-10k", "C": "infant-10k-ring8", "D": "first-fit-4cam"}
+OWN_SCENES = ("D",)  # mmcsplat's own, not in ../shared/bench/README.md
 #: Required speed-up over torch-reference (median of paired run ratios), by (backend, scene).
 TARGETS = {("torch-cpu", "B"): 10.0, ("torch-cpu", "C"): 10.0, ("jax", "B"): 2.0}
 #: Distributions whose versions a report records (those installed).
@@ -48,9 +50,10 @@ class BenchScene:
     cameras: RenderCameras
 
     def describe(self) -> str:
-        """"B — infant-10k (N = 10000, 256×192, 1 camera)"."""
+        """"B — infant-10k (N = 10000, 256×192, 1 camera)"; mmcsplat's own scenes say so."""
         c = self.cameras.count
-        return (f"{self.key} — {self.name} (N = {self.gaussians.count}, {self.cameras.width}×{self.cameras.height}, "
+        own = ", mmcsplat's own" if self.key in OWN_SCENES else ""
+        return (f"{self.key} — {self.name}{own} (N = {self.gaussians.count}, {self.cameras.width}×{self.cameras.height}, "
                 f"{c} camera{'s' if c > 1 else ''})")
 
 
@@ -59,10 +62,13 @@ def _intrinsics(f: float, width: int, height: int) -> torch.Tensor:
 
 
 def build_scene(key: str) -> BenchScene:
-    """Scene ``key`` ("A", "B" or "C") drawn from ``torch.Generator().manual_seed(0)`` in the README's order."""
+    """Scene ``key`` drawn from ``torch.Generator().manual_seed(0)``: A, B and C in the README's order, D
+    as :func:`first_fit_scene` draws it."""
     if key not in SCENES:
         raise InputError(f"unknown benchmark scene {key!r}; scenes are {', '.join(SCENES)}")
     g = torch.Generator().manual_seed(0)
+    if key == "D":
+        return first_fit_scene(g)
     if key == "A":
         n, width, height = 2000, 128, 96
         means = (torch.rand(n, 3, generator=g) * 2 - 1) * torch.tensor([1.0, 0.75, 0.5])
@@ -86,6 +92,31 @@ def build_scene(key: str) -> BenchScene:
     K = _intrinsics(f, width, height).expand(len(viewmats), 3, 3).clone()
     return BenchScene(key, SCENES[key], Gaussians.from_linear(means, quats, scales, opacities, colors),
                       RenderCameras(K, viewmats, width, height))
+
+
+def first_fit_scene(g: torch.Generator) -> BenchScene:
+    """Scene D, "first-fit-4cam", mmcsplat's own (not in ../shared/bench/README.md): what a first-frame fit
+    of a real capture renders at its start, the workload of issue 27 — the Pose2Sim demo's four portrait
+    1088×1920 cameras at a quarter of their size (272×480) around a standing person, and a few thousand
+    Gaussians as the initializers place them (isotropic, opacity 0.1, sized by their spacing), each large
+    enough to cover many 16-pixel tiles. Drawn in this order:
+
+    - N = 3000; means = (rand(N, 3) · 2 − 1) · [0.25, 0.2, 0.85] + [0, 0, 0.9] (metres, z up);
+    - quats = (1, 0, 0, 0); scales = exp(log(0.05) + 0.2 · randn(N, 1)) on all three axes;
+    - opacities = 0.1; colours = rand(N, 3);
+    - cameras at (3.5 cos θ, 3.5 sin θ, 1.0), θ = 45° + k · 90°, k = 0…3, looking at (0, 0, 0.9);
+      f = 1675 · 272 / 1088 = 418.75, K = [[f, 0, 136], [0, f, 240], [0, 0, 1]].
+    """
+    n, width, height = 3000, 272, 480
+    means = (torch.rand(n, 3, generator=g) * 2 - 1) * torch.tensor([0.25, 0.2, 0.85]) + torch.tensor([0.0, 0.0, 0.9])
+    quats = torch.tensor([1.0, 0.0, 0.0, 0.0]).expand(n, 4).clone()
+    scales = torch.exp(math.log(0.05) + 0.2 * torch.randn(n, 1, generator=g)).expand(n, 3).clone()
+    opacities = torch.full((n,), 0.1)
+    colors = torch.rand(n, 3, generator=g)
+    angles = [math.radians(45 + 90 * k) for k in range(4)]
+    viewmats = torch.stack([viewmat_looking_at((3.5 * math.cos(a), 3.5 * math.sin(a), 1.0), (0.0, 0.0, 0.9)) for a in angles])
+    K = _intrinsics(1675 * width / 1088, width, height).expand(len(viewmats), 3, 3).clone()
+    return BenchScene("D", SCENES["D"], Gaussians.from_linear(means, quats, scales, opacities, colors), RenderCameras(K, viewmats, width, height))
 
 
 def leaves(scene: BenchScene) -> Gaussians:

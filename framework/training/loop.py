@@ -7,7 +7,8 @@ A step renders the sample's Gaussians in its view's camera and composes the loss
 backward, finite check of the gradients, the extra optimisers (e.g. a deformation field's), the model's
 optimisers, densifier post-hook, pruning, finite check of the parameters. The loop around the steps
 draws each step's :class:`Sample`, shows the progress bar, calls the method's record hook (curves,
-running means) and its checkpoint hook, and may stop early by a :class:`PlateauStop`.
+running means) and its checkpoint hook, may stop early by a :class:`PlateauStop`, and keeps the CPU thread
+count to the cores other processes leave free (:mod:`~mmcsplat.training.threads`).
 
 A method says only what differs: what each step trains on (its ``sample``), which parameters are frozen
 (``requires_grad``), the extra terms, pruning rules and optimisers, and what it records and checkpoints.
@@ -23,6 +24,7 @@ import torch
 
 from .finite import FitError, NonFiniteError, check_finite
 from .objective import view_loss, view_psnr
+from .threads import thread_policy
 
 if TYPE_CHECKING:
     from mmcsplat.plugin_api.interfaces import Densifier, Initializer, Renderer, SceneContext, TrainingView
@@ -215,10 +217,12 @@ class TrainingLoop:
 
         if stop is not None:
             stop.reset()
+        threads = thread_policy()
         done = steps.start
         bar = tqdm(steps, initial=steps.start, total=steps.stop, desc=desc, unit="it", leave=leave, disable=not progress)
         try:
             for number in bar:
+                threads.update()
                 try:
                     step = self.train_step(number, sample(number))
                 except NonFiniteError as error:
