@@ -9,6 +9,7 @@ from io import StringIO
 
 import pytest
 
+from mmcsplat.analysis.lost_landmarks import lost_line
 from mmcsplat.cli import main
 from mmcsplat.configuration.config import load_config
 from mmcsplat.jobs.demo import TRACK_ITERATIONS, DemoPaths, tracking_choice
@@ -50,6 +51,8 @@ def test_demo_writes_every_output_and_names_it(demo):
     assert metrics["tracking_method"] == "iterative" and len(metrics["per_frame_val_masked_psnr"]) == 3
     assert f"masked PSNR {metrics['val_masked_psnr']:.2f} dB" in summary
     assert f"median {metrics['tracking_median_mm']:.2f} mm" in summary and f"90th percentile {metrics['tracking_p90_mm']:.2f} mm" in summary
+    assert f"\n  {metrics['drift_summary']}\n" in summary and metrics["drift_summary"].startswith(("drift: ", "no drift: "))
+    assert f"\n  {lost_line(json.loads(paths.landmarks_info.read_text())['lost'])}\n" in summary
     for name in STEPS:
         assert f"    {name} " in summary
     assert json.loads(paths.track_info.read_text())["params"]["iterations"] == 2

@@ -103,25 +103,25 @@ def tracked(capture, run, frozen: bool):
 def test_true_tracks_lose_no_landmark(capture, tmp_path, capsys):
     run = tracked(capture, tmp_path / "run", frozen=False)
     assert main(["landmarks", str(run), "--source", "csv", "--set", f"path={capture[1]}"]) == 0
-    assert "no landmark lost: every carried landmark stayed on the subject masks (7 frames judged)" in capsys.readouterr().out
+    assert "no landmark lost: every carried landmark followed the subject masks (7 frames judged) — masks only" in capsys.readouterr().out
     lost = json.loads((run / "landmarks.json").read_text())["lost"]
     assert lost["frames_judged"] == FRAMES and set(lost["tolerance_px"]) == {"cam_1", "cam_2", "cam_3", "cam_4"}
-    assert lost["landmarks"] == {name: {"first_lost_frame": None, "lost_frames": []} for name in NAMES}
+    assert lost["landmarks"] == {name: {"first_lost_frame": None, "lost_frames": [], "found_by": []} for name in NAMES} and not lost["flow_judged"]
 
 
 def test_a_frozen_limb_loses_its_landmark_from_the_kick(capture, tmp_path, capsys):
     run = tracked(capture, tmp_path / "run", frozen=True)
     assert main(["landmarks", str(run), "--source", "csv", "--set", f"path={capture[1]}"]) == 0
-    assert f"lost (off the subject masks in most cameras): RAnkle from frame {KICK} ({FRAMES - KICK} frames)" in capsys.readouterr().out
+    assert f"lost (off the subject masks or slipped from the optical flow in most cameras): RAnkle from frame {KICK} ({FRAMES - KICK} frames; masks)" in capsys.readouterr().out
     lost = json.loads((run / "landmarks.json").read_text())["lost"]["landmarks"]
-    assert lost["RAnkle"] == {"first_lost_frame": KICK, "lost_frames": list(range(KICK, FRAMES))}
+    assert lost["RAnkle"] == {"first_lost_frame": KICK, "lost_frames": list(range(KICK, FRAMES)), "found_by": ["masks"]}
     assert lost["LHip"]["first_lost_frame"] is None and lost["Neck"]["first_lost_frame"] is None
     assert main(["evaluate", str(run)]) == 0
-    assert f"lost_landmarks         lost (off the subject masks in most cameras): RAnkle from frame {KICK}" in capsys.readouterr().out
+    assert f"lost_landmarks         lost (off the subject masks or slipped from the optical flow in most cameras): RAnkle from frame {KICK}" in capsys.readouterr().out
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["lost_landmarks"]["landmarks"]["RAnkle"]["first_lost_frame"] == KICK
     page = landmarks_section(run, [])
-    assert "<h3>Lost landmarks</h3>" in page and '<td>RAnkle</td><td class="number">3</td><td class="number">4</td>' in page
+    assert "<h3>Lost landmarks</h3>" in page and '<td>RAnkle</td><td class="number">3</td><td class="number">4</td><td>masks</td>' in page
 
 
 def test_a_short_excursion_is_not_lost():
@@ -130,6 +130,7 @@ def test_a_short_excursion_is_not_lost():
     off[4:7, 1] = True  # three: lost
     np.testing.assert_array_equal(lost_frames(off, 3).nonzero(), ([4, 5, 6], [1, 1, 1]))
     record = lost_record(("a", "b", "c"), np.array([True, True, False]), np.arange(10, 18), np.c_[off, off[:, 1]], np.ones(8, bool), LostRule(), {})
-    assert record["landmarks"] == {"a": {"first_lost_frame": None, "lost_frames": []}, "b": {"first_lost_frame": 14, "lost_frames": [14, 15, 16]}}
-    assert lost_line(record) == "lost (off the subject masks in most cameras): b from frame 14 (3 frames)"
+    assert record["landmarks"] == {"a": {"first_lost_frame": None, "lost_frames": [], "found_by": []},
+                                   "b": {"first_lost_frame": 14, "lost_frames": [14, 15, 16], "found_by": ["masks"]}}
+    assert lost_line(record).startswith("lost (off the subject masks or slipped from the optical flow in most cameras): b from frame 14 (3 frames; masks)")
     assert lost_line(lost_record(("a",), np.array([True]), np.arange(8), off[:, :1], np.zeros(8, bool), LostRule(), {})).startswith("lost landmarks not judged")

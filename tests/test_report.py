@@ -17,6 +17,7 @@ from render_fixtures import add_tracks
 
 from mmcsplat.cli import main
 from mmcsplat.configuration.registry import default_registry
+from mmcsplat.outputs.report_html import esc
 from mmcsplat.storage.curves import TrainingCurve
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.studies.cells import COMPLETE, CellOutcome
@@ -167,6 +168,7 @@ def test_a_run_whose_tracks_follow_no_ground_truth_point_is_still_evaluated(runs
     page = (run / "report.html").read_text()
     assert "Tracking errors not measured: no ground-truth surface point has a Gaussian within 10 mm" in page
     assert "No ground truth was found" not in page
+    assert f"<td>drift, explained</td><td>{esc(metrics['drift_summary'])}</td>" in page  # the verdict with how many Gaussians, since when
 
 
 def test_study_page_has_the_table_findings_and_charts(study):

@@ -21,6 +21,7 @@ from typing import Any
 
 import attrs
 
+from mmcsplat.analysis.lost_landmarks import lost_line
 from mmcsplat.configuration.config import Config, load_config
 from mmcsplat.pipeline.steps import SettingsRecord, Step, StepTime, fit_complete, fresh, made_in_place, run_steps
 from mmcsplat.plugin_api.errors import InputError
@@ -227,7 +228,9 @@ def summary(result: DemoResult) -> str:
         f"{metrics['num_gaussians']} Gaussians",
         f"  tracking error (3D): median {_number(metrics.get('tracking_median_mm'), 'mm')}, "
         f"90th percentile {_number(metrics.get('tracking_p90_mm'), 'mm')} "
-        f"(median {_number(metrics.get('tracking_still_median_mm'), 'mm')} if nothing moved); drift: {'yes' if metrics.get('drift') else 'no'}",
+        f"(median {_number(metrics.get('tracking_still_median_mm'), 'mm')} if nothing moved)",
+        f"  {metrics['drift_summary']}",
+        f"  {lost_line(result.landmarks['lost'])}",
         f"  landmarks (joints) where they moved > 1 cm: median error {_number(accuracy.get('moving_median_mm'), 'mm', 1)}, "
         f"against {_number(accuracy.get('still_moving_median_mm'), 'mm', 1)} if held still; over all frames {_number(accuracy.get('median_mm'), 'mm', 1)}",
         "  steps:",

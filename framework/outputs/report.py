@@ -50,7 +50,7 @@ TRACKING_METRICS = (
     ("tracking_p90_mm", "3D error, 90th percentile (mm)"), ("tracking_still_median_mm", "median error if nothing moved (mm)"),
     ("tracking_2d_median_px", "2D error in the held-out camera, median (px)"),
     ("tracking_followed_points", "ground-truth points followed"), ("tracking_ground_truth_points", "ground-truth points"),
-    ("drift", "drift detected"), ("drift_foreground", "foreground Gaussians (drift check)"),
+    ("drift", "drift detected"), ("drift_summary", "drift, explained"), ("drift_foreground", "foreground Gaussians (drift check)"),
 )
 
 

@@ -180,15 +180,17 @@ def accuracy_rows(info: dict[str, Any]) -> list[tuple[str, str]]:
 
 def lost_html(record: dict[str, Any]) -> str:
     """The landmarks the tracks lost (RUN/landmarks.json's ``lost``): a sentence, and a table of the lost
-    ones with the first frame and the number of frames each was lost."""
+    ones with the first frame, the number of frames each was lost and the signals that found it."""
     rule = record["rule"]
+    flow = (f" or, with the session's optical flow, their image slipped from the images' motion since the first frame by more than "
+            f"{rule['slip_mm']:.0f} mm at their depth") if "slip_mm" in rule else ""
     parts = [f"<h3>Lost landmarks</h3><p>Where the tracks stopped following the images: a landmark is lost at the frames where it "
-             f"and the Gaussians carrying it fell off the subject mask (by more than {rule['tolerance']:.1%} of the image diagonal) "
+             f"and the Gaussians carrying it fell off the subject mask (by more than {rule['tolerance']:.1%} of the image diagonal){flow} "
              f"in most training cameras, for {rule['consecutive']} frames in a row or more. {esc(lost_line(record))}.</p>"]
     lost = lost_names(record)
     if lost:
-        parts.append(table(["landmark", "first lost frame", "frames lost"],
-                           [(name, entry["first_lost_frame"], len(entry["lost_frames"]))
+        parts.append(table(["landmark", "first lost frame", "frames lost", "found by"],
+                           [(name, entry["first_lost_frame"], len(entry["lost_frames"]), ", ".join(entry.get("found_by", ["masks"])))
                             for name, entry in sorted(lost.items(), key=lambda item: (item[1]["first_lost_frame"], item[0]))]))
     return "".join(parts)
 

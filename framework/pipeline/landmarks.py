@@ -7,8 +7,8 @@ its frames (:mod:`mmcsplat.analysis.landmark_binding`). Where the source also kn
 frames, the carried ones are scored against them (3D, mm); where a keypoint source gives 2D detections,
 the carried landmarks are projected into each camera and scored against them (px), beside the detector's
 own disagreement with the source's 3D landmarks. Every frame, each landmark is judged against the training
-cameras' subject masks, and the frames where the tracks lost it are recorded
-(:mod:`mmcsplat.analysis.lost_landmarks`).
+cameras' subject masks and, where the session has optical flow, against the images' motion, and the
+frames where the tracks lost it are recorded (:mod:`mmcsplat.analysis.lost_landmarks`).
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ import attrs
 import numpy as np
 
 from mmcsplat.analysis.landmark_binding import ANCHORS, MAX_DISTANCE, bind_landmarks, carry, confidence, landmark_accuracy
-from mmcsplat.analysis.lost_landmarks import LostRule, lost_record, off_at_frame
+from mmcsplat.analysis.lost_landmarks import LostRule, lost_record, neighbourhoods, off_at_frame, slipped
 from mmcsplat.analysis.movement import joint_angle_accuracy, movement_rows, movement_summary
 from mmcsplat.configuration.registry import Registry, default_registry
 from mmcsplat.pipeline.run_frames import RunStates
@@ -124,13 +124,16 @@ def track_landmarks(run: str | Path, source: str, params: dict[str, Any] | None 
         carried = np.empty((len(frames), len(reference.names), 3))
         spread = np.empty((len(frames), len(reference.names)))
         rule, off, judged = LostRule(), np.zeros((len(frames), len(reference.names)), dtype=bool), np.zeros(len(frames), dtype=bool)
+        points = np.empty((len(frames), len(reference.names), 1 + binding.anchors.shape[1], 3))
         for k in range(len(frames)):
             params_k = states.params(k)
             means = params_k["means"].detach().numpy().astype(np.float64)
             carried[k], spread[k] = carry(binding, means, params_k["quats"].detach().numpy().astype(np.float64))
-            off_k = off_at_frame(session, states.info.train_cameras, int(frames[k]), binding, carried[k], means, rule)
+            points[k] = neighbourhoods(carried[k], binding.anchors, binding.weights, means)
+            off_k = off_at_frame(session, states.info.train_cameras, int(frames[k]), points[k], rule)
             judged[k] = off_k is not None
             off[k] = False if off_k is None else off_k
+        slips = slipped(session, states.info.train_cameras, frames, points, carried, rule)
         times = session.frame_times[frames]
         write_landmark_csv(run / LANDMARKS_CSV, reference.names, frames, times, carried,
                            extra={"spread_mm": spread * 1000, "confidence": confidence(spread)})
@@ -143,7 +146,7 @@ def track_landmarks(run: str | Path, source: str, params: dict[str, Any] | None 
             "incomplete": bool(unfinished), "unfinished": unfinished,
         }
         info["lost"] = lost_record(reference.names, binding.bound, frames, off, judged, rule,
-                                   {camera.name: rule.tolerance_px(camera) for camera in states.train_cameras})
+                                   {camera.name: rule.tolerance_px(camera) for camera in states.train_cameras}, slips)
         if len(frames) > 1 and np.isfinite(reference.positions[1:]).any():
             info["accuracy_3d"] = attrs.asdict(landmark_accuracy(reference.names, carried, reference.positions))
             info["accuracy_joint_angles"] = joint_angle_accuracy(reference.names, carried, reference.positions)
