@@ -219,7 +219,7 @@ class ParallaxSegmenter(PostProcessedSegmenter):
 
     def raw(self, session: SessionReader, camera: str) -> Iterator[tuple[int, np.ndarray, np.ndarray | None]]:
         plate = self._plate(session, camera) if self.refine == "plate" else None
-        region = self._region(session).get(camera) if self.region == "change" else None
+        region = self.subject_region(session).get(camera) if self.region == "change" else None
         for t in present_frames(session, camera):
             mask = self._masks(session, int(t))[camera]
             if region is not None:
@@ -249,7 +249,7 @@ class ParallaxSegmenter(PostProcessedSegmenter):
             self._cache[key] = sweep_floor(cameras, medians, floor_normal(cameras))
         return self._cache[key]
 
-    def _region(self, session: SessionReader) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    def subject_region(self, session: SessionReader) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
         """Per camera (none when nothing changed): (its pixels whose floor point no other camera sees and
         which changed at some time, its sequence's median image, the projection of the hull of change) —
         :mod:`.change_region`."""
