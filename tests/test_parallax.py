@@ -102,3 +102,13 @@ def test_run_segments_a_capture_of_videos_and_a_calibration_with_parallax(sessio
     with pytest.raises(Stop):
         run_capture(sessions[2], tmp_path / "out", progress=False, log=lambda line: None)
     assert calls == [("parallax", {}), ("plates", None), ("parallax", {"refine": "plate"})]
+
+
+
+def test_a_subject_that_barely_changes_leaves_the_masks_unrestricted(sessions):
+    # Three frames, a tenth of a second: the limbs move under a pixel or two at 128 × 96, too little for the
+    # cameras to agree on a change, so there is no hull of change and the masks are those without it.
+    bare = SessionReader(sessions[0])
+    assert default_registry().create("segmenter", "parallax").subject_region(bare) == {}
+    with_region, without = (next(default_registry().create("segmenter", "parallax", region=region).segment(bare, "cam_0")) for region in ("change", "none"))
+    assert with_region[0] == without[0] == 0 and np.array_equal(with_region[1], without[1]) and with_region[1].any()

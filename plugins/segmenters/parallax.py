@@ -16,7 +16,14 @@ elsewhere, so they disagree (plane plus parallax). Each step:
    that see them find them off-plane; a camera's mask is its off-plane pixels near the projection of the
    kept voxels, holes filled. A bystander outside the rig and a floor pixel only one camera calls
    off-plane drop out.
-4. **Refined against plates** (``refine = "plate"``, when the session has plates, e.g. estimated by
+4. **Where the subject can be** (``region = "change"``, :mod:`.change_region`): the convex hull, grown by
+   ``margin``, of the voxels the cameras agree changed colour at some time over the sequence. Static
+   equipment off the floor (a treadmill, a mat's fold) never changes and falls outside it; the still parts
+   between the moving ones (an infant's trunk) fall inside. Within it, a camera's mask also takes the
+   pixels that change at that frame, and those whose floor point no other camera sees, which the floor
+   cannot judge (a standing subject's upper body, seen against the walls). A subject that never moves
+   leaves no region: the masks are then not restricted.
+5. **Refined against plates** (``refine = "plate"``, when the session has plates, e.g. estimated by
    ``mmcsplat plates`` with these masks held out): the geometric mask keeps only the pixels within
    ``refine_radius`` of one that differs from the plate. The plate trims the outline, where the
    geometric mask spills onto the floor beside the subject.
@@ -32,6 +39,7 @@ import numpy as np
 
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.parameters import at_least, between, finite_positive, one_of, parameter
+from mmcsplat.plugins.segmenters.change_region import changed, hull_masks, main_pieces, moving_voxels
 from mmcsplat.plugins.segmenters.postprocess import PostProcessedSegmenter, dilate, open_close, present_frames
 from mmcsplat.scene.camera import Camera
 from mmcsplat.scene.rig import rig_center
@@ -48,6 +56,8 @@ SWEEP_SAMPLES = 9
 SWEEP_WIDTH = 64
 #: Grey levels under which two warped pixels agree in the sweep.
 SWEEP_AGREEMENT = 12.0
+#: Frames, spread over the sequence, whose median and changes the subject's region comes from.
+REGION_SAMPLES = 30
 
 
 @attrs.frozen(eq=False)
@@ -149,11 +159,23 @@ def sweep_floor(cameras: Sequence[Camera], medians: Sequence[np.ndarray], normal
     return Plane(normal, float(offsets[int(np.argmax([agreement(float(offset)) for offset in offsets]))]))
 
 
-def median_image(session: SessionReader, camera: str, samples: int) -> np.ndarray:
-    """The per-pixel median [H, W, 3] uint8 of ``samples`` frames spread over ``camera``'s sequence."""
+def sampled_frames(session: SessionReader, camera: str, samples: int) -> np.ndarray:
+    """[S, H, W, 3] uint8: up to ``samples`` frames spread over ``camera``'s sequence."""
     frames = present_frames(session, camera)
     picks = frames[np.unique(np.linspace(0, len(frames) - 1, min(samples, len(frames))).round().astype(int))]
-    return np.median(np.stack([session.frame(int(t), camera).rgb for t in picks]), axis=0).astype(np.uint8)
+    return np.stack([session.frame(int(t), camera).rgb for t in picks])
+
+
+def median_image(session: SessionReader, camera: str, samples: int) -> np.ndarray:
+    """The per-pixel median [H, W, 3] uint8 of ``samples`` frames spread over ``camera``'s sequence."""
+    return np.median(sampled_frames(session, camera, samples), axis=0).astype(np.uint8)
+
+
+def plane_basis(normal: np.ndarray) -> np.ndarray:
+    """[3, 3] rows: two unit vectors along the plane with ``normal``, and the normal."""
+    a = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
+    a /= np.linalg.norm(a)
+    return np.stack([a, np.cross(normal, a), normal])
 
 
 def fill_holes(mask: np.ndarray) -> np.ndarray:
@@ -183,6 +205,11 @@ class ParallaxSegmenter(PostProcessedSegmenter):
     passes: int = parameter(2, doc="passes: each after the first lets only the cameras whose last mask leaves a floor point "
                                    "uncovered judge it", validator=at_least(1))
     near: int = parameter(1, doc="pixels a camera's off-plane pixels may lie from its kept voxels' projection", validator=at_least(0))
+    region: str = parameter("change", doc="change: keep the masks within the hull of what the cameras agree changed over the sequence "
+                                          "(module docstring), or none", validator=one_of("change", "none"))
+    change_threshold: float = parameter(20.0, doc="change: grey levels by which a pixel must differ from its sequence's median to have "
+                                                  "changed", validator=finite_positive)
+    margin: float = parameter(0.1, doc="change: metres the hull of the changed voxels is grown by", validator=at_least(0))
     refine: str = parameter("none", doc="none, or plate: keep only the mask's pixels near one that differs from the session's plate",
                             validator=one_of("none", "plate"))
     refine_threshold: float = parameter(30.0, doc="plate: grey levels a pixel must differ from the plate by", validator=finite_positive)
@@ -192,8 +219,12 @@ class ParallaxSegmenter(PostProcessedSegmenter):
 
     def raw(self, session: SessionReader, camera: str) -> Iterator[tuple[int, np.ndarray, np.ndarray | None]]:
         plate = self._plate(session, camera) if self.refine == "plate" else None
+        region = self.subject_region(session).get(camera) if self.region == "change" else None
         for t in present_frames(session, camera):
             mask = self._masks(session, int(t))[camera]
+            if region is not None:
+                unjudged, median, hull = region
+                mask = hull & (mask | unjudged | changed(session.frame(int(t), camera).rgb, median, self.change_threshold))
             if plate is not None:
                 differs = colour_difference(session.frame(int(t), camera).rgb, plate) > self.refine_threshold
                 mask = mask & dilate(differs, self.refine_radius)
@@ -216,6 +247,43 @@ class ParallaxSegmenter(PostProcessedSegmenter):
                                  "choose another segmenter (keypoints, background)")
             medians = [median_image(session, name, SWEEP_SAMPLES) for name in session.camera_names]
             self._cache[key] = sweep_floor(cameras, medians, floor_normal(cameras))
+        return self._cache[key]
+
+    def subject_region(self, session: SessionReader) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """Per camera (none when nothing changed): (its pixels whose floor point no other camera sees and
+        which changed at some time, its sequence's median image, the projection of the hull of change) —
+        :mod:`.change_region`."""
+        key = ("region", str(session.url))
+        if key not in self._cache:
+            names = list(session.camera_names)
+            cameras = [session.camera(name) for name in names]
+            plane = self.floor(session)
+            medians, ever = [], []
+            for name in names:
+                frames = sampled_frames(session, name, REGION_SAMPLES)
+                median = np.median(frames, axis=0).astype(np.uint8)
+                medians.append(median)
+                ever.append(np.any([changed(frame, median, self.change_threshold) for frame in frames], axis=0))
+            top = float(np.mean(plane.height(np.array([camera.center for camera in cameras]))))
+            grid, size = self._grid(cameras, plane, top)
+            moving = grid[moving_voxels(grid, cameras, [dilate(mask, self.near) for mask in ever], self.agreement)]
+            region = {}
+            if len(moving):
+                moving = moving[main_pieces(moving, plane_basis(plane.normal), size)]
+                for camera, median, changes, hull in zip(cameras, medians, ever, hull_masks(moving, cameras, self.margin), strict=True):
+                    judged = np.any([self._warp(session, camera, other)[1] for other in cameras if other.name != camera.name], axis=0)
+                    region[camera.name] = (~judged & changes, median, hull)
+            self._cache[key] = region
+        return self._cache[key]
+
+    def _warp(self, session: SessionReader, camera: Camera, other: Camera) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`plane_warp` of ``camera``'s pixels into ``other`` through the session's floor (computed once)."""
+        key = ("warp", str(session.url), camera.name, other.name)
+        if key not in self._cache:
+            rays_key = ("rays", str(session.url), camera.name)
+            if rays_key not in self._cache:
+                self._cache[rays_key] = floor_rays(camera)
+            self._cache[key] = plane_warp(camera, other, self._cache[rays_key], self.floor(session))
         return self._cache[key]
 
     def _masks(self, session: SessionReader, t: int) -> dict[str, np.ndarray]:
@@ -250,21 +318,14 @@ class ParallaxSegmenter(PostProcessedSegmenter):
         """Per camera, [H, W] bool: the pixels most other cameras disagree with at their floor point. With
         the cameras' ``masks`` of an earlier pass, a camera whose mask covers the floor point (the subject
         hides it there) has no say, and a pixel no camera sees the floor point of keeps its mask."""
-        plane = self.floor(session)
         off = []
         for i, camera in enumerate(cameras):
-            key = ("rays", str(session.url), camera.name)
-            if key not in self._cache:
-                self._cache[key] = floor_rays(camera)
             votes = np.zeros((camera.height, camera.width), np.int32)
             seen = np.zeros_like(votes)
             for j, other in enumerate(cameras):
                 if j == i:
                     continue
-                warp_key = ("warp", str(session.url), camera.name, other.name)
-                if warp_key not in self._cache:
-                    self._cache[warp_key] = plane_warp(camera, other, self._cache[key], plane)
-                warp, valid = self._cache[warp_key]
+                warp, valid = self._warp(session, camera, other)
                 if masks is not None:
                     hidden = cv2.remap(dilate(masks[j], self.near).astype(np.uint8), warp, None, cv2.INTER_NEAREST)
                     valid = valid & (hidden == 0)
@@ -279,7 +340,8 @@ class ParallaxSegmenter(PostProcessedSegmenter):
         """Centres [N, 3] of the voxels above the floor, within the rig, that most cameras seeing them find off-plane."""
         key = ("grid", str(session.url))
         if key not in self._cache:
-            self._cache[key] = self._grid(cameras, self.floor(session))
+            plane = self.floor(session)
+            self._cache[key] = self._grid(cameras, plane, 2 * float(plane.height(rig_center(cameras)[None])[0]))[0]
         grid = self._cache[key]
         # Camera by camera, dropping a voxel once too many cameras miss it for it ever to reach the agreement:
         # most voxels are empty air, gone after a few cameras.
@@ -293,22 +355,20 @@ class ParallaxSegmenter(PostProcessedSegmenter):
         alive = alive[(seen[alive] >= 2) & (inside[alive] >= self.agreement * seen[alive])]
         return grid[alive]
 
-    def _grid(self, cameras: Sequence[Camera], plane: Plane) -> np.ndarray:
-        """Voxel centres [N, 3] over the floor ``plane``: within ``reach`` of the rig centre's foot, from
-        ``min_height`` up to twice the rig centre's height above the floor (at least half the reach)."""
+    def _grid(self, cameras: Sequence[Camera], plane: Plane, top: float) -> tuple[np.ndarray, float]:
+        """(voxel centres [N, 3], their size) over the floor ``plane``: within ``reach`` of the rig centre's
+        foot, from ``min_height`` up to ``top`` metres above the floor (at least half the reach)."""
         normal = plane.normal
         centre = rig_center(cameras)
         foot = centre - plane.height(centre[None])[0] * normal
         horizontal = [camera.center - foot - plane.height(camera.center[None])[0] * normal for camera in cameras]
         reach = self.reach * float(np.mean(np.linalg.norm(horizontal, axis=1)))
-        top = max(2 * float(plane.height(centre[None])[0]), reach / 2)
-        a = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
-        a /= np.linalg.norm(a)
-        b = np.cross(normal, a)
+        top = max(top, reach / 2)
+        a, b, _ = plane_basis(normal)
         size = reach / self.voxels
         across = np.arange(-reach, reach + 1e-9, size)
         up = np.arange(self.min_height + size / 2, top, size)
         u, v, h = np.meshgrid(across, across, up, indexing="ij")
         keep = np.hypot(u, v).ravel() <= reach
         points = foot + u.ravel()[:, None] * a + v.ravel()[:, None] * b + h.ravel()[:, None] * normal
-        return points[keep]
+        return points[keep], size
