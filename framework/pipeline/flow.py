@@ -2,16 +2,16 @@
 
 OpenCV's DIS flow (Kroeger et al. 2016) on the stored, undistorted images turned grey, forward (t → t+1)
 and backward (t+1 → t). Besides OpenCV's presets, ``fine`` (the default) tunes ``medium`` for a fast thin
-limb: ``medium`` stops one pyramid level above full resolution and smooths with patches of 8 pixels and a
-variational refinement, so a foot a few pixels wide that moves about its width is reported at about half its
-motion; ``fine`` matches patches of 6 pixels down to full resolution, without the refinement, on the images
-upsampled ×2 (cubic), the flow then averaged back to the images' pixels. Each pixel's confidence comes from forward–backward consistency: following the
-forward flow and then the backward flow from where it lands should return to the pixel; the confidence is
-exp(−|f + b|² / (0.01 (|f|² + |b|²) + 0.5)), the tolerance of Sundaram et al. (2010) that grows with the
-motion, and 0 where the forward flow leaves the image. The DIS preset was chosen by measurement
-(docs/dynamics.md, "Flow-guided prediction"). Frames stream through the session reader two at a time, so
-memory does not grow with the sequence; the result is stored in the session
-(:mod:`mmcsplat.storage.session.flow`), resumably.
+limb: ``medium`` stops one pyramid level above full resolution and smooths with 8-pixel patches and a
+variational refinement, so a foot a few pixels wide that moves about its width is reported at under half
+its motion; ``fine`` matches 6-pixel patches down to full resolution, without the refinement, on the images
+upsampled ×2 (cubic), the flow then averaged back to the images' pixels. Each pixel's confidence comes
+from forward–backward consistency: following the forward flow and then the backward flow from where it
+lands should return to the pixel; the confidence is exp(−|f + b|² / (0.01 (|f|² + |b|²) + 0.5)), the
+tolerance of Sundaram et al. (2010) that grows with the motion, and 0 where the forward flow leaves the
+image. The preset was chosen by measurement (docs/dynamics.md, "Preset `fine`"). Frames stream through
+the session reader two at a time, so memory does not grow with the sequence; the result is stored in the
+session (:mod:`mmcsplat.storage.session.flow`), resumably.
 """
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ SETTINGS = {
 }
 PRESETS = tuple(SETTINGS)
 #: The default preset: on the synthetic fast kicks its flow lifted to 3D predicts the moving joints' next
-#: positions best (docs/dynamics.md, "Flow-guided prediction").
+#: positions best (docs/dynamics.md, "Preset `fine`").
 DEFAULT_PRESET = "fine"
 
 
