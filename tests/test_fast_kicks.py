@@ -45,6 +45,6 @@ def moving_errors(tmp_path_factory) -> dict[str, dict]:
 def test_flow_guided_tracking_follows_fast_kicks_better_than_constant_velocity(moving_errors):
     flow, constant = moving_errors["flow"], moving_errors["constant-velocity"]
     assert flow["moving_pairs"] == constant["moving_pairs"] > 0  # the same joints and frames judged
-    # Measured: 30.4 mm against 35.1 mm (0.87; 36.0 mm held still), equal to 1e-7 mm over two runs. The
-    # margin is small at this size: docs/results.md, "Fast kicks", has why.
-    assert flow["moving_median_mm"] < 0.9 * constant["moving_median_mm"], (flow, constant)
+    # Measured: 15.2 mm against 35.1 mm (0.43) with the default flow preset `fine`; DIS `medium` gave 30.4 mm
+    # (0.87): it reports a foot's motion at half its size (docs/results.md, "Fast kicks").
+    assert flow["moving_median_mm"] < 0.5 * constant["moving_median_mm"], (flow, constant)

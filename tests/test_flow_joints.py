@@ -4,7 +4,9 @@ positions where constant velocity and standing still cannot."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
+import zarr
 from rig_fixtures import ring_cameras
 
 from mmcsplat.analysis.flow_joints import joint_prediction_errors
@@ -23,7 +25,19 @@ def positions(t: int) -> np.ndarray:
     return START + ACCELERATION * t**2
 
 
-def test_exact_flow_predicts_accelerating_joints(tmp_path):
+def write_joints(tmp_path, source: str):
+    """The joints as a TRC file or as a synthetic capture's ground truth; returns the path to give."""
+    names, trajectory = ["hip", "knee", "ankle"], np.stack([positions(t) for t in range(FRAMES)])
+    if source == "trc":
+        write_trc(tmp_path / "joints.trc", names, np.arange(FRAMES) / 30.0, trajectory, 30.0)
+        return tmp_path / "joints.trc"
+    truth = zarr.open_group(str(tmp_path / "capture" / "ground_truth.zarr"), mode="w")
+    truth.create_array("joints", data=trajectory).attrs["joint_names"] = names
+    return tmp_path / "capture"
+
+
+@pytest.mark.parametrize("source", ["trc", "ground truth"])
+def test_exact_flow_predicts_accelerating_joints(tmp_path, source):
     url = tmp_path / "s.zarr"
     with SessionWriter(url, cameras=CAMERAS, num_frames=FRAMES, fps=30.0) as writer:
         for camera in CAMERAS:
@@ -40,10 +54,8 @@ def test_exact_flow_predicts_accelerating_joints(tmp_path):
                     forward[int(v) - 3 : int(v) + 4, int(u) - 3 : int(u) + 4] = shift  # each joint's neighbourhood moves with it
                 confidence = np.ones((120, 160), np.float32)
                 writer.write(camera.name, t, FlowPair(forward, -forward, confidence, confidence))
-    trc = tmp_path / "joints.trc"
-    write_trc(trc, ["hip", "knee", "ankle"], np.arange(FRAMES) / 30.0, np.stack([positions(t) for t in range(FRAMES)]), 30.0)
-    errors = joint_prediction_errors(url, trc)
-    assert errors.frames.tolist() == [1, 2, 3]
+    errors = joint_prediction_errors(url, write_joints(tmp_path, source))
+    assert errors.names == ("hip", "knee", "ankle") and errors.frames.tolist() == [1, 2, 3]
     assert np.nanmax(errors.flow) < 1e-3  # float16 flow, exact otherwise
     np.testing.assert_allclose(errors.constant_velocity, 2 * np.linalg.norm(ACCELERATION), rtol=1e-6)
     assert (errors.still > 0.01).all()

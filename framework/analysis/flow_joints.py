@@ -1,7 +1,7 @@
 """How well a session's optical flow, lifted to 3D, predicts where triangulated joints go next.
 
 For each session frame t with both neighbours, each joint's position at t (from a TRC file, as Pose2Sim
-writes it) is projected into the training cameras with flow; the flow at those pixels, weighted by its
+writes it, or a synthetic capture's ground-truth joints) is projected into the training cameras with flow; the flow at those pixels, weighted by its
 confidence (joints have no Gaussians, so no visibility), is lifted to a 3D displacement
 (:func:`mmcsplat.training.flow_lifting.lift_flow`) and the prediction X_t + d compared with the joint at
 t+1 — beside constant velocity (2 X_t − X_{t−1}) and standing still (X_t). It measures the motion evidence
@@ -17,6 +17,7 @@ import numpy as np
 import torch
 
 from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.storage.ground_truth import GroundTruthReader
 from mmcsplat.storage.landmark_formats import read_trc
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.storage.session.flow import SessionFlow, pair_present
@@ -55,18 +56,28 @@ class JointPredictionErrors:
         return figures
 
 
-def joint_prediction_errors(url: str | os.PathLike, trc: str | os.PathLike, convention: str = "pose2sim") -> JointPredictionErrors:
-    """The prediction errors of the joints in ``trc`` (row k = capture frame k) over the session at ``url``,
+def read_joints(path: str | os.PathLike, convention: str = "pose2sim") -> tuple[tuple[str, ...], np.ndarray]:
+    """Joint names and positions [T, J, 3] (metres, row k = capture frame k) of a TRC file, or of a synthetic
+    capture's ground truth (the capture folder or its ``ground_truth.zarr``)."""
+    if os.path.isdir(path):
+        truth = GroundTruthReader(path)
+        return tuple(truth.names("joints")), truth.points("joints")
+    joints = read_trc(path, convention)
+    return tuple(joints.names), joints.positions
+
+
+def joint_prediction_errors(url: str | os.PathLike, joints: str | os.PathLike, convention: str = "pose2sim") -> JointPredictionErrors:
+    """The prediction errors of the joints in ``joints`` (:func:`read_joints`) over the session at ``url``,
     whose flow must have been computed."""
     session, flow = SessionReader(url), SessionFlow(url)
     cameras = [session.camera(name) for name in session.train_cameras if flow.has(name)]
     if len(cameras) < 2:
         raise InputError(f"{session.url}: fewer than two training cameras have optical flow; run `mmcsplat flow {session.url}` first")
-    joints = read_trc(trc, convention)
+    names, all_positions = read_joints(joints, convention)
     rows = session.capture_frames(np.arange(session.num_frames))
-    if rows.max() >= len(joints.positions):
-        raise InputError(f"{trc}: {len(joints.positions)} rows, but the session reaches capture frame {rows.max()}")
-    positions = joints.positions[rows]
+    if rows.max() >= len(all_positions):
+        raise InputError(f"{joints}: {len(all_positions)} frames of joints, but the session reaches capture frame {rows.max()}")
+    positions = all_positions[rows]
     K, viewmats = camera_matrices(cameras)
     frames, errors = [], {name: [] for name in PREDICTIONS}
     for t in range(1, session.num_frames - 1):
@@ -85,4 +96,4 @@ def joint_prediction_errors(url: str | os.PathLike, trc: str | os.PathLike, conv
         for name, predicted in (("flow", lifted), ("constant_velocity", 2 * positions[t] - positions[t - 1]), ("still", positions[t])):
             errors[name].append(np.linalg.norm(predicted - truth, axis=-1))
         frames.append(t)
-    return JointPredictionErrors(joints.names, np.asarray(frames), *(np.asarray(errors[name]) for name in PREDICTIONS))
+    return JointPredictionErrors(names, np.asarray(frames), *(np.asarray(errors[name]) for name in PREDICTIONS))

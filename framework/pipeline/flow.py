@@ -1,13 +1,17 @@
 """Dense optical flow between consecutive frames of every training camera, computed once per session.
 
 OpenCV's DIS flow (Kroeger et al. 2016) on the stored, undistorted images turned grey, forward (t → t+1)
-and backward (t+1 → t). Each pixel's confidence comes from forward–backward consistency: following the
-forward flow and then the backward flow from where it lands should return to the pixel; the confidence is
-exp(−|f + b|² / (0.01 (|f|² + |b|²) + 0.5)), the tolerance of Sundaram et al. (2010) that grows with the
-motion, and 0 where the forward flow leaves the image. The DIS preset was chosen by measurement
-(docs/dynamics.md, "Flow-guided prediction"). Frames stream through the session reader two at a time, so
-memory does not grow with the sequence; the result is stored in the session
-(:mod:`mmcsplat.storage.session.flow`), resumably.
+and backward (t+1 → t). Besides OpenCV's presets, ``fine`` (the default) tunes ``medium`` for a fast thin
+limb: ``medium`` stops one pyramid level above full resolution and smooths with 8-pixel patches and a
+variational refinement, so a foot a few pixels wide that moves about its width is reported at under half
+its motion; ``fine`` matches 6-pixel patches down to full resolution, without the refinement, on the images
+upsampled ×2 (cubic), the flow then averaged back to the images' pixels. Each pixel's confidence comes
+from forward–backward consistency: following the forward flow and then the backward flow from where it
+lands should return to the pixel; the confidence is exp(−|f + b|² / (0.01 (|f|² + |b|²) + 0.5)), the
+tolerance of Sundaram et al. (2010) that grows with the motion, and 0 where the forward flow leaves the
+image. The preset was chosen by measurement (docs/dynamics.md, "Preset `fine`"). Frames stream through
+the session reader two at a time, so memory does not grow with the sequence; the result is stored in the
+session (:mod:`mmcsplat.storage.session.flow`), resumably.
 """
 
 from __future__ import annotations
@@ -15,7 +19,6 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
 
 import attrs
 import numpy as np
@@ -24,15 +27,32 @@ from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.storage.session.flow import FlowPair, FlowWriter, SessionFlow, pair_present
 
-if TYPE_CHECKING:
-    import cv2
 
-#: OpenCV's DIS presets (``cv2.DISOPTICAL_FLOW_PRESET_<NAME>``); cv2 is imported only to compute, so that the
-#: command line starts without it.
-PRESETS = ("ultrafast", "fast", "medium")
-#: The default preset: of the three, its flow lifted to 3D predicts the Pose2Sim demo's triangulated joints
-#: best (1/4 scale: 10.6 mm median against 11.2–11.7 mm), at 0.06 CPU s per pair (docs/dynamics.md).
-DEFAULT_PRESET = "medium"
+@attrs.frozen
+class DisSettings:
+    """How DIS is run: an OpenCV preset (``cv2.DISOPTICAL_FLOW_PRESET_<BASE>``), optionally with its finest
+    pyramid level, patch size and variational refinement iterations replaced, on the images upsampled by
+    ``upsample``."""
+
+    base: str
+    finest_scale: int | None = None
+    patch_size: int | None = None
+    refinement_iterations: int | None = None
+    upsample: int = 1
+
+
+#: The DIS presets: OpenCV's three and ``fine`` (module docstring). cv2 is imported only to compute, so that
+#: the command line starts without it.
+SETTINGS = {
+    "ultrafast": DisSettings("ultrafast"),
+    "fast": DisSettings("fast"),
+    "medium": DisSettings("medium"),
+    "fine": DisSettings("medium", finest_scale=0, patch_size=6, refinement_iterations=0, upsample=2),
+}
+PRESETS = tuple(SETTINGS)
+#: The default preset: on the synthetic fast kicks its flow lifted to 3D predicts the moving joints' next
+#: positions best (docs/dynamics.md, "Preset `fine`").
+DEFAULT_PRESET = "fine"
 
 
 @attrs.frozen
@@ -49,10 +69,12 @@ class FlowSummary:
 
 
 def method_record(preset: str) -> dict:
-    """How the flow is made, as stored with it (a different record means recomputing)."""
+    """How the flow is made, as stored with it (a different record means recomputing): the preset and its
+    settings, so that flow stored before a preset's settings changed is recomputed."""
     import cv2
 
-    return {"name": "dis", "preset": preset, "opencv": cv2.__version__, "confidence": "forward-backward"}
+    return {"name": "dis", "preset": preset, "settings": attrs.asdict(SETTINGS[preset]), "opencv": cv2.__version__,
+            "confidence": "forward-backward"}
 
 
 def grey(rgb: np.ndarray) -> np.ndarray:
@@ -76,21 +98,43 @@ def consistency(forward: np.ndarray, backward: np.ndarray) -> np.ndarray:
     return np.where(inside, np.exp(-error / tolerance), 0.0).astype(np.float32)
 
 
-def dis_flow(preset: str) -> cv2.DISOpticalFlow:
-    """OpenCV's DIS flow with ``preset`` (one of :data:`PRESETS`), single-threaded: the machine is shared
+class DisFlow:
+    """OpenCV's DIS flow run as ``preset`` (one of :data:`PRESETS`), single-threaded: the machine is shared
     and flow is computed once per session."""
-    import cv2
 
-    if preset not in PRESETS:
-        raise InputError(f"unknown DIS preset {preset!r}: use one of {', '.join(PRESETS)}")
-    cv2.setNumThreads(1)
-    return cv2.DISOpticalFlow.create(getattr(cv2, f"DISOPTICAL_FLOW_PRESET_{preset.upper()}"))
+    def __init__(self, preset: str) -> None:
+        import cv2
+
+        if preset not in SETTINGS:
+            raise InputError(f"unknown DIS preset {preset!r}: use one of {', '.join(PRESETS)}")
+        settings = SETTINGS[preset]
+        cv2.setNumThreads(1)
+        self.dis: cv2.DISOpticalFlow = cv2.DISOpticalFlow.create(getattr(cv2, f"DISOPTICAL_FLOW_PRESET_{settings.base.upper()}"))
+        if settings.finest_scale is not None:
+            self.dis.setFinestScale(settings.finest_scale)
+        if settings.patch_size is not None:
+            self.dis.setPatchSize(settings.patch_size)
+        if settings.refinement_iterations is not None:
+            self.dis.setVariationalRefinementIterations(settings.refinement_iterations)
+        self.upsample = settings.upsample
+
+    def calc(self, first: np.ndarray, second: np.ndarray) -> np.ndarray:
+        """[H, W, 2] float32 flow in pixels from grey image ``first`` to ``second`` [H, W] uint8."""
+        import cv2
+
+        if self.upsample == 1:
+            return self.dis.calc(first, second, None)
+        factor = self.upsample
+        larger = [cv2.resize(image, None, fx=factor, fy=factor, interpolation=cv2.INTER_CUBIC) for image in (first, second)]
+        flow = self.dis.calc(*larger, None)
+        height, width = first.shape
+        return cv2.resize(flow, (width, height), interpolation=cv2.INTER_AREA) / np.float32(factor)
 
 
-def flow_pair(first: np.ndarray, second: np.ndarray, dis: cv2.DISOpticalFlow) -> FlowPair:
+def flow_pair(first: np.ndarray, second: np.ndarray, dis: DisFlow) -> FlowPair:
     """The forward and backward flow between two grey images, with their confidences."""
-    forward = dis.calc(first, second, None)
-    backward = dis.calc(second, first, None)
+    forward = dis.calc(first, second)
+    backward = dis.calc(second, first)
     return FlowPair(forward, backward, consistency(forward, backward), consistency(backward, forward))
 
 
@@ -107,7 +151,7 @@ def compute_flow(url: str | os.PathLike, cameras: Sequence[str] | None = None, p
     interrupted computation of the same preset and keeping a complete one; returns what was done per camera."""
     from tqdm import tqdm
 
-    dis = dis_flow(preset)
+    dis = DisFlow(preset)
     session = SessionReader(url, cache_bytes=0)
     names = tuple(cameras) if cameras else session.train_cameras
     for name in names:
