@@ -18,7 +18,7 @@ from mmcsplat.cli.options import add_frames, add_names, add_progress, add_settin
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from mmcsplat.jobs.capture import DEFAULT_CONFIG
+    from mmcsplat.jobs.capture import DEFAULT_CONFIG, TRACK_MEANS_LR
 
     parser.add_argument("capture", type=Path, help="the capture folder (videos or images and a calibration)")
     parser.add_argument("--out", required=True, type=Path, help="output directory (created; reused steps are skipped)")
@@ -34,6 +34,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", default=DEFAULT_CONFIG, help=f"configuration to fit with (default: {DEFAULT_CONFIG})")
     add_settings(parser, "override a configuration value (repeatable)")
     parser.add_argument("--track-iterations", type=int, default=50, metavar="N", help="iterations per frame of the iterative method (default 50)")
+    parser.add_argument("--track-means-lr", type=float, default=TRACK_MEANS_LR, metavar="RATE",
+                        help=f"learning rate of the means while tracking, times the scene scale (default {TRACK_MEANS_LR:g}: ten times the fit's)")
     add_progress(parser)
 
 
@@ -44,6 +46,6 @@ def run(args: argparse.Namespace) -> int:
     settings = CaptureSettings(calibration=args.calibration, units=args.units, scale=args.scale, frames=frames, cameras=args.cameras or (),
                                holdout=args.holdout or (),
                                keypoints=args.keypoints, joints=args.joints, config=args.config, overrides=args.overrides,
-                               track_iterations=args.track_iterations)
+                               track_iterations=args.track_iterations, track_means_lr=args.track_means_lr)
     print(summary(run_capture(args.capture, args.out, settings, progress=not args.no_progress)))
     return 0

@@ -43,6 +43,10 @@ SETTINGS_FILE = "capture.json"
 #: Which masks the run used (see :func:`mask_choice`), written with the session.
 MASKS_FILE = "masks.json"
 DEFAULT_CONFIG = "visual-hull-plate"
+#: Learning rate of the means while tracking, times the scene scale: ten times the fit's. Adam moves a mean
+#: by about its rate a step, so at the fit's rate a frame's few dozen steps cannot reach a limb that moved
+#: several centimetres since the flow's prediction (docs/results.md, "On a real capture").
+TRACK_MEANS_LR = 1.6e-3
 
 
 @attrs.frozen
@@ -60,6 +64,7 @@ class CaptureSettings:
     config: str = DEFAULT_CONFIG
     overrides: tuple[str, ...] = attrs.field(default=(), converter=tuple)
     track_iterations: int = 50
+    track_means_lr: float = TRACK_MEANS_LR
 
 
 @attrs.frozen
@@ -171,13 +176,14 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     def rendered(pattern: str) -> list[Path]:
         return list(renders.glob(pattern))
 
+    tracking = [f"dynamics.iterations={settings.track_iterations}", f"dynamics.means_lr={settings.track_means_lr}"]
     steps = [
         # Into a hidden sibling renamed into place: a session half segmented is not a session.
         Step("ingest + masks + plates", session.exists, lambda: made_in_place(session, prepare)),
         Step("first-frame fit", lambda: fit_complete(run), fit),
         Step("optical flow", lambda: flow_complete(session), lambda: compute_flow(session, progress=progress)),
         Step("track (iterative)", lambda: fresh([run / TRACKS_DIR, run / TRACK_INFO], [run / RUN_INFO]),
-             lambda: track_run(run, dynamics="iterative", overrides=[f"dynamics.iterations={settings.track_iterations}"], progress=progress,
+             lambda: track_run(run, dynamics="iterative", overrides=tracking, progress=progress,
                                overwrite=True)),
     ]
     if joints is not None:
