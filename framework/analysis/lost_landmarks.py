@@ -20,8 +20,8 @@ from collections.abc import Sequence
 import attrs
 import numpy as np
 
-from mmcsplat.analysis.landmark_binding import LandmarkBinding
 from mmcsplat.scene.camera import Camera
+from mmcsplat.scene.landmark_anchors import LandmarkBinding
 from mmcsplat.storage.session import SessionReader
 
 TOLERANCE = 0.015  # of the image diagonal: 8 px at 270 × 480, 4 px at 135 × 240
