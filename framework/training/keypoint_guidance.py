@@ -41,9 +41,9 @@ def huber(distance_squared: torch.Tensor, delta: float) -> torch.Tensor:
 
 
 class KeypointGuidance:
-    """A loss term (:data:`~mmcsplat.training.loop.LossTerm`, module docstring) over the keypoints ``binding``
-    binds, detected as ``observations`` (in ``binding.names`` order) at session ``frames`` in the training
-    ``cameras``; :meth:`observe` sets the frame being fitted. Build it with :meth:`bind`."""
+    """The guidance (module docstring) of the keypoints ``binding`` binds, detected as ``observations`` (in
+    ``binding.names`` order) at session ``frames`` in the training ``cameras``: :meth:`term` is its loss term,
+    :meth:`observe` sets the frame being fitted. Build it with :meth:`bind`."""
 
     def __init__(self, binding: LandmarkBinding, cameras: Sequence[Camera], observations: Sequence[KeypointObservations],
                  frames: Sequence[int], weight: float, huber_px: float) -> None:
