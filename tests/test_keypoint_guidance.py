@@ -15,6 +15,7 @@ from fitting_scene import moved, ring_camera, single_precision, subject, write_f
 
 from mmcsplat.cli import main
 from mmcsplat.pipeline.track import TRACK_INFO
+from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.interfaces import KeypointObservations
 from mmcsplat.plugins.landmarks.openpose import MODELS
 from mmcsplat.scene.landmark_anchors import bind_landmarks, carry
@@ -126,7 +127,7 @@ def test_unconfident_detections_are_ignored():
 
 
 def test_too_few_training_cameras_is_an_error_naming_them():
-    with pytest.raises(Exception, match="two training cameras"):
+    with pytest.raises(InputError, match="two training cameras"):
         guidance(detections(landmarks(), cameras=CAMERAS[:2]), cameras=TRAINING)
 
 
