@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from mmcsplat.analysis.landmark_binding import bind_landmarks, carry, confidence, landmark_accuracy
+from mmcsplat.analysis.landmark_binding import confidence, landmark_accuracy
+from mmcsplat.scene.landmark_anchors import bind_landmarks, carry
 
 NAMES = ("wrist", "elbow", "far")
 

@@ -3,7 +3,7 @@
 
 The landmarks of a source (a ``landmarks`` plugin: TRC or CSV file, triangulated 2D keypoints, a synthetic
 capture's joints) at the run's fitted frame are bound to the subject's Gaussians there and carried through
-its frames (:mod:`mmcsplat.analysis.landmark_binding`). Where the source also knows the landmarks at later
+its frames (:mod:`mmcsplat.scene.landmark_anchors`). Where the source also knows the landmarks at later
 frames, the carried ones are scored against them (3D, mm); where a keypoint source gives 2D detections,
 the carried landmarks are projected into each camera and scored against them (px), beside the detector's
 own disagreement with the source's 3D landmarks. Every frame, each landmark is judged against the training
@@ -23,7 +23,7 @@ from typing import Any
 import attrs
 import numpy as np
 
-from mmcsplat.analysis.landmark_binding import ANCHORS, MAX_DISTANCE, bind_landmarks, carry, confidence, landmark_accuracy
+from mmcsplat.analysis.landmark_binding import confidence, landmark_accuracy
 from mmcsplat.analysis.lost_landmarks import LostRule, lost_record, neighbourhoods, off_at_frame, slipped
 from mmcsplat.analysis.movement import joint_angle_accuracy, movement_rows, movement_summary
 from mmcsplat.configuration.registry import Registry, default_registry
@@ -31,6 +31,7 @@ from mmcsplat.pipeline.run_frames import RunStates
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.interfaces import KeypointObservations, Landmarks, LandmarkSource
 from mmcsplat.scene.camera import Camera
+from mmcsplat.scene.landmark_anchors import ANCHORS, MAX_DISTANCE, bind_landmarks, carry, subject_gaussians
 from mmcsplat.storage.atomic import write_json_atomic, write_text_atomic
 from mmcsplat.storage.completeness import require_finished
 from mmcsplat.storage.landmark_formats import write_landmark_csv
@@ -40,17 +41,6 @@ from mmcsplat.storage.run_log import run_log
 from mmcsplat.storage.session import SessionReader
 
 MIN_KEYPOINT_CONFIDENCE = 0.3  # detections below it are not scored (OpenPose's own cut-off for a visible keypoint)
-SUBJECT_OPACITY = 0.1  # Gaussians fainter than this carry no landmark: they are too easily floaters
-
-
-def subject_gaussians(params: dict[str, Any], foreground: np.ndarray) -> np.ndarray:
-    """Indices of the Gaussians that may carry landmarks: the subject's (``foreground``; every Gaussian
-    when none is) that are not nearly transparent."""
-    import torch
-
-    opaque = torch.sigmoid(params["opacity_logits"].detach()).numpy() >= SUBJECT_OPACITY
-    candidates = foreground if len(foreground) else np.arange(len(opaque))
-    return candidates[opaque[candidates]]
 
 
 def pixel_errors(camera: Camera, carried: np.ndarray, reference: np.ndarray, observed: KeypointObservations,

@@ -16,7 +16,9 @@ frame of the tracks holds.
 
 Options: ``lambda_flow`` adds the flow loss (:mod:`mmcsplat.training.motion_image`: the rendered motion
 since the previous frame against the session's observed flow on the subject's pixels);
-``coarse_iterations`` fits each frame's first steps at reduced resolution
+``lambda_keypoints`` adds keypoint guidance (:mod:`mmcsplat.training.keypoint_guidance`: the Gaussians
+carrying each keypoint of the ``keypoints`` source pulled towards the training cameras' detections; off by
+default); ``coarse_iterations`` fits each frame's first steps at reduced resolution
 (:mod:`mmcsplat.training.coarse_views`); ``stop_window``
 ends a frame's fit when its loss stops improving (:class:`~mmcsplat.training.loop.PlateauStop`), with
 ``iterations`` the cap; ``track.json`` records each frame's iterations.
@@ -27,6 +29,7 @@ from __future__ import annotations
 import functools
 import logging
 import time
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -43,6 +46,7 @@ from mmcsplat.storage.session.flow import FlowPair, SessionFlow, pair_present
 from mmcsplat.storage.tracks import TrackWriter
 from mmcsplat.training.coarse_views import CoarseToFine
 from mmcsplat.training.flow_prediction import FlowGuidance, FlowPrediction
+from mmcsplat.training.keypoint_guidance import KeypointGuidance
 from mmcsplat.training.loop import LossTerm, PlateauStop, Sample, Step, TrainingLoop
 from mmcsplat.training.model import GaussianModel
 from mmcsplat.training.motion_image import FlowLoss, with_motion
@@ -102,6 +106,12 @@ class IterativeDynamics(Dynamics):
                                       validator=at_least(0))
     coarse_iterations: int = parameter(0, doc="each frame's first steps at 1/coarse_factor resolution, so a limb that moved "
                                        "more than its width still has a gradient (0: off)", validator=at_least(0))
+    lambda_keypoints: float = parameter(0.0, doc="weight of keypoint guidance: the Gaussians carrying each keypoint pulled towards the "
+                                        "training cameras' detections, Huber distance in pixels (0: off; needs keypoints)", validator=at_least(0))
+    keypoints: Mapping[str, Any] = parameter(doc="the keypoint source of the guidance: a landmarks plugin's name and parameters, e.g. "
+                                             "{name = \"openpose\", folder = \"pose_2d\"}", factory=dict, converter=dict)
+    keypoint_huber_px: float = parameter(2.0, doc="pixels (of the stored images) beyond which a keypoint's pull stops growing",
+                                         validator=above(0))
     coarse_factor: int = parameter(2, doc="resolution reduction of the coarse steps (pixel blocks averaged)", validator=at_least(2))
 
     # ------------------------------------------------------------------------------------------ setup
@@ -140,7 +150,9 @@ class IterativeDynamics(Dynamics):
         prior = RigidityPrior(graph)
         flow = self._loss_flow(context)
         flow_loss = FlowLoss(self.lambda_flow) if flow is not None else None
-        terms = [self._rigidity(prior, model), *([flow_loss] if flow_loss is not None else [])]
+        guidance = self._keypoint_guidance(context, params, foreground)
+        terms = [self._rigidity(prior, model), *([flow_loss] if flow_loss is not None else []),
+                 *([guidance.term(params)] if guidance is not None else [])]
         loop = TrainingLoop(model, context.renderer, context.settings, lambda_seg=self.lambda_seg, terms=terms)
         stop = PlateauStop(self.stop_window, tolerance=self.stop_tolerance) if self.stop_window else None
         cameras = RenderCameras.each(context.cameras)
@@ -161,6 +173,8 @@ class IterativeDynamics(Dynamics):
                 model.reset_moments(RESET_EACH_FRAME)
                 if flow_loss is not None:
                     flow_loss.observe(self._flow_pairs(flow, context, t))
+                if guidance is not None:
+                    guidance.observe(t)
                 result = self._fit_frame(loop, context, cameras, t, generator, previous[0] if flow_loss is not None else None, stop)
                 results.append(result)
                 writer.write_frame(k, **self._dynamic(model))
@@ -174,6 +188,7 @@ class IterativeDynamics(Dynamics):
             "frames": [attrs.asdict(result) for result in results],
             "prediction": "constant-velocity" if motion is None else "flow",
             "flow_loss": flow_loss is not None,
+            "keypoint_guidance": guidance.summary() if guidance is not None else None,
             **({"flow_fallback_gaussians": motion.fallbacks} if motion is not None else {}),
         }
 
@@ -197,6 +212,24 @@ class IterativeDynamics(Dynamics):
             raise InputError(f"dynamics.lambda_flow needs the optical flow of {context.session.url}, which has none in the training "
                              f"cameras: run `mmcsplat flow {context.session.url}` or set dynamics.lambda_flow=0")
         return flow
+
+    def _keypoint_guidance(self, context: TrackingContext, params: Mapping[str, torch.Tensor],
+                           foreground: torch.Tensor) -> KeypointGuidance | None:
+        """Keypoint guidance from the ``keypoints`` source when ``lambda_keypoints`` asks for it, bound at the
+        first frame; an error naming what is missing when it cannot be had."""
+        if self.lambda_keypoints == 0:
+            return None
+        table = dict(self.keypoints)
+        if "name" not in table:
+            raise InputError("dynamics.lambda_keypoints needs a keypoint source: set dynamics.keypoints.name=openpose (or deeplabcut, "
+                             "sleap) and its dynamics.keypoints.folder=…, or dynamics.lambda_keypoints=0")
+        name = table.pop("name")
+        observations = context.plugins.create("landmarks", name, **table).observations(context.session, list(context.frames))
+        if not observations:
+            raise InputError(f"dynamics.keypoints: landmarks {name!r} gives no 2D detections to guide with: name a keypoint source "
+                             "(openpose, deeplabcut, sleap)")
+        return KeypointGuidance.bind(observations, context.cameras, list(context.frames), params, np.flatnonzero(foreground.numpy()),
+                                     self.lambda_keypoints, self.keypoint_huber_px)
 
     @staticmethod
     def _flow_pairs(flow: SessionFlow, context: TrackingContext, t: int) -> dict[str, FlowPair]:

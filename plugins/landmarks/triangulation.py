@@ -6,10 +6,10 @@ Pixels: a keypoint at (x, y) of the source video is mapped into the stored image
 recorded (its distortion and decoded size, kept in the session's provenance by ingest) and the stored,
 undistorted camera: ``cv2.undistortPoints`` with the stored K as the new projection.
 
-Triangulation: for each frame and keypoint, the linear (DLT) solution over the cameras whose detection
-has a confidence above the source's threshold, each row weighted by its confidence; at least two cameras
-are needed, else the landmark is unknown (NaN) at that frame — Pose2Sim's and anipose's triangulation in
-its simplest form, without their outlier rejection.
+Triangulation (:func:`mmcsplat.scene.triangulation.triangulate`): for each frame and keypoint, the linear
+(DLT) solution over the cameras whose detection has a confidence above the source's threshold, each row
+weighted by its confidence; at least two cameras are needed, else the landmark is unknown (NaN) at that
+frame.
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ import numpy as np
 
 from mmcsplat.plugin_api.interfaces import Landmarks, LandmarkSource
 from mmcsplat.scene.camera import Camera
+from mmcsplat.scene.triangulation import triangulate
 from mmcsplat.storage.session import SessionReader
 
 
@@ -37,26 +38,6 @@ def to_session_pixels(points: np.ndarray, recorded: Camera, stored: Camera) -> n
     flat = np.ascontiguousarray(points.reshape(-1, 1, 2), dtype=np.float64)
     mapped = cv2.undistortPoints(flat, np.asarray(recorded.K), np.asarray(recorded.distortion), P=np.asarray(stored.K))
     return mapped.reshape(points.shape)
-
-
-def triangulate(cameras: Sequence[Camera], pixels: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """[L, 3] points from ``pixels`` [C, L, 2] in ``cameras`` weighted by ``weights`` [C, L] (0: unused);
-    NaN where fewer than two cameras have a weight."""
-    projections = np.stack([np.asarray(c.K) @ np.hstack([np.asarray(c.R), np.asarray(c.t)[:, None]]) for c in cameras])  # [C, 3, 4]
-    points = np.full((pixels.shape[1], 3), np.nan)
-    for j in range(pixels.shape[1]):
-        used = np.flatnonzero(weights[:, j] > 0)
-        if len(used) < 2:
-            continue
-        rows = []
-        for c in used:
-            u, v = pixels[c, j]
-            P = projections[c]
-            rows += [weights[c, j] * (u * P[2] - P[0]), weights[c, j] * (v * P[2] - P[1])]
-        _, _, vt = np.linalg.svd(np.asarray(rows))
-        homogeneous = vt[-1]
-        points[j] = homogeneous[:3] / homogeneous[3]
-    return points
 
 
 class TriangulatedKeypoints(LandmarkSource):
