@@ -38,7 +38,7 @@ SESSION_KEYS = {"path", "synthetic", "segmenter", "heldout", "folds", "ground_tr
 VARIANT_KEYS = {"name", "config", "set", "grid", "segmenter", *VARIANT_PLUGIN_TABLES}
 #: Synthesis settings added after studies were first keyed: left out of identities at these defaults,
 #: so that existing study directories keep their cells.
-LATER_SYNTHETIC_DEFAULTS = {"slide": 0.0}
+LATER_SYNTHETIC_DEFAULTS = {"slide": 0.0, "motion": "natural"}
 
 
 class StudyError(InputError):
