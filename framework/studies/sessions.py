@@ -24,7 +24,7 @@ IDENTITY_SUFFIX = ".json"
 
 def prepare_session(plan: SessionPlan, progress: bool = True) -> None:
     """Make ``plan.url`` ready (nothing to do for a stored session read in place)."""
-    if plan.segmenter is None and not plan.spec.modifications:
+    if plan.in_place:
         return
     target = Path(plan.url)
     identity_file = target.with_suffix(IDENTITY_SUFFIX)
@@ -37,6 +37,20 @@ def prepare_session(plan: SessionPlan, progress: bool = True) -> None:
         raise StudyError(f"session {plan.spec.name!r}: copying it (to segment or modify) needs a local session, not the URL {source}")
     _prepared_copy(Path(source), target, plan.spec, plan.segmenter, progress)
     write_json_atomic(identity_file, plan.identity)
+
+
+def prepare_flow(plan: SessionPlan, preset: str, progress: bool = True) -> None:
+    """Give the prepared session ``plan.url`` its optical flow with the DIS ``preset`` (once: a complete
+    flow is kept, an interrupted one resumed), for the cells whose dynamics reads it. A stored session read
+    in place is never written into: it must already hold that flow."""
+    from mmcsplat.pipeline.flow import compute_flow, flow_complete
+
+    if flow_complete(plan.url, preset=preset):
+        return
+    if plan.in_place:
+        raise StudyError(f"session {plan.spec.name!r} ({plan.url}) has no complete optical flow (DIS preset {preset!r}), which a variant's "
+                         f"dynamics reads: run `mmcsplat flow {plan.url}` first (a study never writes into a session it reads in place)")
+    compute_flow(plan.url, preset=preset, progress=progress)
 
 
 def _synthesized(plan: SessionPlan, folder: Path, progress: bool) -> Path:

@@ -25,7 +25,7 @@ import attrs
 
 from mmcsplat.configuration.config import Config, ConfigError, PluginChoice, load_config, set_value
 from mmcsplat.configuration.registry import PluginError, Registry, default_registry
-from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.plugin_api.errors import InputError, PluginUnavailableError
 from mmcsplat.synthetic.defaults import SYNTHETIC_HELDOUT, SYNTHETIC_SEGMENTER
 
 #: Bump when the meaning of a key's payload changes: every cell then runs again.
@@ -121,6 +121,11 @@ class SessionPlan:
     url: str
     identity: Mapping[str, Any]
 
+    @property
+    def in_place(self) -> bool:
+        """Whether the cells read the stored session itself (the study writes nothing into it)."""
+        return self.segmenter is None and not self.spec.modifications
+
 
 @attrs.frozen
 class CellSpec:
@@ -134,10 +139,12 @@ class CellSpec:
     seed: int
     backend: str
     ground_truth: str | None = None
+    #: The DIS preset of the session's optical flow that the cell's dynamics reads (``None``: it reads none).
+    flow: str | None = None
 
     @property
     def key(self) -> str:
-        return cell_key(self.config_values, self.session_identity, self.holdout, self.seed, self.backend)
+        return cell_key(self.config_values, self.session_identity, self.holdout, self.seed, self.backend, self.flow)
 
     @property
     def config(self) -> Config:
@@ -162,11 +169,14 @@ class Cell:
 
 
 def cell_key(config_values: Mapping[str, Any], session_identity: Mapping[str, Any], holdout: Sequence[str] | None,
-             seed: int, backend: str) -> str:
+             seed: int, backend: str, flow: str | None = None) -> str:
     """The hex key of a cell: a SHA-256 of its canonical JSON (sorted keys), independent of the study's
-    variant names and of the order in which tables were written."""
+    variant names and of the order in which tables were written. The flow preset a cell reads is in the
+    payload only when it reads one, so cells keyed before studies computed flow keep their keys (those of
+    them that asked for flow-guided prediction ran without flow, and run again)."""
     payload = {"version": KEY_VERSION, "config": config_values, "session": session_identity,
-               "holdout": list(holdout) if holdout is not None else None, "seed": seed, "backend": backend}
+               "holdout": list(holdout) if holdout is not None else None, "seed": seed, "backend": backend,
+               **({"flow": flow} if flow is not None else {})}
     text = json.dumps(payload, sort_keys=True, separators=(",", ":"), default=str)
     return hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
 
@@ -405,8 +415,11 @@ def segmenter_key(choice: PluginChoice | None) -> str:
 
 def expand(study: Study, out: Path, registry: Registry | None = None) -> list[Cell]:
     """Every cell of the study, in order: sessions × variants × folds × seeds × backends."""
+    from mmcsplat.pipeline.flow import DEFAULT_PRESET
+
     registry = registry or default_registry()
     plans = plan_sessions(study, out)
+    flow = {variant.name: DEFAULT_PRESET if reads_flow(variant.config, registry) else None for variant in study.variants}
     cells = []
     for spec in study.sessions:
         folds: Sequence[str | None] = spec.folds if spec.folds is not None else study.folds
@@ -416,9 +429,24 @@ def expand(study: Study, out: Path, registry: Registry | None = None) -> list[Ce
                 values = resolve(variant.config, seed, backend, registry)
                 renderer = values["renderer"]["name"]
                 cell_spec = CellSpec(variant.config.source, values, plan.url, plan.identity,
-                                     (fold,) if fold is not None else None, seed, renderer, spec.ground_truth)
+                                     (fold,) if fold is not None else None, seed, renderer, spec.ground_truth, flow[variant.name])
                 cells.append(Cell(variant.name, spec.name, fold or "default", seed, renderer, cell_spec, plan))
     return cells
+
+
+def reads_flow(config: Config, registry: Registry) -> bool:
+    """Whether the dynamics method of ``config`` (if any), built with its parameters, reads the session's
+    optical flow (:attr:`~mmcsplat.plugin_api.interfaces.Dynamics.reads_flow`); a method not usable here
+    reads none (its cells fail, saying why)."""
+    dynamics = config.plugins("dynamics")
+    if not dynamics:
+        return False
+    try:
+        return bool(registry.create("dynamics", dynamics[0].name, **dynamics[0].params).reads_flow)
+    except PluginUnavailableError:
+        return False
+    except PluginError as error:
+        raise StudyError(f"{config.source}: {error}") from error
 
 
 def resolve(config: Config, seed: int, backend: str | None, registry: Registry) -> dict[str, Any]:
