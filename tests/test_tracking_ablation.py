@@ -6,20 +6,23 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import pytest
 from fitting_scene import write_session
 
 import mmcsplat.pipeline.flow as flow_module
+from mmcsplat.storage.session import SessionReader
 from mmcsplat.studies.runner import run_study
 from mmcsplat.studies.spec import StudyError, expand, load_study
 
 TINY = "frames = 3, cameras = 4, width = 32, height = 24, samples = 1, adult_leg = false"
+POSE2SIM = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "pose2sim_demo"
 
 
-def write_study(folder, variants: str, session: str) -> str:
+def write_study(folder, variants: str, session: str, fold: str = "cam_0") -> str:
     path = folder / "study.toml"
-    path.write_text(f'[study]\nname = "tiny"\nfolds = ["cam_0"]\n\n[sessions.capture]\n{session}\n{variants}')
+    path.write_text(f'[study]\nname = "tiny"\nfolds = ["{fold}"]\n\n[sessions.capture]\n{session}\n{variants}')
     return str(path)
 
 
@@ -78,6 +81,40 @@ def test_a_stored_session_read_in_place_must_bring_its_flow(tmp_path):
     with pytest.raises(StudyError, match=r"session 'capture' .* has no complete optical flow .* run `mmcsplat flow .*scene.zarr` first"):
         run_study(study, tmp_path / "out", workers=0, progress=False)
     assert not (tmp_path / "out" / "cells").exists()
+
+
+def test_a_capture_session_fills_in_what_run_would_and_refuses_what_does_not_apply(tmp_path):
+    capture = tmp_path / "capture"
+    (capture / "pose_2d").mkdir(parents=True)
+    (capture / "joints.trc").write_text("")
+    variants = iterative("flow", 'predict = "flow"')
+    study = load_study(write_study(tmp_path, variants, 'capture = { path = "capture", frames = [0, 4], holdout = ["cam_04"] }'))
+    settings = study.sessions[0].capture
+    assert settings["scale"] == 0.25 and settings["frames"] == [0, 4] and settings["holdout"] == ["cam_04"]  # run's scale
+    assert settings["keypoints"] == str(capture / "pose_2d") and settings["joints"] == str(capture / "joints.trc")
+    cell = expand(study, tmp_path / "out")[0]
+    assert cell.spec.joints == str(capture / "joints.trc") and "joints" not in cell.plan.identity["capture"]
+    assert cell.plan.url.startswith(str(tmp_path / "out" / "sessions" / "capture" / "capture-")) and not cell.plan.in_place
+    with pytest.raises(StudyError, match=r"\['segmenter'\] do not apply to a capture session"):
+        load_study(write_study(tmp_path, variants, 'capture = { path = "capture" }\nsegmenter = "precomputed"'))
+    with pytest.raises(StudyError, match="capture path .*elsewhere is not a folder"):
+        load_study(write_study(tmp_path, variants, 'capture = { path = "elsewhere" }'))
+    with pytest.raises(StudyError, match="unknown capture key"):
+        load_study(write_study(tmp_path, variants, 'capture = { path = "capture", fps = 30 }'))
+
+
+@pytest.mark.skipif(not POSE2SIM.is_dir(), reason=f"shared real data not found at {POSE2SIM}")
+def test_a_pose2sim_capture_cell_tracks_with_flow_and_scores_its_joints_against_the_trc(tmp_path):
+    session = (f'capture = {{ path = "{POSE2SIM}", calibration = "{POSE2SIM / "Calib_qualisys.toml"}", scale = 0.125, frames = [0, 3], '
+               'holdout = ["cam_04"] }')
+    variant = ('[[variant]]\nname = "flow"\nconfig = "visual-hull-plate"\nset = { "fit.iterations" = 60 }\n'
+               'dynamics = { name = "iterative", iterations = 2, predict = "flow" }\n')
+    result = run_study(load_study(write_study(tmp_path, variant, session, fold="cam_04")), tmp_path / "out", workers=0, progress=False)
+    outcome = result.rows[0].outcome
+    assert outcome.status == "complete", outcome.error
+    reader = SessionReader(result.rows[0].cell.plan.url)  # masks from the keypoints, plates estimated: as `mmcsplat run` makes it
+    assert reader.has("mask") and all(reader.plate_source(name)["kind"] == "estimated" for name in reader.camera_names)
+    assert outcome.track_prediction == "flow" and math.isfinite(outcome.landmark_median_mm) and outcome.track_wall_s_per_frame > 0
 
 
 def test_builtin_tracking_ablation_adds_one_option_a_row():

@@ -165,14 +165,16 @@ HEADLINE_ANGLES = ("knee_flexion", "elbow_flexion", "hip_flexion", "shoulder_fle
 
 
 def _landmarks(spec: CellSpec, cell_dir: Path) -> dict[str, float | None]:
-    """The error of the synthetic capture's joints carried by the cell's tracks and of their joint angles,
-    and each headline angle's range of motion (docs/landmarks.md); none for a session whose ground truth has
-    no joints (or no ground truth): the cell's other results stand."""
+    """The error of the session's joints carried by the cell's tracks — a capture's TRC (``spec.joints``), else
+    the synthetic capture's — and of their joint angles, and each headline angle's range of motion
+    (docs/landmarks.md); none for a session whose ground truth has no joints (or no ground truth): the cell's
+    other results stand."""
     from mmcsplat.pipeline.landmarks import track_landmarks
     from mmcsplat.plugin_api.errors import InputError, MissingFileError
 
+    source, params = ("trc", {"path": spec.joints}) if spec.joints else ("synthetic", {"path": spec.ground_truth} if spec.ground_truth else {})
     try:
-        carried = track_landmarks(cell_dir, "synthetic", {"path": spec.ground_truth} if spec.ground_truth else {})
+        carried = track_landmarks(cell_dir, source, params)
     except (InputError, MissingFileError):
         return {}
     accuracy = carried.info.get("accuracy_3d") or {}

@@ -1,7 +1,8 @@
 """The sessions a study reads, made ready before any cell runs: a synthetic capture synthesized and
-ingested, a copy modified (cameras dropped, one camera's extrinsics perturbed) and segmented (the user's
-own session is never modified). Each step is skipped when its output is already there, so a restarted
-study reuses them; every output appears atomically."""
+ingested, a capture folder made into a session as ``mmcsplat run`` makes it, a copy modified (cameras
+dropped, one camera's extrinsics perturbed) and segmented (the user's own session is never modified), and
+the optical flow computed where a cell's dynamics reads it. Each step is skipped when its output is already
+there, so a restarted study reuses them; every output appears atomically."""
 
 from __future__ import annotations
 
@@ -32,6 +33,10 @@ def prepare_session(plan: SessionPlan, progress: bool = True) -> None:
         if json.loads(identity_file.read_text()) != plan.identity:
             raise StudyError(f"{target} was prepared from other settings ({identity_file}): use a new --out or delete it")
         return
+    if plan.spec.capture is not None:
+        _captured(plan.spec.capture, target, progress)
+        write_json_atomic(identity_file, plan.identity)
+        return
     source = _synthesized(plan, target.parent, progress) if plan.spec.synthetic is not None else plan.spec.path
     if "://" in str(source):
         raise StudyError(f"session {plan.spec.name!r}: copying it (to segment or modify) needs a local session, not the URL {source}")
@@ -51,6 +56,21 @@ def prepare_flow(plan: SessionPlan, preset: str, progress: bool = True) -> None:
         raise StudyError(f"session {plan.spec.name!r} ({plan.url}) has no complete optical flow (DIS preset {preset!r}), which a variant's "
                          f"dynamics reads: run `mmcsplat flow {plan.url}` first (a study never writes into a session it reads in place)")
     compute_flow(plan.url, preset=preset, progress=progress)
+
+
+def _captured(capture: dict, target: Path, progress: bool) -> None:
+    """The capture folder made into the session ``target`` as ``mmcsplat run`` makes its own (ingested, masks
+    and plates), in a hidden sibling renamed into place."""
+    from mmcsplat.pipeline.capture_session import prepare_capture_session
+    from mmcsplat.pipeline.steps import made_in_place
+
+    def make(partial: Path) -> None:
+        prepare_capture_session(Path(capture["path"]), partial, calibration=Path(capture["calibration"]) if capture["calibration"] else None,
+                                units=capture["units"], frames=slice(*capture["frames"]) if capture["frames"] else None, scale=capture["scale"],
+                                cameras=capture["cameras"] or None, holdout=capture["holdout"],
+                                keypoints=Path(capture["keypoints"]) if capture["keypoints"] else None, progress=progress)
+
+    made_in_place(target, make)
 
 
 def _synthesized(plan: SessionPlan, folder: Path, progress: bool) -> Path:
