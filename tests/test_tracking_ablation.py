@@ -75,12 +75,14 @@ def test_flow_is_computed_once_for_the_cells_that_read_it(tmp_path, monkeypatch)
     assert run_study(study, tmp_path / "out", workers=0, progress=False).reused == 3 and len(calls) == 1
 
 
-def test_a_stored_session_read_in_place_must_bring_its_flow(tmp_path):
-    write_session(tmp_path / "scene.zarr", frames=2)
+def test_a_stored_session_read_in_place_gains_its_flow_and_nothing_else(tmp_path):
+    write_session(tmp_path / "scene.zarr", frames=2, plates=True)
+    frame = SessionReader(tmp_path / "scene.zarr").frame(1, "cam_1").rgb.copy()
     study = load_study(write_study(tmp_path, iterative("flow", 'predict = "flow"'), 'path = "scene.zarr"'))
-    with pytest.raises(StudyError, match=r"session 'capture' .* has no complete optical flow .* run `mmcsplat flow .*scene.zarr` first"):
-        run_study(study, tmp_path / "out", workers=0, progress=False)
-    assert not (tmp_path / "out" / "cells").exists()
+    assert expand(study, tmp_path / "out")[0].plan.in_place
+    result = run_study(study, tmp_path / "out", workers=0, progress=False)
+    assert result.rows[0].outcome.track_prediction == "flow", result.rows[0].outcome.error
+    assert flow_module.flow_complete(tmp_path / "scene.zarr") and (SessionReader(tmp_path / "scene.zarr").frame(1, "cam_1").rgb == frame).all()
 
 
 def test_a_capture_session_fills_in_what_run_would_and_refuses_what_does_not_apply(tmp_path):

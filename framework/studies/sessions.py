@@ -1,7 +1,7 @@
 """The sessions a study reads, made ready before any cell runs: a synthetic capture synthesized and
 ingested, a capture folder made into a session as ``mmcsplat run`` makes it, a copy modified (cameras
-dropped, one camera's extrinsics perturbed) and segmented (the user's own session is never modified), and
-the optical flow computed where a cell's dynamics reads it. Each step is skipped when its output is already
+dropped, one camera's extrinsics perturbed) and segmented (the user's own session is never modified: it
+only gains its optical flow), and the optical flow computed where a cell's dynamics reads it. Each step is skipped when its output is already
 there, so a restarted study reuses them; every output appears atomically."""
 
 from __future__ import annotations
@@ -45,16 +45,17 @@ def prepare_session(plan: SessionPlan, progress: bool = True) -> None:
 
 
 def prepare_flow(plan: SessionPlan, preset: str, progress: bool = True) -> None:
-    """Give the prepared session ``plan.url`` its optical flow with the DIS ``preset`` (once: a complete
-    flow is kept, an interrupted one resumed), for the cells whose dynamics reads it. A stored session read
-    in place is never written into: it must already hold that flow."""
+    """Give the session ``plan.url`` its optical flow with the DIS ``preset`` (once: a complete flow is kept,
+    an interrupted one resumed), for the cells whose dynamics reads it. A stored session read in place gets
+    it as ``mmcsplat flow`` would give it (stored beside its frames, which stay as they are); a remote one
+    (a URL) must already hold it."""
     from mmcsplat.pipeline.flow import compute_flow, flow_complete
 
     if flow_complete(plan.url, preset=preset):
         return
-    if plan.in_place:
+    if "://" in plan.url:
         raise StudyError(f"session {plan.spec.name!r} ({plan.url}) has no complete optical flow (DIS preset {preset!r}), which a variant's "
-                         f"dynamics reads: run `mmcsplat flow {plan.url}` first (a study never writes into a session it reads in place)")
+                         f"dynamics reads, and the study does not write into a remote session: run `mmcsplat flow` on it first")
     compute_flow(plan.url, preset=preset, progress=progress)
 
 
