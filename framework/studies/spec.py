@@ -37,8 +37,8 @@ HEADER_KEYS = {"name", "description", "folds", "seeds", "backends", "set"}
 SESSION_KEYS = {"path", "synthetic", "capture", "segmenter", "heldout", "folds", "ground_truth", "cameras", "perturb"}
 #: What a ``capture`` table may hold: the capture folder and what ``mmcsplat run`` takes to make a session of it.
 CAPTURE_KEYS = {"path", "calibration", "units", "scale", "frames", "cameras", "holdout", "keypoints", "joints"}
-#: Session keys a capture session leaves to its ``capture`` table (holdout, cameras) or to ``mmcsplat run``'s masks.
-NOT_FOR_CAPTURES = ("segmenter", "heldout", "ground_truth", "cameras", "perturb")
+#: Session keys a capture session leaves to its ``capture`` table (cameras, joints) or to ``mmcsplat run``'s masks.
+NOT_FOR_CAPTURES = ("segmenter", "ground_truth", "cameras", "perturb")
 VARIANT_KEYS = {"name", "config", "set", "grid", "segmenter", *VARIANT_PLUGIN_TABLES}
 #: Synthesis settings added after studies were first keyed: left out of identities at these defaults,
 #: so that existing study directories keep their cells.
@@ -130,7 +130,7 @@ class SessionPlan:
 
     @property
     def in_place(self) -> bool:
-        """Whether the cells read the stored session itself (the study writes nothing into it)."""
+        """Whether the cells read the stored session itself (the study adds at most its optical flow to it)."""
         return self.spec.path is not None and self.segmenter is None and not self.spec.modifications
 
 
@@ -266,7 +266,8 @@ def _session(name: str, table: Mapping[str, Any], source: str, folder: Path | No
         raise StudyError(f"{where} needs exactly one of 'path' (a stored session), 'synthetic' (a table of synthesis settings) or "
                          "'capture' (a table naming a capture folder)")
     if "heldout" in table and "synthetic" not in table:
-        raise StudyError(f"{where}: 'heldout' applies to synthetic sessions only (a stored session has its own)")
+        raise StudyError(f"{where}: 'heldout' applies to synthetic sessions only (a stored session has its own; a capture's is its "
+                         "capture table's holdout)")
     segmenter = _segmenter(table["segmenter"], where) if "segmenter" in table else None
     folds = _strings(table["folds"], f"{where} folds") if "folds" in table else None
     ground_truth = _resolve_path(table["ground_truth"], folder, f"{where} ground_truth") if "ground_truth" in table else None
