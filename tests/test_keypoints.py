@@ -347,7 +347,7 @@ def test_keypoint_sources_need_a_folder_or_files_and_name_a_stranger(tmp_path):
 
 
 def test_run_reads_openpose_sleap_or_deeplabcut_keypoints_from_a_folder_or_a_file(scene, tmp_path):
-    from mmcsplat.jobs.capture import keypoint_source
+    from mmcsplat.pipeline.capture_session import keypoint_source
 
     _, openpose = scene
     assert keypoint_source(openpose) == {"name": "openpose", "folder": str(openpose)}

@@ -85,7 +85,7 @@ def test_run_fits_on_shipped_masks_but_never_on_a_ground_truth(tmp_path):
     import rig_fixtures as rig
     import zarr
 
-    from mmcsplat.jobs.capture import mask_choice
+    from mmcsplat.pipeline.capture_session import mask_choice
     from mmcsplat.pipeline.ingest import ingest
 
     source = tmp_path / "capture"

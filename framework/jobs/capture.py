@@ -27,20 +27,18 @@ from __future__ import annotations
 import json
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import attrs
 
+from mmcsplat.pipeline.capture_session import DEFAULT_SCALE, found, keypoint_source, prepare_capture_session
 from mmcsplat.pipeline.steps import SettingsRecord, Step, StepTime, fit_complete, fresh, made_in_place, run_steps
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.storage.atomic import write_json_atomic
 from mmcsplat.storage.run import LANDMARKS_CSV, LANDMARKS_INFO, METRICS_FILE, MOVEMENT_JSON, RENDERS_DIR, REPORT_FILE, RUN_INFO, TRACK_INFO, TRACKS_DIR
 
-if TYPE_CHECKING:
-    from mmcsplat.storage.session import SessionReader
-
 SETTINGS_FILE = "capture.json"
-#: Which masks the run used (see :func:`mask_choice`), written with the session.
+#: Which masks the run used (see :func:`mmcsplat.pipeline.capture_session.mask_choice`), written with the session.
 MASKS_FILE = "masks.json"
 DEFAULT_CONFIG = "visual-hull-plate"
 #: Learning rate of the means while tracking, times the scene scale: ten times the fit's. Adam moves a mean
@@ -55,7 +53,7 @@ class CaptureSettings:
 
     calibration: str | None = None
     units: str = "m"
-    scale: float = 0.25
+    scale: float = DEFAULT_SCALE
     frames: tuple[int | None, int | None, int | None] = (None, None, None)
     cameras: tuple[str, ...] = attrs.field(default=(), converter=tuple)
     holdout: tuple[str, ...] = attrs.field(default=(), converter=tuple)
@@ -78,42 +76,6 @@ class CaptureResult:
     steps: tuple[StepTime, ...]
 
 
-def found(capture: Path, given: str | None, pattern: str, what: str) -> Path | None:
-    """``given``, else the single ``pattern`` match in ``capture`` (None when there is none)."""
-    if given is not None:
-        path = Path(given)
-        if not path.exists():
-            raise InputError(f"{what} {path} does not exist")
-        return path.resolve()
-    matches = sorted(capture.glob(pattern))
-    if len(matches) > 1:
-        raise InputError(f"{capture}: several {what} candidates ({', '.join(p.name for p in matches)}); choose one")
-    return matches[0].resolve() if matches else None
-
-
-def keypoint_source(path: Path) -> dict[str, Any]:
-    """The landmarks plugin (``name``) and parameters that read the 2D keypoints at ``path``: a SLEAP file
-    (``.slp``, ``.analysis.h5``) or a DeepLabCut one (``.csv``, ``.h5``), or a folder of OpenPose camera folders
-    of JSON files, else of SLEAP files, else of DeepLabCut files."""
-    lower = path.name.lower()
-    if path.is_file():
-        if lower.endswith((".slp", ".analysis.h5")):
-            return {"name": "sleap", "files": [str(path)]}
-        if lower.endswith((".csv", ".h5")):
-            return {"name": "deeplabcut", "files": [str(path)]}
-        raise InputError(f"keypoint file {path} is neither SLEAP (.slp, .analysis.h5) nor DeepLabCut (.csv, .h5): give one of those, "
-                         "or a folder of OpenPose camera folders")
-    entries = sorted(path.iterdir())
-    if any(entry.is_dir() and any(entry.glob("*.json")) for entry in entries):
-        return {"name": "openpose", "folder": str(path)}
-    if any(entry.is_file() and entry.name.lower().endswith((".slp", ".analysis.h5")) for entry in entries):
-        return {"name": "sleap", "folder": str(path)}
-    if any(entry.is_file() and entry.suffix.lower() in (".csv", ".h5") for entry in entries):
-        return {"name": "deeplabcut", "folder": str(path)}
-    raise InputError(f"keypoint folder {path} holds no OpenPose camera folders of JSON files, no SLEAP (.slp, .analysis.h5) and no "
-                     "DeepLabCut (.csv, .h5) files")
-
-
 def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings = CaptureSettings(), progress: bool = True,
                 log: Callable[[str], None] = print) -> CaptureResult:
     """Run every step into ``out`` (module docstring); ``log`` gets one line per step."""
@@ -124,11 +86,8 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     from mmcsplat.pipeline.evaluate import evaluate
     from mmcsplat.pipeline.fit import FirstFrameFit
     from mmcsplat.pipeline.flow import compute_flow, flow_complete
-    from mmcsplat.pipeline.ingest import ingest
     from mmcsplat.pipeline.landmarks import track_landmarks
-    from mmcsplat.pipeline.plates import estimate_plates
     from mmcsplat.pipeline.run_frames import RunStates
-    from mmcsplat.pipeline.segment import segment_session
     from mmcsplat.pipeline.track import track_run
     from mmcsplat.storage.session import SessionReader
 
@@ -145,19 +104,10 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     session, run = out / "session.zarr", out / "run"
 
     def prepare(partial: Path) -> None:
-        ingest(capture, partial, calibration=Path(settings.calibration) if settings.calibration else None, units=settings.units,
-               frames=slice(*settings.frames), scale=settings.scale, cameras=list(settings.cameras) or None, holdout=list(settings.holdout),
-               overwrite=True, progress=progress)
-        recorded = any(SessionReader(partial).plate(name) is not None for name in SessionReader(partial).camera_names)
-        segmenter, first, refined = ("keypoints", {"source": source}, {"source": source, "refine": "plate"}) if source else \
-            ("background", {"method": "median"}, {"method": "plate"}) if recorded else ("parallax", {}, {"refine": "plate"})
-        choice = mask_choice(SessionReader(partial), segmenter)
-        if choice["masks"] != "capture" and not recorded:
-            segment_session(partial, segmenter, first, progress=progress)
-        if not recorded:
-            estimate_plates(str(partial), None, progress=progress)
-        if choice["masks"] != "capture":
-            segment_session(partial, segmenter, refined, progress=progress)
+        choice = prepare_capture_session(capture, partial, calibration=Path(settings.calibration) if settings.calibration else None,
+                                         units=settings.units, frames=slice(*settings.frames), scale=settings.scale,
+                                         cameras=list(settings.cameras) or None, holdout=list(settings.holdout), keypoints=keypoints,
+                                         progress=progress)
         write_json_atomic(out / MASKS_FILE, choice)
         log(f"run: masks: {choice['detail']}")
 
@@ -203,30 +153,6 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     times = run_steps("run", steps, log, SettingsRecord.of(out / SETTINGS_FILE, settings))
     info = json.loads((run / LANDMARKS_INFO).read_text()) if (run / LANDMARKS_INFO).exists() else {}
     return CaptureResult(out, run, json.loads((run / METRICS_FILE).read_text()), info, times)
-
-
-def mask_choice(session: SessionReader, segmenter: str) -> dict[str, Any]:
-    """Which masks ``run`` uses: ``{"masks": "capture", …}`` when every training camera of ``session`` has
-    masks from its capture (held-out ones without are scored against the training masks' hull), else
-    ``{"masks": segmenter, …}`` (the capture's masks of some cameras are then replaced, and said so). A
-    synthetic capture's ground-truth masks are never fitted on."""
-    reader = session.provenance.get("reader", {})
-    if reader.get("ground_truth") and not reader.get("masks"):  # a synthetic capture's truth scores the run; it does not fit it
-        return {"masks": segmenter, "cameras": list(session.camera_names),
-                "detail": f"made by the {segmenter} segmenter for every camera (the capture's masks are its ground truth, {reader['ground_truth']})"}
-    shipped = [name for name in session.camera_names if session.has_source_mask(name)]
-    training = [name for name in session.camera_names if name not in session.heldout]
-    if shipped and set(training) <= set(shipped):
-        detail = f"the capture's own, of {', '.join(shipped)}"
-        lacking = [name for name in session.camera_names if name not in shipped]
-        if lacking:
-            detail += f" (held out {', '.join(lacking)} has none: evaluated against the training masks' hull)"
-        return {"masks": "capture", "cameras": shipped, "detail": detail}
-    detail = f"made by the {segmenter} segmenter for every camera"
-    if shipped:
-        detail += (f"; the capture's own masks of {', '.join(shipped)} are not used, as training camera(s) "
-                   f"{', '.join(sorted(set(training) - set(shipped)))} have none")
-    return {"masks": segmenter, "cameras": list(session.camera_names), "detail": detail}
 
 
 def _made(folder: Path) -> Path:

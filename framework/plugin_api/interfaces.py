@@ -323,6 +323,12 @@ class Dynamics(ABC):
     #: camera too. Tracking refuses, before it starts, a capture whose frames mostly hold fewer.
     cameras_per_frame: int = 1
 
+    @property
+    def reads_flow(self) -> bool:
+        """Whether the method, as configured, reads the session's optical flow (``mmcsplat flow``), so that a
+        study computes its sessions' flow before its cells track; none by default."""
+        return False
+
     @abstractmethod
     def track(self, context: TrackingContext, out: Path) -> dict[str, Any]:
         """Fit every frame of ``context.frames`` from the first-frame fit ``context.params``, streaming frames

@@ -31,7 +31,8 @@ class CellOutcome:
     """How a cell ended and what it measured (``None`` where a metric does not apply or the cell failed).
 
     ``wall_s`` and ``iterations_per_s`` are the first-frame fit's (time spent training, over resumes);
-    ``track_*`` the dynamics step's; ``per_frame_val_masked_psnr`` and ``tracking_per_frame_median_mm``
+    ``track_*`` the dynamics step's (``track_prediction``: how each frame's start was predicted, as
+    track.json's summary records it — ``flow`` or ``constant-velocity`` — for a method that says); ``per_frame_val_masked_psnr`` and ``tracking_per_frame_median_mm``
     are per tracked frame; ``resumed_at`` the fit iteration a restarted cell went on from.
     ``status`` is ``diverged`` for a fit stopped by a NaN/Inf (its message in ``error``), ``failed`` for
     any other error. ``floater_share`` is evaluate's share of opacity mass outside the masks' visual
@@ -64,6 +65,7 @@ class CellOutcome:
     track_method: str | None = None
     track_wall_s: float | None = None
     track_wall_s_per_frame: float | None = None
+    track_prediction: str | None = None
     tracking_median_mm: float | None = None
     tracking_p90_mm: float | None = None
     landmark_median_mm: float | None = None
@@ -152,6 +154,7 @@ def _run(spec: CellSpec, cell_dir: Path) -> dict[str, Any]:
         "track_method": track.get("method"),
         "track_wall_s": track.get("wall_s"),
         "track_wall_s_per_frame": track.get("wall_s_per_frame"),
+        "track_prediction": track.get("summary", {}).get("prediction"),
         "resumed_at": resumed_at,
         **landmarks,
     }
@@ -162,14 +165,16 @@ HEADLINE_ANGLES = ("knee_flexion", "elbow_flexion", "hip_flexion", "shoulder_fle
 
 
 def _landmarks(spec: CellSpec, cell_dir: Path) -> dict[str, float | None]:
-    """The error of the synthetic capture's joints carried by the cell's tracks and of their joint angles,
-    and each headline angle's range of motion (docs/landmarks.md); none for a session whose ground truth has
-    no joints (or no ground truth): the cell's other results stand."""
+    """The error of the session's joints carried by the cell's tracks — a capture's TRC (``spec.joints``), else
+    the synthetic capture's — and of their joint angles, and each headline angle's range of motion
+    (docs/landmarks.md); none for a session whose ground truth has no joints (or no ground truth): the cell's
+    other results stand."""
     from mmcsplat.pipeline.landmarks import track_landmarks
     from mmcsplat.plugin_api.errors import InputError, MissingFileError
 
+    source, params = ("trc", {"path": spec.joints}) if spec.joints else ("synthetic", {"path": spec.ground_truth} if spec.ground_truth else {})
     try:
-        carried = track_landmarks(cell_dir, "synthetic", {"path": spec.ground_truth} if spec.ground_truth else {})
+        carried = track_landmarks(cell_dir, source, params)
     except (InputError, MissingFileError):
         return {}
     accuracy = carried.info.get("accuracy_3d") or {}

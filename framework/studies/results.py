@@ -95,7 +95,8 @@ class Row:
 @attrs.frozen
 class Aggregate:
     """One variant on one session and backend, over its folds and seeds: mean and standard deviation
-    (population) of each metric over the complete cells, and the per-frame series averaged frame by frame."""
+    (population) of each metric over the complete cells, the per-frame series averaged frame by frame, and
+    the predictions its tracked cells ran with (their ``track_prediction``s, sorted, comma-separated)."""
 
     label: str
     variant: str
@@ -107,10 +108,11 @@ class Aggregate:
     mean: Mapping[str, float | None]
     std: Mapping[str, float | None]
     series: Mapping[str, list[float | None]]
+    prediction: str | None = None
 
     def record(self) -> dict[str, Any]:
         return {"label": self.label, "variant": self.variant, "session": self.session, "backend": self.backend,
-                "cells": self.cells, "failed": self.failed, **attrs.asdict(self.columns),
+                "cells": self.cells, "failed": self.failed, **attrs.asdict(self.columns), "prediction": self.prediction,
                 **{key: self.mean[key] for key in METRICS}, **{f"{key}_std": self.std[key] for key in METRICS},
                 **{key: self.series.get(key) for key in SERIES}}
 
@@ -153,8 +155,9 @@ def aggregate(rows: Sequence[Row], several_sessions: bool, several_backends: boo
             mean[key] = float(np.mean(values)) if values else None
             std[key] = float(np.std(values)) if values else None
         series = {key: _mean_series([getattr(outcome, key) for outcome in done]) for key in SERIES}
+        predictions = sorted({outcome.track_prediction for outcome in done if outcome.track_prediction})
         result.append(Aggregate(group_label(variant, session, backend, several_sessions, several_backends), variant, session, backend, members[0].columns, len(members), len(members) - len(done),
-                                mean, std, {key: value for key, value in series.items() if value}))
+                                mean, std, {key: value for key, value in series.items() if value}, ", ".join(predictions) or None))
     return result
 
 
@@ -260,11 +263,11 @@ def markdown(study: Study, rows: Sequence[Row], aggregates: Sequence[Aggregate],
                   f"- Pareto front, iterations per second against held-out masked PSNR: {', '.join(findings.pareto_speed)}.", ""]
     tracked = [a for a in aggregates if a.columns.dynamics]
     if tracked:
-        table = [["Variant", "dynamics", "tracking median (mm)", "tracking p90 (mm)", "joints, median (mm)", "joints that moved > 1 cm (mm)",
+        table = [["Variant", "dynamics", "prediction", "tracking median (mm)", "tracking p90 (mm)", "joints, median (mm)", "joints that moved > 1 cm (mm)",
                   "… held still (mm)", "joint angles, median error (°)", "tracking (s/frame)", "cells"]]
         table.append(["---"] * len(table[0]))
         for a in tracked:
-            table.append([a.label, a.columns.dynamics or "", _spread(a, "tracking_median_mm", ".1f"), _spread(a, "tracking_p90_mm", ".1f"),
+            table.append([a.label, a.columns.dynamics or "", a.prediction or "—", _spread(a, "tracking_median_mm", ".1f"), _spread(a, "tracking_p90_mm", ".1f"),
                           _spread(a, "landmark_median_mm", ".1f"), _spread(a, "landmark_moving_median_mm", ".1f"),
                           _spread(a, "landmark_still_moving_median_mm", ".1f"), _spread(a, "joint_angle_median_error_deg", ".1f"),
                           _spread(a, "track_wall_s_per_frame", ".2f"),

@@ -58,7 +58,7 @@ def run_study(study: Study, out: str | Path, *, executor: str = "local", workers
     """
     from tqdm import tqdm
 
-    from mmcsplat.studies.sessions import prepare_session
+    from mmcsplat.studies.sessions import prepare_flow, prepare_session
 
     if executor not in EXECUTORS:
         raise StudyError(f"unknown executor {executor!r}; executors: {', '.join(EXECUTORS)}")
@@ -71,6 +71,8 @@ def run_study(study: Study, out: str | Path, *, executor: str = "local", workers
     write_text_atomic(out / "study.toml", study.text)
     for plan in {cell.plan.url: cell.plan for cell in cells}.values():
         prepare_session(plan, progress)
+    for plan, preset in {(cell.plan.url, cell.spec.flow): (cell.plan, cell.spec.flow) for cell in cells if cell.spec.flow}.values():
+        prepare_flow(plan, preset, progress)
     _check_folds(cells)
     outcomes: dict[str, CellOutcome] = {}
     jobs: dict[str, Job] = {}

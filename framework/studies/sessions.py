@@ -1,7 +1,8 @@
 """The sessions a study reads, made ready before any cell runs: a synthetic capture synthesized and
-ingested, a copy modified (cameras dropped, one camera's extrinsics perturbed) and segmented (the user's
-own session is never modified). Each step is skipped when its output is already there, so a restarted
-study reuses them; every output appears atomically."""
+ingested, a capture folder made into a session as ``mmcsplat run`` makes it, a copy modified (cameras
+dropped, one camera's extrinsics perturbed) and segmented (the user's own session is never modified: it
+only gains its optical flow), and the optical flow computed where a cell's dynamics reads it. Each step is skipped when its output is already
+there, so a restarted study reuses them; every output appears atomically."""
 
 from __future__ import annotations
 
@@ -24,7 +25,7 @@ IDENTITY_SUFFIX = ".json"
 
 def prepare_session(plan: SessionPlan, progress: bool = True) -> None:
     """Make ``plan.url`` ready (nothing to do for a stored session read in place)."""
-    if plan.segmenter is None and not plan.spec.modifications:
+    if plan.in_place:
         return
     target = Path(plan.url)
     identity_file = target.with_suffix(IDENTITY_SUFFIX)
@@ -32,11 +33,45 @@ def prepare_session(plan: SessionPlan, progress: bool = True) -> None:
         if json.loads(identity_file.read_text()) != plan.identity:
             raise StudyError(f"{target} was prepared from other settings ({identity_file}): use a new --out or delete it")
         return
+    if plan.spec.capture is not None:
+        _captured(plan.spec.capture, target, progress)
+        write_json_atomic(identity_file, plan.identity)
+        return
     source = _synthesized(plan, target.parent, progress) if plan.spec.synthetic is not None else plan.spec.path
     if "://" in str(source):
         raise StudyError(f"session {plan.spec.name!r}: copying it (to segment or modify) needs a local session, not the URL {source}")
     _prepared_copy(Path(source), target, plan.spec, plan.segmenter, progress)
     write_json_atomic(identity_file, plan.identity)
+
+
+def prepare_flow(plan: SessionPlan, preset: str, progress: bool = True) -> None:
+    """Give the session ``plan.url`` its optical flow with the DIS ``preset`` (once: a complete flow is kept,
+    an interrupted one resumed), for the cells whose dynamics reads it. A stored session read in place gets
+    it as ``mmcsplat flow`` would give it (stored beside its frames, which stay as they are); a remote one
+    (a URL) must already hold it."""
+    from mmcsplat.pipeline.flow import compute_flow, flow_complete
+
+    if flow_complete(plan.url, preset=preset):
+        return
+    if "://" in plan.url:
+        raise StudyError(f"session {plan.spec.name!r} ({plan.url}) has no complete optical flow (DIS preset {preset!r}), which a variant's "
+                         f"dynamics reads, and the study does not write into a remote session: run `mmcsplat flow` on it first")
+    compute_flow(plan.url, preset=preset, progress=progress)
+
+
+def _captured(capture: dict, target: Path, progress: bool) -> None:
+    """The capture folder made into the session ``target`` as ``mmcsplat run`` makes its own (ingested, masks
+    and plates), in a hidden sibling renamed into place."""
+    from mmcsplat.pipeline.capture_session import prepare_capture_session
+    from mmcsplat.pipeline.steps import made_in_place
+
+    def make(partial: Path) -> None:
+        prepare_capture_session(Path(capture["path"]), partial, calibration=Path(capture["calibration"]) if capture["calibration"] else None,
+                                units=capture["units"], frames=slice(*capture["frames"]) if capture["frames"] else None, scale=capture["scale"],
+                                cameras=capture["cameras"] or None, holdout=capture["holdout"],
+                                keypoints=Path(capture["keypoints"]) if capture["keypoints"] else None, progress=progress)
+
+    made_in_place(target, make)
 
 
 def _synthesized(plan: SessionPlan, folder: Path, progress: bool) -> Path:

@@ -25,7 +25,7 @@ import attrs
 
 from mmcsplat.configuration.config import Config, ConfigError, PluginChoice, load_config, set_value
 from mmcsplat.configuration.registry import PluginError, Registry, default_registry
-from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.plugin_api.errors import InputError, PluginUnavailableError
 from mmcsplat.synthetic.defaults import SYNTHETIC_HELDOUT, SYNTHETIC_SEGMENTER
 
 #: Bump when the meaning of a key's payload changes: every cell then runs again.
@@ -34,11 +34,15 @@ KEY_VERSION = 1
 VARIANT_PLUGIN_TABLES = ("renderer", "initializer", "densifier", "dynamics")
 STUDY_KEYS = {"study", "sessions", "variant"}
 HEADER_KEYS = {"name", "description", "folds", "seeds", "backends", "set"}
-SESSION_KEYS = {"path", "synthetic", "segmenter", "heldout", "folds", "ground_truth", "cameras", "perturb"}
+SESSION_KEYS = {"path", "synthetic", "capture", "segmenter", "heldout", "folds", "ground_truth", "cameras", "perturb"}
+#: What a ``capture`` table may hold: the capture folder and what ``mmcsplat run`` takes to make a session of it.
+CAPTURE_KEYS = {"path", "calibration", "units", "scale", "frames", "cameras", "holdout", "keypoints", "joints"}
+#: Session keys a capture session leaves to its ``capture`` table (cameras, joints) or to ``mmcsplat run``'s masks.
+NOT_FOR_CAPTURES = ("segmenter", "ground_truth", "cameras", "perturb")
 VARIANT_KEYS = {"name", "config", "set", "grid", "segmenter", *VARIANT_PLUGIN_TABLES}
 #: Synthesis settings added after studies were first keyed: left out of identities at these defaults,
 #: so that existing study directories keep their cells.
-LATER_SYNTHETIC_DEFAULTS = {"slide": 0.0}
+LATER_SYNTHETIC_DEFAULTS = {"slide": 0.0, "motion": "natural"}
 
 
 class StudyError(InputError):
@@ -56,9 +60,11 @@ class Perturbation:
 
 @attrs.frozen
 class SessionSpec:
-    """One ``[sessions.NAME]`` table: a stored session (``path``: a path or URL) or one to synthesize
+    """One ``[sessions.NAME]`` table: a stored session (``path``: a path or URL), one to synthesize
     (``synthetic``: :class:`~mmcsplat.synthetic.synthesize.SynthConfig` fields, and the cameras
-    held out at its ingest), the segmenter to run on a copy of it, its folds when they differ from the
+    held out at its ingest) or a capture folder to make one of as ``mmcsplat run`` does (``capture``: its
+    settings, paths resolved and defaults filled, with ``joints``, the TRC its carried joints are scored
+    against, or ``None``), the segmenter to run on a copy of it, its folds when they differ from the
     study's, and ground truth for tracking. ``cameras`` (the only cameras kept) and ``perturb`` (one
     camera's extrinsics rotated: :class:`Perturbation`) make the study read a modified copy of it —
     failure regimes for ``mmcsplat stability``."""
@@ -72,6 +78,7 @@ class SessionSpec:
     ground_truth: str | None = None
     cameras: tuple[str, ...] | None = None
     perturb: Perturbation | None = None
+    capture: Mapping[str, Any] | None = None
 
     @property
     def modifications(self) -> dict[str, Any]:
@@ -121,6 +128,11 @@ class SessionPlan:
     url: str
     identity: Mapping[str, Any]
 
+    @property
+    def in_place(self) -> bool:
+        """Whether the cells read the stored session itself (the study adds at most its optical flow to it)."""
+        return self.spec.path is not None and self.segmenter is None and not self.spec.modifications
+
 
 @attrs.frozen
 class CellSpec:
@@ -134,10 +146,14 @@ class CellSpec:
     seed: int
     backend: str
     ground_truth: str | None = None
+    #: The TRC of a capture session's joints, which the cell's carried joints are scored against.
+    joints: str | None = None
+    #: The DIS preset of the session's optical flow that the cell's dynamics reads (``None``: it reads none).
+    flow: str | None = None
 
     @property
     def key(self) -> str:
-        return cell_key(self.config_values, self.session_identity, self.holdout, self.seed, self.backend)
+        return cell_key(self.config_values, self.session_identity, self.holdout, self.seed, self.backend, self.flow)
 
     @property
     def config(self) -> Config:
@@ -162,11 +178,14 @@ class Cell:
 
 
 def cell_key(config_values: Mapping[str, Any], session_identity: Mapping[str, Any], holdout: Sequence[str] | None,
-             seed: int, backend: str) -> str:
+             seed: int, backend: str, flow: str | None = None) -> str:
     """The hex key of a cell: a SHA-256 of its canonical JSON (sorted keys), independent of the study's
-    variant names and of the order in which tables were written."""
+    variant names and of the order in which tables were written. The flow preset a cell reads is in the
+    payload only when it reads one, so cells keyed before studies computed flow keep their keys (those of
+    them that asked for flow-guided prediction ran without flow, and run again)."""
     payload = {"version": KEY_VERSION, "config": config_values, "session": session_identity,
-               "holdout": list(holdout) if holdout is not None else None, "seed": seed, "backend": backend}
+               "holdout": list(holdout) if holdout is not None else None, "seed": seed, "backend": backend,
+               **({"flow": flow} if flow is not None else {})}
     text = json.dumps(payload, sort_keys=True, separators=(",", ":"), default=str)
     return hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
 
@@ -243,15 +262,23 @@ def _session(name: str, table: Mapping[str, Any], source: str, folder: Path | No
         raise StudyError(f"{where}: a session name becomes a folder under --out: use letters, digits, '_', '-', '.' and '+' "
                          f"(no path separators, '..' or leading dot), not {name!r}")
     _check_keys(table, SESSION_KEYS, source, f"[sessions.{name}]")
-    if ("path" in table) == ("synthetic" in table):
-        raise StudyError(f"{where} needs exactly one of 'path' (a stored session) or 'synthetic' (a table of synthesis settings)")
+    if sum(kind in table for kind in ("path", "synthetic", "capture")) != 1:
+        raise StudyError(f"{where} needs exactly one of 'path' (a stored session), 'synthetic' (a table of synthesis settings) or "
+                         "'capture' (a table naming a capture folder)")
     if "heldout" in table and "synthetic" not in table:
-        raise StudyError(f"{where}: 'heldout' applies to synthetic sessions only (a stored session has its own)")
+        raise StudyError(f"{where}: 'heldout' applies to synthetic sessions only (a stored session has its own; a capture's is its "
+                         "capture table's holdout)")
     segmenter = _segmenter(table["segmenter"], where) if "segmenter" in table else None
     folds = _strings(table["folds"], f"{where} folds") if "folds" in table else None
     ground_truth = _resolve_path(table["ground_truth"], folder, f"{where} ground_truth") if "ground_truth" in table else None
     cameras = _strings(table["cameras"], f"{where} cameras") if "cameras" in table else None
     perturb = _perturbation(table["perturb"], where) if "perturb" in table else None
+    if "capture" in table:
+        misplaced = [key for key in NOT_FOR_CAPTURES if key in table]
+        if misplaced:
+            raise StudyError(f"{where}: {misplaced} do not apply to a capture session (it is segmented as `mmcsplat run` does; "
+                             "its cameras, holdout and joints go in its capture table)")
+        return SessionSpec(name, heldout=(), folds=folds, capture=capture_settings(_table(table["capture"], f"{where} capture"), where, folder))
     if "synthetic" in table:
         settings = synthetic_settings(_table(table["synthetic"], f"{where} synthetic"), where)
         return SessionSpec(name, None, settings, _strings(table.get("heldout", list(SYNTHETIC_HELDOUT)), f"{where} heldout"),
@@ -281,6 +308,37 @@ def synthetic_settings(table: Mapping[str, Any], where: str) -> dict[str, Any]:
     except (TypeError, ValueError) as error:
         known = [field.name for field in attrs.fields(SynthConfig)]
         raise StudyError(f"{where} synthetic: {error} (settings: {known})") from error
+
+
+def capture_settings(table: Mapping[str, Any], where: str, folder: Path | None) -> dict[str, Any]:
+    """A capture table with its paths resolved (relative ones from the study file's folder) and every default
+    filled in as ``mmcsplat run`` fills it — the scale it ingests at, the capture's ``pose_2d`` folder of 2D
+    keypoints and its single ``*.trc`` of joints when it has them — so equal captures get equal identities."""
+    from mmcsplat.pipeline.capture_session import DEFAULT_SCALE, found
+
+    _check_keys(table, CAPTURE_KEYS, where, "capture")
+    if "path" not in table:
+        raise StudyError(f"{where} capture needs 'path': the capture folder")
+    capture = Path(_resolve_path(table["path"], folder, f"{where} capture path"))
+    if not capture.is_dir():
+        raise StudyError(f"{where} capture path {capture} is not a folder")
+    paths = {key: _resolve_path(table[key], folder, f"{where} capture {key}") if key in table else None
+             for key in ("calibration", "keypoints", "joints")}
+    frames = table.get("frames", [])
+    if not isinstance(frames, list) or len(frames) > 3 or not all(isinstance(value, int) and not isinstance(value, bool) for value in frames):
+        raise StudyError(f"{where} capture frames must be [start, stop] or [start, stop, step] (integers), got {frames!r}")
+    scale = table.get("scale", DEFAULT_SCALE)
+    if not isinstance(scale, (int, float)) or isinstance(scale, bool) or not 0 < scale <= 1:
+        raise StudyError(f"{where} capture scale must be a number in (0, 1], got {scale!r}")
+    try:
+        keypoints = found(capture, paths["keypoints"], "pose_2d", "keypoint folder")
+        joints = found(capture, paths["joints"], "*.trc", "joints TRC file")
+    except InputError as error:
+        raise StudyError(f"{where} capture: {error}") from error
+    return {"path": str(capture), "calibration": paths["calibration"], "units": str(table.get("units", "m")), "scale": float(scale),
+            "frames": list(frames), "cameras": list(_strings(table.get("cameras", []), f"{where} capture cameras")),
+            "holdout": list(_strings(table.get("holdout", []), f"{where} capture holdout")),
+            "keypoints": str(keypoints) if keypoints else None, "joints": str(joints) if joints else None}
 
 
 def _segmenter(value: Any, where: str) -> PluginChoice:
@@ -386,7 +444,16 @@ def plan_sessions(study: Study, out: Path) -> dict[tuple[str, str], SessionPlan]
     for spec in study.sessions:
         for variant in study.variants:
             segmenter = variant.segmenter or spec.segmenter
-            identity: dict[str, Any] = {"synthetic": dict(spec.synthetic), "heldout": list(spec.heldout)} if spec.synthetic else {"path": spec.path}
+            if spec.capture is not None:
+                if segmenter is not None:
+                    raise StudyError(f"{study.source}: variant {variant.name!r} asks for segmenter {segmenter.name!r}, but session {spec.name!r} "
+                                     "is a capture, segmented as `mmcsplat run` does: leave it out for this study")
+                identity: dict[str, Any] = {"capture": {key: value for key, value in spec.capture.items() if key != "joints"}}
+                digest = hashlib.sha256(json.dumps(identity, sort_keys=True).encode()).hexdigest()[:8]
+                url = str(Path(out).resolve() / "sessions" / spec.name / f"capture-{digest}.zarr")
+                plans[spec.name, segmenter_key(variant.segmenter)] = SessionPlan(spec, None, url, identity)
+                continue
+            identity = {"synthetic": dict(spec.synthetic), "heldout": list(spec.heldout)} if spec.synthetic else {"path": spec.path}
             identity.update(spec.modifications)
             url = spec.path
             if segmenter is not None or spec.modifications:
@@ -405,8 +472,11 @@ def segmenter_key(choice: PluginChoice | None) -> str:
 
 def expand(study: Study, out: Path, registry: Registry | None = None) -> list[Cell]:
     """Every cell of the study, in order: sessions × variants × folds × seeds × backends."""
+    from mmcsplat.pipeline.flow import DEFAULT_PRESET
+
     registry = registry or default_registry()
     plans = plan_sessions(study, out)
+    flow = {variant.name: DEFAULT_PRESET if reads_flow(variant.config, registry) else None for variant in study.variants}
     cells = []
     for spec in study.sessions:
         folds: Sequence[str | None] = spec.folds if spec.folds is not None else study.folds
@@ -416,9 +486,25 @@ def expand(study: Study, out: Path, registry: Registry | None = None) -> list[Ce
                 values = resolve(variant.config, seed, backend, registry)
                 renderer = values["renderer"]["name"]
                 cell_spec = CellSpec(variant.config.source, values, plan.url, plan.identity,
-                                     (fold,) if fold is not None else None, seed, renderer, spec.ground_truth)
+                                     (fold,) if fold is not None else None, seed, renderer, spec.ground_truth,
+                                     spec.capture.get("joints") if spec.capture else None, flow[variant.name])
                 cells.append(Cell(variant.name, spec.name, fold or "default", seed, renderer, cell_spec, plan))
     return cells
+
+
+def reads_flow(config: Config, registry: Registry) -> bool:
+    """Whether the dynamics method of ``config`` (if any), built with its parameters, reads the session's
+    optical flow (:attr:`~mmcsplat.plugin_api.interfaces.Dynamics.reads_flow`); a method not usable here
+    reads none (its cells fail, saying why)."""
+    dynamics = config.plugins("dynamics")
+    if not dynamics:
+        return False
+    try:
+        return bool(registry.create("dynamics", dynamics[0].name, **dynamics[0].params).reads_flow)
+    except PluginUnavailableError:
+        return False
+    except PluginError as error:
+        raise StudyError(f"{config.source}: {error}") from error
 
 
 def resolve(config: Config, seed: int, backend: str | None, registry: Registry) -> dict[str, Any]:

@@ -114,6 +114,11 @@ class IterativeDynamics(Dynamics):
                                          validator=above(0))
     coarse_factor: int = parameter(2, doc="resolution reduction of the coarse steps (pixel blocks averaged)", validator=at_least(2))
 
+    @property
+    def reads_flow(self) -> bool:
+        """Flow-guided prediction and the flow loss read the session's optical flow."""
+        return self.predict == "flow" or self.lambda_flow > 0
+
     # ------------------------------------------------------------------------------------------ setup
 
     def _model(self, context: TrackingContext) -> GaussianModel:

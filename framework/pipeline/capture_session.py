@@ -1,0 +1,107 @@
+"""A user's capture made into a session as ``mmcsplat run`` makes it — for that job and for a study's
+capture sessions alike: ingested, then masks (the capture's own when it brings them for every training
+camera; else, with 2D keypoints, the ``keypoints`` segmenter's skeleton; else the difference to the
+capture's recorded plates, or with neither the ``parallax`` segmenter), plates estimated with those masks
+holding the subject out (unless recorded), and the masks refined against the plates (docs/real-data.md).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from mmcsplat.plugin_api.errors import InputError
+
+#: The scale ``mmcsplat run`` ingests a capture at (a real rig's full-size frames fit too slowly on a CPU).
+DEFAULT_SCALE = 0.25
+
+if TYPE_CHECKING:  # the session store's format is imported to make one, not for every command's start
+    from mmcsplat.storage.session import SessionReader
+
+
+def found(capture: Path, given: str | None, pattern: str, what: str) -> Path | None:
+    """``given``, else the single ``pattern`` match in ``capture`` (None when there is none)."""
+    if given is not None:
+        path = Path(given)
+        if not path.exists():
+            raise InputError(f"{what} {path} does not exist")
+        return path.resolve()
+    matches = sorted(capture.glob(pattern))
+    if len(matches) > 1:
+        raise InputError(f"{capture}: several {what} candidates ({', '.join(p.name for p in matches)}); choose one")
+    return matches[0].resolve() if matches else None
+
+
+def keypoint_source(path: Path) -> dict[str, Any]:
+    """The landmarks plugin (``name``) and parameters that read the 2D keypoints at ``path``: a SLEAP file
+    (``.slp``, ``.analysis.h5``) or a DeepLabCut one (``.csv``, ``.h5``), or a folder of OpenPose camera folders
+    of JSON files, else of SLEAP files, else of DeepLabCut files."""
+    lower = path.name.lower()
+    if path.is_file():
+        if lower.endswith((".slp", ".analysis.h5")):
+            return {"name": "sleap", "files": [str(path)]}
+        if lower.endswith((".csv", ".h5")):
+            return {"name": "deeplabcut", "files": [str(path)]}
+        raise InputError(f"keypoint file {path} is neither SLEAP (.slp, .analysis.h5) nor DeepLabCut (.csv, .h5): give one of those, "
+                         "or a folder of OpenPose camera folders")
+    entries = sorted(path.iterdir())
+    if any(entry.is_dir() and any(entry.glob("*.json")) for entry in entries):
+        return {"name": "openpose", "folder": str(path)}
+    if any(entry.is_file() and entry.name.lower().endswith((".slp", ".analysis.h5")) for entry in entries):
+        return {"name": "sleap", "folder": str(path)}
+    if any(entry.is_file() and entry.suffix.lower() in (".csv", ".h5") for entry in entries):
+        return {"name": "deeplabcut", "folder": str(path)}
+    raise InputError(f"keypoint folder {path} holds no OpenPose camera folders of JSON files, no SLEAP (.slp, .analysis.h5) and no "
+                     "DeepLabCut (.csv, .h5) files")
+
+
+def prepare_capture_session(capture: Path, partial: Path, *, calibration: Path | None = None, units: str = "m", frames: slice | None = None,
+                            scale: float = 1.0, cameras: Sequence[str] | None = None, holdout: Sequence[str] = (), keypoints: Path | None = None,
+                            progress: bool = True) -> dict[str, Any]:
+    """Ingest ``capture`` into ``partial`` (its calibration, units, frames, scale, cameras and held-out cameras as
+    :func:`~mmcsplat.pipeline.ingest.ingest` takes them) and give it masks and plates (module docstring), the
+    masks from the 2D ``keypoints`` when given (a file or folder, :func:`keypoint_source`); returns which masks it used (:func:`mask_choice`)."""
+    from mmcsplat.pipeline.ingest import ingest
+    from mmcsplat.pipeline.plates import estimate_plates
+    from mmcsplat.pipeline.segment import segment_session
+    from mmcsplat.storage.session import SessionReader
+
+    ingest(capture, partial, calibration=calibration, units=units, frames=frames, scale=scale, cameras=cameras, holdout=list(holdout),
+           overwrite=True, progress=progress)
+    source = keypoint_source(keypoints) if keypoints else None
+    recorded = any(SessionReader(partial).plate(name) is not None for name in SessionReader(partial).camera_names)
+    segmenter, first, refined = ("keypoints", {"source": source}, {"source": source, "refine": "plate"}) if source else \
+        ("background", {"method": "median"}, {"method": "plate"}) if recorded else ("parallax", {}, {"refine": "plate"})
+    choice = mask_choice(SessionReader(partial), segmenter)
+    if choice["masks"] != "capture" and not recorded:
+        segment_session(partial, segmenter, first, progress=progress)
+    if not recorded:
+        estimate_plates(str(partial), None, progress=progress)
+    if choice["masks"] != "capture":
+        segment_session(partial, segmenter, refined, progress=progress)
+    return choice
+
+
+def mask_choice(session: SessionReader, segmenter: str) -> dict[str, Any]:
+    """Which masks ``run`` uses: ``{"masks": "capture", …}`` when every training camera of ``session`` has
+    masks from its capture (held-out ones without are scored against the training masks' hull), else
+    ``{"masks": segmenter, …}`` (the capture's masks of some cameras are then replaced, and said so). A
+    synthetic capture's ground-truth masks are never fitted on."""
+    reader = session.provenance.get("reader", {})
+    if reader.get("ground_truth") and not reader.get("masks"):  # a synthetic capture's truth scores the run; it does not fit it
+        return {"masks": segmenter, "cameras": list(session.camera_names),
+                "detail": f"made by the {segmenter} segmenter for every camera (the capture's masks are its ground truth, {reader['ground_truth']})"}
+    shipped = [name for name in session.camera_names if session.has_source_mask(name)]
+    training = [name for name in session.camera_names if name not in session.heldout]
+    if shipped and set(training) <= set(shipped):
+        detail = f"the capture's own, of {', '.join(shipped)}"
+        lacking = [name for name in session.camera_names if name not in shipped]
+        if lacking:
+            detail += f" (held out {', '.join(lacking)} has none: evaluated against the training masks' hull)"
+        return {"masks": "capture", "cameras": shipped, "detail": detail}
+    detail = f"made by the {segmenter} segmenter for every camera"
+    if shipped:
+        detail += (f"; the capture's own masks of {', '.join(shipped)} are not used, as training camera(s) "
+                   f"{', '.join(sorted(set(training) - set(shipped)))} have none")
+    return {"masks": segmenter, "cameras": list(session.camera_names), "detail": detail}

@@ -1,0 +1,130 @@
+"""Issue 27's tracking ablation: synthetic study sessions with a motion variant, the optical flow computed
+once per session for the cells whose dynamics reads it (and its prediction recorded), the carried joints'
+error and seconds per frame in the results, and the built-in study."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+from fitting_scene import write_session
+
+import mmcsplat.pipeline.flow as flow_module
+from mmcsplat.storage.session import SessionReader
+from mmcsplat.studies.runner import run_study
+from mmcsplat.studies.spec import StudyError, expand, load_study
+
+TINY = "frames = 3, cameras = 4, width = 32, height = 24, samples = 1, adult_leg = false"
+POSE2SIM = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "pose2sim_demo"
+
+
+def write_study(folder, variants: str, session: str, fold: str = "cam_0") -> str:
+    path = folder / "study.toml"
+    path.write_text(f'[study]\nname = "tiny"\nfolds = ["{fold}"]\n\n[sessions.capture]\n{session}\n{variants}')
+    return str(path)
+
+
+def iterative(name: str, params: str) -> str:
+    return (f'\n[[variant]]\nname = "{name}"\nconfig = "visual-hull-plate"\nrenderer = {{ name = "torch-reference" }}\n'
+            'set = { "fit.iterations" = 2, "initializer.visual-hull.num_points" = 300 }\n'
+            f'dynamics = {{ name = "iterative", iterations = 1, neighbours = 4, {params} }}\n')
+
+
+def test_synthetic_sessions_take_a_motion_and_natural_keeps_the_keys_of_before(tmp_path):
+    variants = iterative("cv", 'predict = "constant-velocity"')
+    kicks = load_study(write_study(tmp_path, variants, f'synthetic = {{ {TINY}, motion = "fast-kicks" }}'))
+    assert kicks.sessions[0].synthetic["motion"] == "fast-kicks"
+    keys = {}
+    for motion in ("", ', motion = "natural"'):
+        study = load_study(write_study(tmp_path, variants, f"synthetic = {{ {TINY}{motion} }}"))
+        assert "motion" not in study.sessions[0].synthetic  # the default, left out of identities as before it existed
+        keys[motion] = expand(study, tmp_path)[0].spec.key
+    assert len(set(keys.values())) == 1 and expand(kicks, tmp_path)[0].spec.key not in keys.values()
+    with pytest.raises(StudyError, match=r"\[sessions.capture\] synthetic: .*motion"):
+        load_study(write_study(tmp_path, variants, f'synthetic = {{ {TINY}, motion = "waltz" }}'))
+
+
+def test_flow_is_computed_once_for_the_cells_that_read_it(tmp_path, monkeypatch):
+    calls = []
+    compute = flow_module.compute_flow
+
+    def counted(url, *args, **kwargs):
+        calls.append(str(url))
+        return compute(url, *args, **kwargs)
+    monkeypatch.setattr(flow_module, "compute_flow", counted)
+    study = load_study(write_study(tmp_path, iterative("cv", 'predict = "constant-velocity"') + iterative("flow", 'predict = "flow"')
+                                   + iterative("flow-loss", 'predict = "constant-velocity", lambda_flow = 0.01'),
+                                   f'synthetic = {{ {TINY}, motion = "fast-kicks" }}'))
+    assert [cell.spec.flow for cell in expand(study, tmp_path / "out")] == [None, "medium", "medium"]
+    result = run_study(study, tmp_path / "out", workers=0, progress=False)
+    assert len(calls) == 1 and flow_module.flow_complete(calls[0])  # one session, two cells reading its flow
+    outcomes = {row.cell.variant: row.outcome for row in result.rows}
+    assert all(outcome.status == "complete" for outcome in outcomes.values()), {v: o.error for v, o in outcomes.items()}
+    predictions = {variant: json.loads((tmp_path / "out" / "cells" / outcome.key / "track.json").read_text())["summary"]["prediction"]
+                   for variant, outcome in outcomes.items()}
+    assert predictions == {"cv": "constant-velocity", "flow": "flow", "flow-loss": "constant-velocity"}
+    assert {variant: outcome.track_prediction for variant, outcome in outcomes.items()} == predictions
+    for outcome in outcomes.values():  # the fast kicks move the feet: the carried joints' error where they moved
+        assert math.isfinite(outcome.landmark_moving_median_mm) and outcome.landmark_moving_median_mm > 0
+        assert outcome.track_wall_s_per_frame > 0
+    table = (tmp_path / "out" / "results.md").read_text()
+    assert "| Variant | dynamics | prediction | tracking median (mm) |" in table and "| flow | iterative | flow |" in table
+    assert "joints that moved > 1 cm (mm)" in table and "tracking (s/frame)" in table
+    assert run_study(study, tmp_path / "out", workers=0, progress=False).reused == 3 and len(calls) == 1
+
+
+def test_a_stored_session_read_in_place_gains_its_flow_and_nothing_else(tmp_path):
+    write_session(tmp_path / "scene.zarr", frames=2, plates=True)
+    frame = SessionReader(tmp_path / "scene.zarr").frame(1, "cam_1").rgb.copy()
+    study = load_study(write_study(tmp_path, iterative("flow", 'predict = "flow"'), 'path = "scene.zarr"'))
+    assert expand(study, tmp_path / "out")[0].plan.in_place
+    result = run_study(study, tmp_path / "out", workers=0, progress=False)
+    assert result.rows[0].outcome.track_prediction == "flow", result.rows[0].outcome.error
+    assert flow_module.flow_complete(tmp_path / "scene.zarr") and (SessionReader(tmp_path / "scene.zarr").frame(1, "cam_1").rgb == frame).all()
+
+
+def test_a_capture_session_fills_in_what_run_would_and_refuses_what_does_not_apply(tmp_path):
+    capture = tmp_path / "capture"
+    (capture / "pose_2d").mkdir(parents=True)
+    (capture / "joints.trc").write_text("")
+    variants = iterative("flow", 'predict = "flow"')
+    study = load_study(write_study(tmp_path, variants, 'capture = { path = "capture", frames = [0, 4], holdout = ["cam_04"] }'))
+    settings = study.sessions[0].capture
+    assert settings["scale"] == 0.25 and settings["frames"] == [0, 4] and settings["holdout"] == ["cam_04"]  # run's scale
+    assert settings["keypoints"] == str(capture / "pose_2d") and settings["joints"] == str(capture / "joints.trc")
+    cell = expand(study, tmp_path / "out")[0]
+    assert cell.spec.joints == str(capture / "joints.trc") and "joints" not in cell.plan.identity["capture"]
+    assert cell.plan.url.startswith(str(tmp_path / "out" / "sessions" / "capture" / "capture-")) and not cell.plan.in_place
+    with pytest.raises(StudyError, match=r"\['segmenter'\] do not apply to a capture session"):
+        load_study(write_study(tmp_path, variants, 'capture = { path = "capture" }\nsegmenter = "precomputed"'))
+    with pytest.raises(StudyError, match="capture path .*elsewhere is not a folder"):
+        load_study(write_study(tmp_path, variants, 'capture = { path = "elsewhere" }'))
+    with pytest.raises(StudyError, match="unknown capture key"):
+        load_study(write_study(tmp_path, variants, 'capture = { path = "capture", fps = 30 }'))
+
+
+@pytest.mark.skipif(not POSE2SIM.is_dir(), reason=f"shared real data not found at {POSE2SIM}")
+def test_a_pose2sim_capture_cell_tracks_with_flow_and_scores_its_joints_against_the_trc(tmp_path):
+    session = (f'capture = {{ path = "{POSE2SIM}", calibration = "{POSE2SIM / "Calib_qualisys.toml"}", scale = 0.125, frames = [0, 3], '
+               'holdout = ["cam_04"] }')
+    variant = ('[[variant]]\nname = "flow"\nconfig = "visual-hull-plate"\nset = { "fit.iterations" = 60 }\n'
+               'dynamics = { name = "iterative", iterations = 2, predict = "flow" }\n')
+    result = run_study(load_study(write_study(tmp_path, variant, session, fold="cam_04")), tmp_path / "out", workers=0, progress=False)
+    outcome = result.rows[0].outcome
+    assert outcome.status == "complete", outcome.error
+    reader = SessionReader(result.rows[0].cell.plan.url)  # masks from the keypoints, plates estimated: as `mmcsplat run` makes it
+    assert reader.has("mask") and all(reader.plate_source(name)["kind"] == "estimated" for name in reader.camera_names)
+    assert outcome.track_prediction == "flow" and math.isfinite(outcome.landmark_median_mm) and outcome.track_wall_s_per_frame > 0
+
+
+def test_builtin_tracking_ablation_adds_one_option_a_row():
+    study = load_study("tracking-ablation")
+    assert [variant.name for variant in study.variants] == ["constant-velocity", "+ flow prediction", "+ flow loss", "+ coarse to fine"]
+    options = [variant.config.plugin("dynamics").params for variant in study.variants]
+    assert [params["predict"] for params in options] == ["constant-velocity", "flow", "flow", "flow"]
+    assert [params.get("lambda_flow", 0) for params in options] == [0, 0, 0.01, 0.01]
+    assert [params.get("coarse_iterations", 0) for params in options] == [0, 0, 0, 10]
+    assert study.sessions[0].synthetic["motion"] == "fast-kicks"
+    assert [cell.spec.flow for cell in expand(study, "out")] == [None, "medium", "medium", "medium"]
