@@ -57,7 +57,7 @@ def test_flow_is_computed_once_for_the_cells_that_read_it(tmp_path, monkeypatch)
     study = load_study(write_study(tmp_path, iterative("cv", 'predict = "constant-velocity"') + iterative("flow", 'predict = "flow"')
                                    + iterative("flow-loss", 'predict = "constant-velocity", lambda_flow = 0.01'),
                                    f'synthetic = {{ {TINY}, motion = "fast-kicks" }}'))
-    assert [cell.spec.flow for cell in expand(study, tmp_path / "out")] == [None, "medium", "medium"]
+    assert [cell.spec.flow for cell in expand(study, tmp_path / "out")] == [None, flow_module.DEFAULT_PRESET, flow_module.DEFAULT_PRESET]
     result = run_study(study, tmp_path / "out", workers=0, progress=False)
     assert len(calls) == 1 and flow_module.flow_complete(calls[0])  # one session, two cells reading its flow
     outcomes = {row.cell.variant: row.outcome for row in result.rows}
@@ -127,4 +127,4 @@ def test_builtin_tracking_ablation_adds_one_option_a_row():
     assert [params.get("lambda_flow", 0) for params in options] == [0, 0, 0.01, 0.01]
     assert [params.get("coarse_iterations", 0) for params in options] == [0, 0, 0, 10]
     assert study.sessions[0].synthetic["motion"] == "fast-kicks"
-    assert [cell.spec.flow for cell in expand(study, "out")] == [None, "medium", "medium", "medium"]
+    assert [cell.spec.flow for cell in expand(study, "out")] == [None, *[flow_module.DEFAULT_PRESET] * 3]
