@@ -229,13 +229,40 @@ def test_a_fit_never_resumes_onto_another_recording(tmp_path, capsys):
     assert (run / "checkpoint.pt").read_bytes() == checkpoint
 
 
-def test_a_run_older_than_fingerprints_says_it_cannot_check(fitted):
-    session, run = fitted
+def _forget_fingerprints(run: Path) -> None:
+    """Make ``run`` (and its tracks) look written before fingerprints existed."""
+    import zarr
+
     info = json.loads((run / "run.json").read_text())
     del info["recording"]
     (run / "run.json").write_text(json.dumps(info))
+    if (run / "tracks.zarr").exists():
+        tracks = zarr.open_group(str(run / "tracks.zarr"), mode="r+")
+        for key in ("recording", "fit"):
+            del tracks.attrs[key]
+
+
+def test_a_run_older_than_fingerprints_says_it_cannot_check(fitted):
+    session, run = fitted
+    _forget_fingerprints(run)
     with pytest.warns(UserWarning, match="written before mmcsplat fingerprinted recordings: cannot check"):
         assert main(["evaluate", str(run)]) == 0
+
+
+@pytest.mark.parametrize("command", [["evaluate"], ["report"], ["render", "--novel", "--no-progress"]])
+def test_an_old_run_on_a_session_replaced_by_a_shorter_one_names_the_frames(fitted, capsys, command):
+    session, run = fitted
+    assert main(["track", str(run), "--dynamics", "iterative", "--set", "dynamics.iterations=1", "--no-progress"]) == 0
+    _forget_fingerprints(run)
+    _replace_session(session, frames=1)
+    capsys.readouterr()
+    with pytest.warns(UserWarning, match="cannot check") as caught:
+        assert main([command[0], str(run), *command[1:]]) == 2
+    assert sum("cannot check" in str(warning.message) for warning in caught) == 1  # said once
+    err = capsys.readouterr().err
+    assert f"session {session} has 1 frame(s) but run {run} needs frames up to 1 (tracked over frames 0–1)" in err
+    assert "put that recording back there, or re-fit with a new --out" in err and err.count("\n") == 1
+    assert not (run / "metrics.json").exists() and not (run / "report.html").exists()
 
 
 # ------------------------------------------------------------------------- unfinished is never final

@@ -169,6 +169,7 @@ def evaluate_run(run: Path, registry: Registry | None = None, backend: str | Non
     }
     if (Path(run) / TRACKS_DIR).exists():
         fitted.require_own_tracks(TrackReader(run))
+        fitted.require_tracked_frames(TrackReader(run))
         backdrops = {name: fitted.backdrop(name) for name in info.heldout_cameras}
         tracked = tracked_heldout_scores(TrackReader(run), session, info.heldout_cameras, info.train_cameras, renderer, psnr, backdrops,
                                          center, info.scene_scale, progress)
