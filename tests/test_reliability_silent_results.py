@@ -293,10 +293,60 @@ def test_allow_incomplete_labels_every_output(fitted, tmp_path, capsys):
     assert "is unfinished" in capsys.readouterr().err
     assert main(["report", str(run), "--allow-incomplete"]) == 0
     assert "<strong>Incomplete run</strong>" in (run / "report.html").read_text()
-    assert main(["export", str(run), "--ply", str(tmp_path / "ply"), "--allow-incomplete", "--no-progress"]) == 0
+    assert main(["export", str(run), "--ply", str(tmp_path / "ply"), "--inria", str(tmp_path / "inria"), "--allow-incomplete", "--no-progress"]) == 0
     assert b"comment mmcsplat: incomplete run" in (tmp_path / "ply" / "frame_0000.ply").read_bytes()[:400]
+    assert b"comment mmcsplat: incomplete run" in next((tmp_path / "inria").rglob("point_cloud.ply")).read_bytes()[:600]
     _set_status(run, "complete")
     assert main(["evaluate", str(run)]) == 0 and json.loads((run / "metrics.json").read_text())["incomplete"] is False
+
+
+def _carry_landmarks(run: Path, folder: Path, *options: str) -> int:
+    """``mmcsplat landmarks`` of one landmark on the run's first Gaussian, read from a CSV file."""
+    from mmcsplat.storage.landmark_formats import write_landmark_csv
+    from mmcsplat.training.fitted_run import FittedRun
+
+    position = FittedRun.load(run).params["means"][0].double().numpy()
+    path = folder / "joints.csv"
+    write_landmark_csv(path, ["knee"], np.array([0]), np.array([0.0]), position[None, None])
+    return main(["landmarks", str(run), "--source", "csv", "--set", f"path={path}", *options])
+
+
+def _labels(folder: Path) -> tuple[str | None, bool, str | None]:
+    """What each landmark export in ``folder`` says is unfinished: the TRC's header, the CSV's column, the C3D's parameter."""
+    import ezc3d
+
+    from mmcsplat.storage.landmark_formats import read_landmark_csv, read_trc
+
+    parameters = ezc3d.c3d(str(folder / "x.c3d"))["parameters"]
+    c3d = parameters["MMCSPLAT"]["INCOMPLETE"]["value"][0] if "MMCSPLAT" in parameters else None
+    extra = read_landmark_csv(folder / "x.csv")[4]
+    return read_trc(folder / "x.trc").incomplete, bool("incomplete" in extra and (extra["incomplete"] == 1).all()), c3d
+
+
+def test_allow_incomplete_labels_the_landmarks_and_their_exports(fitted, tmp_path):
+    from mmcsplat.storage.landmark_formats import read_landmark_csv
+
+    _, run = fitted
+    exports = [f"--{kind}={tmp_path / f'x.{kind}'}" for kind in ("trc", "csv", "c3d")]
+    _set_status(run, "running")
+    assert _carry_landmarks(run, tmp_path) == 2  # refused without the flag
+    assert _carry_landmarks(run, tmp_path, "--allow-incomplete") == 0
+    assert json.loads((run / "landmarks.json").read_text())["incomplete"] is True
+    assert json.loads((run / "movement.json").read_text())["incomplete"] is True
+    assert (run / "movement.csv").read_text().splitlines()[-1] == "run,incomplete,1,"
+    assert (read_landmark_csv(run / "landmarks.csv")[4]["incomplete"] == 1).all()
+    assert main(["export", str(run), *exports]) == 2
+    assert main(["export", str(run), *exports, "--allow-incomplete"]) == 0
+    trc, csv_labelled, c3d = _labels(tmp_path)
+    assert trc == c3d and f"incomplete run {run}: its fit is 'running'" in trc and csv_labelled
+    _set_status(run, "complete")  # finished since: the landmarks carried before stay labelled, in exports and the report
+    assert main(["export", str(run), *exports]) == 0
+    trc, csv_labelled, c3d = _labels(tmp_path)
+    assert "its landmarks were carried before it was finished" in trc and trc == c3d and csv_labelled
+    assert main(["report", str(run)]) == 0 and "its landmarks were carried before it was finished" in (run / "report.html").read_text()
+    assert _carry_landmarks(run, tmp_path) == 0 and main(["export", str(run), *exports]) == 0
+    assert _labels(tmp_path) == (None, False, None)
+    assert "incomplete" not in (run / "movement.csv").read_text()
 
 
 def test_a_report_of_metrics_scored_before_the_end_has_a_banner(fitted):
