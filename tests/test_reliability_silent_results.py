@@ -374,6 +374,55 @@ def test_no_metrics_are_written_for_a_run_another_process_holds(fitted, capsys):
     assert "is being written by another mmcsplat process" in capsys.readouterr().err and not (run / "metrics.json").exists()
 
 
+def test_evaluate_holds_the_runs_lock_while_it_scores_and_writes(fitted, monkeypatch):
+    import mmcsplat.pipeline.evaluate as evaluation
+    from mmcsplat.storage.locking import BusyError, run_lock
+
+    _, run = fitted
+    write, refused = evaluation.write_json_atomic, []
+
+    def write_while_another_writer_starts(path, payload):
+        try:  # a fit, a track or a second evaluate taking the run now
+            run_lock(run).release()
+        except BusyError as error:
+            refused.append(str(error))
+        write(path, payload)
+
+    monkeypatch.setattr(evaluation, "write_json_atomic", write_while_another_writer_starts)
+    assert main(["evaluate", str(run)]) == 0
+    assert refused and f"run {run} is being written by another mmcsplat process" in refused[0]
+    assert (run / "metrics.json").exists() and not (run / ".mmcsplat.lock").exists()
+
+
+def test_a_fold_killed_before_its_first_checkpoint_is_missing_not_left_out(tmp_path, capsys):
+    import shutil
+
+    session = write_session(tmp_path / "s.zarr")
+    config = write_config(tmp_path / "fit.toml", iterations=2, checkpoint_every=1)
+    run = tmp_path / "folds"
+    fit = ["fit", str(session), "--config", str(config), "--out", str(run), "--folds", "cam_0,cam_1", "--no-progress", "--backend", "torch-reference"]
+    assert main(fit) == 0
+    assert json.loads((run / "folds.json").read_text()) == {"folds": ["cam_0", "cam_1"]}
+    shutil.rmtree(run / "cam_1")  # killed before its first checkpoint: none of its files written
+    capsys.readouterr()
+    assert main(["evaluate", str(run)]) == 2
+    err = capsys.readouterr().err
+    assert f"run {run} is unfinished: fold cam_1 has no fit" in err and "run the same `mmcsplat fit --folds` again" in err
+    assert not (run / "metrics.json").exists()
+    assert main(["evaluate", str(run), "--allow-incomplete"]) == 0
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["incomplete"] is True and "fold cam_1 has no fit" in metrics["unfinished"][0] and list(metrics["folds"]) == ["cam_0"]
+    assert main(fit) == 0  # the same command fits the missing fold
+    _set_status(run / "cam_0", "running")  # killed after a checkpoint: refused, never scored from the half fit
+    capsys.readouterr()
+    assert main(["evaluate", str(run)]) == 2
+    assert f"run {run / 'cam_0'} is unfinished: its fit is 'running'" in capsys.readouterr().err
+    _set_status(run / "cam_0", "complete")
+    assert main(["evaluate", str(run)]) == 0
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["incomplete"] is False and metrics["unfinished"] == [] and list(metrics["folds"]) == ["cam_0", "cam_1"]
+
+
 # ------------------------------------------------------------ what would desynchronise or warp a capture
 
 
