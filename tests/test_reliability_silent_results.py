@@ -423,6 +423,20 @@ def test_a_fold_killed_before_its_first_checkpoint_is_missing_not_left_out(tmp_p
     assert metrics["incomplete"] is False and metrics["unfinished"] == [] and list(metrics["folds"]) == ["cam_0", "cam_1"]
 
 
+def test_a_fold_plan_only_grows_and_a_garbled_one_is_named(tmp_path):
+    from mmcsplat.plugin_api.errors import InputError
+    from mmcsplat.storage.folds import planned_folds, write_fold_plan
+
+    run = tmp_path / "folds"
+    assert planned_folds(run) is None
+    write_fold_plan(run, ["cam_0", "cam_1"])
+    write_fold_plan(run, ["cam_1", "cam_2"])  # a rerun with other folds adds them, drops none
+    assert planned_folds(run) == ("cam_0", "cam_1", "cam_2")
+    (run / "folds.json").write_text('{"folds": [')
+    with pytest.raises(InputError, match="folds.json is not a fold plan .* delete it and run `mmcsplat fit --folds` with every fold again"):
+        planned_folds(run)
+
+
 # ------------------------------------------------------------ what would desynchronise or warp a capture
 
 

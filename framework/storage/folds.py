@@ -15,9 +15,11 @@ from mmcsplat.storage.run import FOLDS_FILE
 
 
 def write_fold_plan(run: Path, cameras: Sequence[str]) -> None:
-    """Record (atomically) that ``run`` holds one fold per camera of ``cameras``, in that order."""
+    """Record (atomically) that ``run`` holds one fold per camera of ``cameras``, after the folds of an
+    earlier plan: a rerun naming other cameras adds folds, it never drops one from the averages."""
+    planned = planned_folds(run) or ()
     Path(run).mkdir(parents=True, exist_ok=True)
-    write_json_atomic(Path(run) / FOLDS_FILE, {"folds": list(cameras)})
+    write_json_atomic(Path(run) / FOLDS_FILE, {"folds": [*planned, *(name for name in cameras if name not in planned)]})
 
 
 def planned_folds(run: Path) -> tuple[str, ...] | None:
@@ -29,7 +31,8 @@ def planned_folds(run: Path) -> tuple[str, ...] | None:
     try:
         folds = json.loads(path.read_text(encoding="utf-8"))["folds"]
     except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError) as error:
-        raise InputError(f"{path} is not a fold plan ({type(error).__name__}: {error}): run the same `mmcsplat fit --folds` again") from None
+        raise InputError(f"{path} is not a fold plan ({type(error).__name__}: {error}): delete it and run `mmcsplat fit --folds` with "
+                         "every fold again") from None
     if not isinstance(folds, list) or not all(isinstance(name, str) and name for name in folds):
-        raise InputError(f"{path}: 'folds' must be a list of camera names: run the same `mmcsplat fit --folds` again")
+        raise InputError(f"{path}: 'folds' must be a list of camera names: delete it and run `mmcsplat fit --folds` with every fold again")
     return tuple(folds)
