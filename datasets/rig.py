@@ -130,8 +130,9 @@ class GroundTruth:
     depth: Mapping[str, object]
 
     @classmethod
-    def open(cls, source: Path, cameras: Sequence[Camera], num_frames: int) -> GroundTruth | None:
-        """The ground truth beside the capture, or ``None`` when there is none; errors name what is wrong."""
+    def open(cls, source: Path, cameras: Sequence[Camera], num_frames: int, images: Mapping[str, str]) -> GroundTruth | None:
+        """The ground truth beside the capture, or ``None`` when there is none; errors name what is wrong,
+        with the camera's images (``images``: camera name → its video or image folder)."""
         path = source / GROUND_TRUTH
         if not path.exists():
             return None
@@ -146,11 +147,16 @@ class GroundTruth:
                 if camera.name not in group[field]:
                     raise InputError(f"{path}: {field} has no array for camera {camera.name!r}")
                 array = group[field][camera.name]
-                if tuple(array.shape[1:]) != (camera.height, camera.width) or array.shape[0] < num_frames:
-                    raise InputError(
-                        f"{path}: {field}/{camera.name} has shape {tuple(array.shape)}, expected at least "
-                        f"({num_frames}, {camera.height}, {camera.width}) to match the frames"
-                    )
+                frames, (height, width) = array.shape[0], array.shape[1:3]
+                where = f"{path}: the {field} of camera {camera.name!r}"
+                if (height, width) != (camera.height, camera.width):
+                    raise InputError(f"{where} are {width}×{height} pixels but its {images.get(camera.name, 'images')} decodes at "
+                                     f"{camera.width}×{camera.height}: the ground truth belongs to other videos — put back the videos "
+                                     f"`mmcsplat synth` wrote (or synthesize the capture again), or move {GROUND_TRUTH} away to ingest "
+                                     "without ground truth")
+                if frames < num_frames:
+                    raise InputError(f"{where} hold {frames} frames but its {images.get(camera.name, 'images')} has {num_frames}: "
+                                     f"ingest the first {frames} with --frames 0:{frames}, or move {GROUND_TRUTH} away")
                 arrays[camera.name] = array
             fields[field] = arrays
         return cls(path, fields["masks"], fields["depth"])
@@ -173,7 +179,9 @@ class RigRecording(Recording):
         self.num_frames = num_frames
         self._provenance = provenance
         self._masks = dict(masks or {})
-        self._ground_truth = GroundTruth.open(source, self.cameras, num_frames)
+        images = {**{name: f"video {path}" for name, path in provenance.get("videos", {}).items()},
+                  **{name: f"image folder {path}" for name, path in provenance.get("folders", {}).items()}}
+        self._ground_truth = GroundTruth.open(source, self.cameras, num_frames, images)
         self.has_masks = bool(self._masks) or bool(self._ground_truth and self._ground_truth.masks)
         self.has_depth = bool(self._ground_truth and self._ground_truth.depth)
 
@@ -200,7 +208,7 @@ class RigRecording(Recording):
                 mask = read_mask(path)
                 if mask.shape != frame.rgb.shape[:2]:
                     raise InputError(f"mask {path} is {mask.shape[1]}×{mask.shape[0]}, but camera {camera!r}'s frames are "
-                                     f"{frame.rgb.shape[1]}×{frame.rgb.shape[0]}")
+                                     f"{frame.rgb.shape[1]}×{frame.rgb.shape[0]}: give its masks at the size of its images")
                 frame = attrs.evolve(frame, mask=mask)
             yield frame
 

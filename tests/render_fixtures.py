@@ -28,8 +28,9 @@ def synthetic_means(means: torch.Tensor, t: int) -> torch.Tensor:
 
 
 def fitted_run(root: Path, iterations: int = 3) -> Path:
-    """``root``/run: a first-frame fit (no tracks) of a one-frame, five-camera session (cam_0 held out)."""
-    session = SessionReader(write_session(root / "session.zarr"))
+    """``root``/run: a first-frame fit (no tracks) of a five-camera session (cam_0 held out) of :data:`FRAMES`
+    frames, which :func:`add_tracks` may track (a run is refused with a session lacking its tracked frames)."""
+    session = SessionReader(write_session(root / "session.zarr", frames=FRAMES))
     config = load_config(write_config(root / "fit.toml", iterations=iterations, checkpoint_every=iterations))
     run = root / "run"
     FirstFrameFit(session, config, run, backend="torch-reference", progress=False).run()

@@ -198,3 +198,37 @@ def test_a_run_whose_session_moved_says_where_it_belongs(tmp_path, capsys, comma
     assert main([command[0], str(run), *command[1:]]) == 2
     err = capsys.readouterr().err
     assert f"its session {session} cannot be opened" in err and "put the session back at that path" in err and err.count("\n") == 1
+
+
+def _reencode(video: Path, size: tuple[int, int] | None = None, repeat_last: int = 0) -> None:
+    """Write ``video`` again, each frame resized to ``size`` (width, height), the last one repeated ``repeat_last`` times."""
+    import cv2
+
+    capture = cv2.VideoCapture(str(video))
+    frames = []
+    while (read := capture.read())[0]:
+        frames.append(read[1] if size is None else cv2.resize(read[1], size, interpolation=cv2.INTER_AREA))
+    fps = capture.get(cv2.CAP_PROP_FPS)
+    capture.release()
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), fps, frames[0].shape[1::-1])
+    for frame in frames + frames[-1:] * repeat_last:
+        writer.write(frame)
+    writer.release()
+
+
+@pytest.mark.parametrize("change, scale, message", [
+    ({"size": (24, 18)}, "1", "the masks of camera 'cam_0' are 48×36 pixels but its video VIDEO decodes at 24×18: the ground truth belongs "
+                              "to other videos"),
+    ({"size": (24, 18)}, "0.5", "the masks of camera 'cam_0' are 48×36 pixels but its video VIDEO decodes at 24×18"),
+    ({"repeat_last": 1}, "1", "the masks of camera 'cam_0' hold 2 frames but its video VIDEO has 3: ingest the first 2 with --frames 0:2"),
+])
+def test_videos_unlike_their_ground_truth_name_the_video_and_both_sizes(tmp_path, capsys, change, scale, message):
+    capture = tmp_path / "capture"
+    assert main(["synth", str(capture), "--num-frames", "2", "--num-cameras", "3", "--width", "48", "--height", "36", "--no-progress"]) == 0
+    for video in sorted((capture / "videos").glob("*.mp4")):  # videos re-encoded smaller (or longer) than the calibration says
+        _reencode(video, **change)
+    capsys.readouterr()
+    assert main(["ingest", str(capture), str(tmp_path / "s.zarr"), "--scale", scale, "--no-progress"]) == 2
+    errors = [line for line in capsys.readouterr().err.splitlines() if ": error: " in line]
+    assert len(errors) == 1 and message.replace("VIDEO", str(capture / "videos" / "cam_0.mp4")) in errors[0]
+    assert "move ground_truth.zarr away" in errors[0] and not (tmp_path / "s.zarr").exists()

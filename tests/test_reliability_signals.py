@@ -51,3 +51,33 @@ def test_a_compiled_kernel_interrupted_mid_call_reads_as_an_interrupt(monkeypatc
     assert main(["configs"]) == 130
     err = capsys.readouterr().err
     assert "interrupted" in err and "unexpected" not in err
+
+
+#: `mmcsplat flow` with each pair of frames slowed down, so that a signal lands mid-computation.
+SLOW_FLOW = ("import sys, time\n"
+             "import mmcsplat.pipeline.flow as flow\n"
+             "computed = flow.flow_pair\n"
+             "flow.flow_pair = lambda *pair: (time.sleep(0.2), computed(*pair))[1]\n"
+             "from mmcsplat.cli.main import main\n"
+             "sys.exit(main(sys.argv[1:]))\n")
+
+
+def test_sigterm_during_flow_leaves_no_flow_and_the_rerun_keeps_what_was_computed(tmp_path, capsys):
+    from mmcsplat.cli.main import main
+    from mmcsplat.pipeline.flow import flow_complete
+    from mmcsplat.storage.session.flow import SessionFlow
+
+    session = write_session(tmp_path / "s.zarr", frames=8)
+    command = [sys.executable, "-c", SLOW_FLOW, "flow", str(session), "--no-progress"]
+    flow = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=dict(os.environ))
+    deadline = time.monotonic() + 120
+    while not list(session.glob("flow.*/*/c.*")) and time.monotonic() < deadline and flow.poll() is None:
+        time.sleep(0.05)  # until the first pair is stored
+    flow.send_signal(signal.SIGTERM)
+    _, err = flow.communicate(timeout=120)
+    assert flow.returncode == 143, err
+    assert "terminated (SIGTERM)" in err and "Traceback" not in err
+    assert not SessionFlow(session).available and not flow_complete(session)  # the pending pairs are not the session's flow
+    assert not list(tmp_path.glob(".*.lock"))
+    assert main(["flow", str(session), "--no-progress"]) == 0
+    assert "kept from an interrupted run" in capsys.readouterr().out and flow_complete(session)

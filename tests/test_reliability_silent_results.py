@@ -229,13 +229,40 @@ def test_a_fit_never_resumes_onto_another_recording(tmp_path, capsys):
     assert (run / "checkpoint.pt").read_bytes() == checkpoint
 
 
-def test_a_run_older_than_fingerprints_says_it_cannot_check(fitted):
-    session, run = fitted
+def _forget_fingerprints(run: Path) -> None:
+    """Make ``run`` (and its tracks) look written before fingerprints existed."""
+    import zarr
+
     info = json.loads((run / "run.json").read_text())
     del info["recording"]
     (run / "run.json").write_text(json.dumps(info))
+    if (run / "tracks.zarr").exists():
+        tracks = zarr.open_group(str(run / "tracks.zarr"), mode="r+")
+        for key in ("recording", "fit"):
+            del tracks.attrs[key]
+
+
+def test_a_run_older_than_fingerprints_says_it_cannot_check(fitted):
+    session, run = fitted
+    _forget_fingerprints(run)
     with pytest.warns(UserWarning, match="written before mmcsplat fingerprinted recordings: cannot check"):
         assert main(["evaluate", str(run)]) == 0
+
+
+@pytest.mark.parametrize("command", [["evaluate"], ["report"], ["render", "--novel", "--no-progress"]])
+def test_an_old_run_on_a_session_replaced_by_a_shorter_one_names_the_frames(fitted, capsys, command):
+    session, run = fitted
+    assert main(["track", str(run), "--dynamics", "iterative", "--set", "dynamics.iterations=1", "--no-progress"]) == 0
+    _forget_fingerprints(run)
+    _replace_session(session, frames=1)
+    capsys.readouterr()
+    with pytest.warns(UserWarning, match="cannot check") as caught:
+        assert main([command[0], str(run), *command[1:]]) == 2
+    assert sum("cannot check" in str(warning.message) for warning in caught) == 1  # said once
+    err = capsys.readouterr().err
+    assert f"session {session} has 1 frame(s) but run {run} needs frames up to 1 (tracked over frames 0–1)" in err
+    assert "put that recording back there, or re-fit with a new --out" in err and err.count("\n") == 1
+    assert not (run / "metrics.json").exists() and not (run / "report.html").exists()
 
 
 # ------------------------------------------------------------------------- unfinished is never final
@@ -266,10 +293,60 @@ def test_allow_incomplete_labels_every_output(fitted, tmp_path, capsys):
     assert "is unfinished" in capsys.readouterr().err
     assert main(["report", str(run), "--allow-incomplete"]) == 0
     assert "<strong>Incomplete run</strong>" in (run / "report.html").read_text()
-    assert main(["export", str(run), "--ply", str(tmp_path / "ply"), "--allow-incomplete", "--no-progress"]) == 0
+    assert main(["export", str(run), "--ply", str(tmp_path / "ply"), "--inria", str(tmp_path / "inria"), "--allow-incomplete", "--no-progress"]) == 0
     assert b"comment mmcsplat: incomplete run" in (tmp_path / "ply" / "frame_0000.ply").read_bytes()[:400]
+    assert b"comment mmcsplat: incomplete run" in next((tmp_path / "inria").rglob("point_cloud.ply")).read_bytes()[:600]
     _set_status(run, "complete")
     assert main(["evaluate", str(run)]) == 0 and json.loads((run / "metrics.json").read_text())["incomplete"] is False
+
+
+def _carry_landmarks(run: Path, folder: Path, *options: str) -> int:
+    """``mmcsplat landmarks`` of one landmark on the run's first Gaussian, read from a CSV file."""
+    from mmcsplat.storage.landmark_formats import write_landmark_csv
+    from mmcsplat.training.fitted_run import FittedRun
+
+    position = FittedRun.load(run).params["means"][0].double().numpy()
+    path = folder / "joints.csv"
+    write_landmark_csv(path, ["knee"], np.array([0]), np.array([0.0]), position[None, None])
+    return main(["landmarks", str(run), "--source", "csv", "--set", f"path={path}", *options])
+
+
+def _labels(folder: Path) -> tuple[str | None, bool, str | None]:
+    """What each landmark export in ``folder`` says is unfinished: the TRC's header, the CSV's column, the C3D's parameter."""
+    import ezc3d
+
+    from mmcsplat.storage.landmark_formats import read_landmark_csv, read_trc
+
+    parameters = ezc3d.c3d(str(folder / "x.c3d"))["parameters"]
+    c3d = parameters["MMCSPLAT"]["INCOMPLETE"]["value"][0] if "MMCSPLAT" in parameters else None
+    extra = read_landmark_csv(folder / "x.csv")[4]
+    return read_trc(folder / "x.trc").incomplete, bool("incomplete" in extra and (extra["incomplete"] == 1).all()), c3d
+
+
+def test_allow_incomplete_labels_the_landmarks_and_their_exports(fitted, tmp_path):
+    from mmcsplat.storage.landmark_formats import read_landmark_csv
+
+    _, run = fitted
+    exports = [f"--{kind}={tmp_path / f'x.{kind}'}" for kind in ("trc", "csv", "c3d")]
+    _set_status(run, "running")
+    assert _carry_landmarks(run, tmp_path) == 2  # refused without the flag
+    assert _carry_landmarks(run, tmp_path, "--allow-incomplete") == 0
+    assert json.loads((run / "landmarks.json").read_text())["incomplete"] is True
+    assert json.loads((run / "movement.json").read_text())["incomplete"] is True
+    assert (run / "movement.csv").read_text().splitlines()[-1] == "run,incomplete,1,"
+    assert (read_landmark_csv(run / "landmarks.csv")[4]["incomplete"] == 1).all()
+    assert main(["export", str(run), *exports]) == 2
+    assert main(["export", str(run), *exports, "--allow-incomplete"]) == 0
+    trc, csv_labelled, c3d = _labels(tmp_path)
+    assert trc == c3d and f"incomplete run {run}: its fit is 'running'" in trc and csv_labelled
+    _set_status(run, "complete")  # finished since: the landmarks carried before stay labelled, in exports and the report
+    assert main(["export", str(run), *exports]) == 0
+    trc, csv_labelled, c3d = _labels(tmp_path)
+    assert "its landmarks were carried before it was finished" in trc and trc == c3d and csv_labelled
+    assert main(["report", str(run)]) == 0 and "its landmarks were carried before it was finished" in (run / "report.html").read_text()
+    assert _carry_landmarks(run, tmp_path) == 0 and main(["export", str(run), *exports]) == 0
+    assert _labels(tmp_path) == (None, False, None)
+    assert "incomplete" not in (run / "movement.csv").read_text()
 
 
 def test_a_report_of_metrics_scored_before_the_end_has_a_banner(fitted):
@@ -295,6 +372,69 @@ def test_no_metrics_are_written_for_a_run_another_process_holds(fitted, capsys):
     with run_lock(run):
         assert main(["evaluate", str(run), "--allow-incomplete"]) == 2
     assert "is being written by another mmcsplat process" in capsys.readouterr().err and not (run / "metrics.json").exists()
+
+
+def test_evaluate_holds_the_runs_lock_while_it_scores_and_writes(fitted, monkeypatch):
+    import mmcsplat.pipeline.evaluate as evaluation
+    from mmcsplat.storage.locking import BusyError, run_lock
+
+    _, run = fitted
+    write, refused = evaluation.write_json_atomic, []
+
+    def write_while_another_writer_starts(path, payload):
+        try:  # a fit, a track or a second evaluate taking the run now
+            run_lock(run).release()
+        except BusyError as error:
+            refused.append(str(error))
+        write(path, payload)
+
+    monkeypatch.setattr(evaluation, "write_json_atomic", write_while_another_writer_starts)
+    assert main(["evaluate", str(run)]) == 0
+    assert refused and f"run {run} is being written by another mmcsplat process" in refused[0]
+    assert (run / "metrics.json").exists() and not (run / ".mmcsplat.lock").exists()
+
+
+def test_a_fold_killed_before_its_first_checkpoint_is_missing_not_left_out(tmp_path, capsys):
+    import shutil
+
+    session = write_session(tmp_path / "s.zarr")
+    config = write_config(tmp_path / "fit.toml", iterations=2, checkpoint_every=1)
+    run = tmp_path / "folds"
+    fit = ["fit", str(session), "--config", str(config), "--out", str(run), "--folds", "cam_0,cam_1", "--no-progress", "--backend", "torch-reference"]
+    assert main(fit) == 0
+    assert json.loads((run / "folds.json").read_text()) == {"folds": ["cam_0", "cam_1"]}
+    shutil.rmtree(run / "cam_1")  # killed before its first checkpoint: none of its files written
+    capsys.readouterr()
+    assert main(["evaluate", str(run)]) == 2
+    err = capsys.readouterr().err
+    assert f"run {run} is unfinished: fold cam_1 has no fit" in err and "run the same `mmcsplat fit --folds` again" in err
+    assert not (run / "metrics.json").exists()
+    assert main(["evaluate", str(run), "--allow-incomplete"]) == 0
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["incomplete"] is True and "fold cam_1 has no fit" in metrics["unfinished"][0] and list(metrics["folds"]) == ["cam_0"]
+    assert main(fit) == 0  # the same command fits the missing fold
+    _set_status(run / "cam_0", "running")  # killed after a checkpoint: refused, never scored from the half fit
+    capsys.readouterr()
+    assert main(["evaluate", str(run)]) == 2
+    assert f"run {run / 'cam_0'} is unfinished: its fit is 'running'" in capsys.readouterr().err
+    _set_status(run / "cam_0", "complete")
+    assert main(["evaluate", str(run)]) == 0
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["incomplete"] is False and metrics["unfinished"] == [] and list(metrics["folds"]) == ["cam_0", "cam_1"]
+
+
+def test_a_fold_plan_only_grows_and_a_garbled_one_is_named(tmp_path):
+    from mmcsplat.plugin_api.errors import InputError
+    from mmcsplat.storage.folds import planned_folds, write_fold_plan
+
+    run = tmp_path / "folds"
+    assert planned_folds(run) is None
+    write_fold_plan(run, ["cam_0", "cam_1"])
+    write_fold_plan(run, ["cam_1", "cam_2"])  # a rerun with other folds adds them, drops none
+    assert planned_folds(run) == ("cam_0", "cam_1", "cam_2")
+    (run / "folds.json").write_text('{"folds": [')
+    with pytest.raises(InputError, match="folds.json is not a fold plan .* delete it and run `mmcsplat fit --folds` with every fold again"):
+        planned_folds(run)
 
 
 # ------------------------------------------------------------ what would desynchronise or warp a capture

@@ -19,7 +19,9 @@ landmark, C3D in millimetres through ezc3d.
 
 A run with tracks exports every tracked frame; without tracks, its first-frame fit (run frame 0).
 An unfinished run (its fit or tracking not complete) is refused; with --allow-incomplete it is exported,
-with a warning and a comment in every PLY header saying what is unfinished. --ply files are written
+with a warning and every file labelled: a comment in every PLY header, an `Incomplete` header key in the
+TRC, an `incomplete` column in the CSV and the parameter MMCSPLAT:INCOMPLETE in the C3D, each saying what
+is unfinished (landmarks carried before the run was finished stay labelled). --ply files are written
 beside DIR and moved in once all are whole.
 """
 
@@ -81,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
     if any(landmark_files.values()):
         from mmcsplat.outputs.landmark_export import export_landmarks
 
-        for path in export_landmarks(args.run, **landmark_files):
+        for path in export_landmarks(args.run, **landmark_files, unfinished=unfinished):
             print(f"{path}: the run's landmarks")
     if args.ply is not None:
         paths = export_ply(args.run, args.ply, progress=not args.no_progress, sh_degree=FULL_SH_DEGREE if args.full_sh else 0,

@@ -1,6 +1,8 @@
 """Fit the first frame of a session: Gaussians optimised on the training cameras (resumes a killed run).
 
-With --folds, one fit per held-out camera (leave-one-camera-out) into RUN/<camera>/. Start and pruning
+With --folds, one fit per held-out camera (leave-one-camera-out) into RUN/<camera>/, the folds listed in
+RUN/folds.json first: run again after a kill, each fold resumes from its checkpoint (or starts again
+when it had none), and evaluate refuses the run while a fold is missing or unfinished. Start and pruning
 regions too small for the subject's visual hull are grown by their initializers to hold it, saying so,
 unless --fixed-regions.
 """
@@ -33,6 +35,7 @@ def run(args: argparse.Namespace) -> int:
     from mmcsplat.configuration.config import load_config
     from mmcsplat.pipeline.evaluate import fit_signals
     from mmcsplat.pipeline.fit import FirstFrameFit
+    from mmcsplat.storage.folds import write_fold_plan
     from mmcsplat.storage.session import SessionReader, enclosing_session
 
     if (store := enclosing_session(args.out)) is not None:
@@ -40,6 +43,8 @@ def run(args: argparse.Namespace) -> int:
     config = load_config(args.config, args.overrides)
     session = SessionReader(args.session)
     plan = [(args.out / camera, [camera]) for camera in args.folds] if args.folds else [(args.out, args.holdout)]
+    if args.folds:
+        write_fold_plan(args.out, args.folds)
     for out, holdout in plan:
         fit = FirstFrameFit(session, config, out, holdout=holdout, backend=args.backend, progress=not args.no_progress,
                             grow_regions=not args.fixed_regions)

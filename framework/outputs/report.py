@@ -100,9 +100,13 @@ def run_report(run: Path, backend: str | None = None, registry: Registry | None 
     unfinished = require_finished(run, states.info, allow_incomplete)
     renderer = RunRenderer(states, backend=backend, registry=registry, progress=False)
     metrics = read_metrics(run)
-    if metrics is not None and metrics.get("incomplete") and not unfinished:
-        unfinished = [f"its {METRICS_FILE} scored it before it was finished: run `mmcsplat evaluate {run}` again"]
+    from mmcsplat.outputs.landmark_export import carried_unfinished
     from mmcsplat.outputs.report_landmarks import landmarks_section
+
+    if not unfinished:  # a finished run whose metrics or landmarks were made before it was
+        if metrics is not None and metrics.get("incomplete"):
+            unfinished.append(f"its {METRICS_FILE} scored it before it was finished: run `mmcsplat evaluate {run}` again")
+        unfinished += carried_unfinished(run)
 
     videos = [(path.read_bytes(), path.name) for path in sorted((Path(run) / RENDERS_DIR).glob("landmarks_*.mp4"))]
     sections = [run_summary(states), views_section(renderer, backend or states.info.renderer), metrics_section(run, metrics),

@@ -19,7 +19,9 @@ from mmcsplat.plugin_api.errors import MissingFileError
 from mmcsplat.plugin_api.render_contract import gaussians_from_params
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.atomic import write_json_atomic
-from mmcsplat.storage.completeness import require_finished
+from mmcsplat.storage.completeness import ALLOW_INCOMPLETE, UnfinishedRunError, require_finished
+from mmcsplat.storage.folds import planned_folds
+from mmcsplat.storage.locking import run_lock
 from mmcsplat.storage.run import METRICS_FILE, RUN_INFO, TRACKS_DIR
 from mmcsplat.storage.tracks import TrackReader
 from mmcsplat.training.fitted_run import FittedRun
@@ -103,11 +105,19 @@ def evaluate_run(run: Path, registry: Registry | None = None, backend: str | Non
     visual hull of the session's masks at the fitted frame, ``mask_agreement`` per camera the share of its
     mask on the hull of the other cameras' masks (:mod:`mmcsplat.analysis.visual_hull`; low for a camera
     with wrong extrinsics). An unfinished run is refused, or with ``allow_incomplete`` scored with
-    ``incomplete`` true. ``progress`` shows a bar over the tracked frames."""
+    ``incomplete`` true; the run's lock is held while it is scored and written, so a fit, track or second
+    evaluate at work on it is refused. ``progress`` shows a bar over the tracked frames."""
     registry = registry or default_registry()
     fitted = FittedRun.load(run)
-    info, params = fitted.info, fitted.params
-    unfinished = require_finished(run, info, allow_incomplete)
+    unfinished = require_finished(run, fitted.info, allow_incomplete)
+    with run_lock(run):  # no fit, track or second evaluate writes the run while it is scored
+        return _score_run(fitted, registry, backend, ground_truth, unfinished, progress)
+
+
+def _score_run(fitted: FittedRun, registry: Registry, backend: str | None, ground_truth: Path | None, unfinished: list[str],
+               progress: bool) -> dict[str, Any]:
+    """:func:`evaluate_run` of the loaded run ``fitted`` (whose lock the caller holds), its ``unfinished`` work labelled."""
+    run, info, params = fitted.path, fitted.info, fitted.params
     session = fitted.session
     renderer = run_renderer(info, registry, backend)
     psnr = registry.create("metric", "psnr")
@@ -169,6 +179,7 @@ def evaluate_run(run: Path, registry: Registry | None = None, backend: str | Non
     }
     if (Path(run) / TRACKS_DIR).exists():
         fitted.require_own_tracks(TrackReader(run))
+        fitted.require_tracked_frames(TrackReader(run))
         backdrops = {name: fitted.backdrop(name) for name in info.heldout_cameras}
         tracked = tracked_heldout_scores(TrackReader(run), session, info.heldout_cameras, info.train_cameras, renderer, psnr, backdrops,
                                          center, info.scene_scale, progress)
@@ -185,30 +196,48 @@ def evaluate_run(run: Path, registry: Registry | None = None, backend: str | Non
 
 
 def fold_runs(run: Path) -> list[Path]:
-    """The fold sub-directories of a leave-one-camera-out run, or ``[run]`` for a single fit."""
+    """The fold sub-directories of a leave-one-camera-out run that hold a fit (those of its plan,
+    :mod:`mmcsplat.storage.folds`, else every one), or ``[run]`` for a single fit."""
     run = Path(run)
     if (run / RUN_INFO).exists():
         return [run]
-    folds = sorted(path for path in run.iterdir() if (path / RUN_INFO).exists()) if run.is_dir() else []
+    planned = planned_folds(run)
+    if planned is not None:
+        folds = [run / name for name in planned if (run / name / RUN_INFO).exists()]
+    else:
+        folds = sorted(path for path in run.iterdir() if (path / RUN_INFO).exists()) if run.is_dir() else []
     if not folds:
         raise MissingFileError(f"{run} holds no fit run ({RUN_INFO}) nor fold runs")
     return folds
 
 
+def missing_folds(run: Path) -> list[str]:
+    """What of the planned folds of ``run`` has no fit yet, each with what to do (empty without a plan)."""
+    missing = [name for name in planned_folds(run) or () if not (Path(run) / name / RUN_INFO).exists()]
+    return [f"fold {name} has no fit ({Path(run) / name / RUN_INFO} is missing: killed before its first checkpoint, or not reached): "
+            "run the same `mmcsplat fit --folds` again" for name in missing]
+
+
 def evaluate(run: Path, registry: Registry | None = None, backend: str | None = None, ground_truth: Path | None = None,
              allow_incomplete: bool = False, progress: bool = False) -> dict[str, Any]:
     """Evaluate a run or every fold of a leave-one-camera-out run; folds are averaged into RUN/metrics.json.
-    ``progress`` shows a bar over each run's tracked frames."""
+    A planned fold without a fit is refused like an unfinished fold, or with ``allow_incomplete`` left out
+    and named in ``unfinished``. ``progress`` shows a bar over each run's tracked frames."""
     runs = fold_runs(run)
     if runs == [Path(run)]:
         return evaluate_run(Path(run), registry, backend, ground_truth, allow_incomplete, progress)
+    missing = missing_folds(run)
+    if missing and not allow_incomplete:
+        raise UnfinishedRunError(f"run {run} is unfinished: {'; '.join(missing)} (or pass {ALLOW_INCOMPLETE} to label the outputs incomplete)")
     folds = {path.name: evaluate_run(path, registry, backend, ground_truth, allow_incomplete, progress) for path in runs}
     summary: dict[str, Any] = {}
     for key in ("val_masked_psnr", "val_psnr", "val_ssim", "train_masked_psnr", "val_interior_masked_psnr", "train_interior_masked_psnr", "train_psnr", "num_gaussians", "floater_share", "iterations", "wall_s"):
         values = [m[key] for m in folds.values() if m[key] is not None]
         summary[key] = _mean(values)
     summary["val_masked_psnr_std"] = float(np.std([m["val_masked_psnr"] for m in folds.values() if m["val_masked_psnr"] is not None] or [np.nan]))
-    summary["incomplete"] = any(m["incomplete"] for m in folds.values())
+    summary["unfinished"] = missing + [f"fold {name}: {problem}" for name, m in folds.items() for problem in m["unfinished"]]
+    summary["incomplete"] = bool(summary["unfinished"])
     summary["folds"] = folds
-    write_json_atomic(Path(run) / METRICS_FILE, summary)
+    with run_lock(Path(run)):
+        write_json_atomic(Path(run) / METRICS_FILE, summary)
     return summary

@@ -34,7 +34,7 @@ from mmcsplat.scene.camera import Camera
 from mmcsplat.scene.landmark_anchors import ANCHORS, MAX_DISTANCE, bind_landmarks, carry, subject_gaussians
 from mmcsplat.storage.atomic import write_json_atomic, write_text_atomic
 from mmcsplat.storage.completeness import require_finished
-from mmcsplat.storage.landmark_formats import write_landmark_csv
+from mmcsplat.storage.landmark_formats import CSV_INCOMPLETE_COLUMN, write_landmark_csv
 from mmcsplat.storage.locking import run_lock
 from mmcsplat.storage.run import LANDMARKS_CSV, LANDMARKS_INFO, MOVEMENT_CSV, MOVEMENT_JSON
 from mmcsplat.storage.run_log import run_log
@@ -76,10 +76,12 @@ class LandmarkRun:
 
 def write_movement(run: Path, summary: dict[str, Any]) -> None:
     """RUN/movement.json, a :func:`~mmcsplat.analysis.movement.movement_summary`, and RUN/movement.csv, its
-    scalars one ``subject,measure,value,unit`` row each (an empty value where unknown); each written atomically."""
+    scalars one ``subject,measure,value,unit`` row each (an empty value where unknown), and for an incomplete run
+    a last row ``run,incomplete,1,``; each written atomically."""
     write_json_atomic(run / MOVEMENT_JSON, summary)
     text = io.StringIO()
-    csv.writer(text, lineterminator="\n").writerows([("subject", "measure", "value", "unit"), *movement_rows(summary)])
+    label = [("run", CSV_INCOMPLETE_COLUMN, 1, "")] if summary.get("incomplete") else []
+    csv.writer(text, lineterminator="\n").writerows([("subject", "measure", "value", "unit"), *movement_rows(summary), *label])
     write_text_atomic(run / MOVEMENT_CSV, text.getvalue())
 
 
@@ -90,7 +92,8 @@ def track_landmarks(run: str | Path, source: str, params: dict[str, Any] | None 
     frame, carry them through its frames, score them, and write RUN/landmarks.csv and RUN/landmarks.json, and
     their movement measures RUN/movement.json and RUN/movement.csv.
     ``keypoints`` names a second source whose 2D detections score the carried landmarks per camera. An
-    unfinished run is refused, or with ``allow_incomplete`` labelled ``incomplete`` in landmarks.json."""
+    unfinished run is refused, or with ``allow_incomplete`` labelled: ``incomplete`` and ``unfinished`` in
+    landmarks.json and movement.json, an ``incomplete`` column in landmarks.csv."""
     run = Path(run)
     registry = registry or default_registry()
     states = RunStates(run)
@@ -125,8 +128,9 @@ def track_landmarks(run: str | Path, source: str, params: dict[str, Any] | None 
             off[k] = False if off_k is None else off_k
         slips = slipped(session, states.info.train_cameras, frames, points, carried, rule)
         times = session.frame_times[frames]
+        labels = {CSV_INCOMPLETE_COLUMN: np.ones(spread.shape)} if unfinished else {}
         write_landmark_csv(run / LANDMARKS_CSV, reference.names, frames, times, carried,
-                           extra={"spread_mm": spread * 1000, "confidence": confidence(spread)})
+                           extra={"spread_mm": spread * 1000, "confidence": confidence(spread), **labels})
         info: dict[str, Any] = {
             "source": source, "params": {key: str(value) if isinstance(value, Path) else value for key, value in (params or {}).items()},
             "described": reference.source, "names": list(reference.names), "frames": [int(frames[0]), int(frames[-1]) + 1],
@@ -144,7 +148,7 @@ def track_landmarks(run: str | Path, source: str, params: dict[str, Any] | None 
             info["accuracy_2d"] = _accuracy_2d(registry, keypoints, keypoint_params, session, set(states.info.heldout_cameras), frames,
                                                reference, carried)
         write_json_atomic(run / LANDMARKS_INFO, info)
-        movement = movement_summary(reference.names, times, carried)
+        movement = movement_summary(reference.names, times, carried) | {"incomplete": bool(unfinished), "unfinished": unfinished}
         write_movement(run, movement)
         log.info("landmarks from %s: %d bound, %s unbound; %d frames", source, int(binding.bound.sum()), binding.unbound or "none", len(frames))
         if binding.unbound:

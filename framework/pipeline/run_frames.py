@@ -43,7 +43,10 @@ class RunStates:
 
     @property
     def session(self) -> SessionReader:
-        """The session the run was fitted on (opened on first use: export does not need it)."""
+        """The session the run was fitted on (opened on first use: export does not need it), holding every
+        tracked frame."""
+        if self.tracks is not None:
+            self.fitted.require_tracked_frames(self.tracks)
         return self.fitted.session
 
     def params(self, k: int) -> dict[str, torch.Tensor]:

@@ -25,6 +25,11 @@ in millimetres (``POINT:UNITS = "mm"``), ``POINT:LABELS`` the names, ``POINT:RAT
 residual of 0 for a valid point and -1 for a missing one (C3D's mark of an invalid point). C3D has no fixed
 up axis (each lab declares its own), so mmcsplat's world axes are written unchanged.
 
+**Incomplete runs**: landmarks of a run whose fit or tracking was not finished (``--allow-incomplete``)
+are labelled in each format where its readers keep reading: in TRC an extra header key ``Incomplete``
+(line 2) whose value (line 3) says what is unfinished; in CSV an extra column ``incomplete``, 1 on every
+row; in C3D the parameter ``MMCSPLAT:INCOMPLETE`` holding the same text as TRC.
+
 Why two ways: TRC and CSV are small text formats with no maintained Python library for TRC, so both are
 read and written here by hand, with errors naming the file and the line at fault. C3D is a binary format
 with many variants (processor types, integer or float storage, scale factors, parameter blocks), so it
@@ -60,6 +65,11 @@ _C3D_UNITS = {"m": 1.0, "cm": 1e-2, "mm": 1e-3}
 TRC_HEADER_KEYS = ("DataRate", "CameraRate", "NumFrames", "NumMarkers", "Units", "OrigDataRate", "OrigDataStartFrame", "OrigNumFrames")
 CSV_COLUMNS = ("frame", "time", "name", "x", "y", "z")
 CSV_SHORT_COLUMNS = ("name", "x", "y", "z")
+#: Where an incomplete run's landmarks say so (module docstring): the TRC header key, the CSV column and the
+#: C3D parameter (group, name).
+TRC_INCOMPLETE_KEY = "Incomplete"
+CSV_INCOMPLETE_COLUMN = "incomplete"
+C3D_INCOMPLETE_PARAMETER = ("MMCSPLAT", "INCOMPLETE")
 
 
 @attrs.frozen(eq=False)
@@ -73,6 +83,13 @@ class TrcData:
     positions: np.ndarray
     rate: float
     units: str
+    #: What was unfinished in the run the file was exported from (its ``Incomplete`` header), else ``None``.
+    incomplete: str | None = None
+
+
+def _one_line(text: str) -> str:
+    """``text`` with every run of whitespace (tabs, line breaks) one space: a TRC header cell, a C3D string."""
+    return " ".join(text.split())
 
 
 # --- shared checks -------------------------------------------------------------------------------------------
@@ -235,16 +252,18 @@ def read_trc(path: str | os.PathLike, convention: str = "pose2sim") -> TrcData:
 
     positions = np.asarray(rows, dtype=np.float64).reshape(len(rows), len(names), 3) * _UNITS[units]
     return TrcData(names=names, frame_numbers=np.asarray(frame_numbers, dtype=np.int64), times=np.asarray(times, dtype=np.float64),
-                   positions=positions[..., list(_TO_WORLD[convention])], rate=rate, units=units)
+                   positions=positions[..., list(_TO_WORLD[convention])], rate=rate, units=units,
+                   incomplete=header.get(TRC_INCOMPLETE_KEY))
 
 
 def write_trc(path: str | os.PathLike, names: Sequence[str], times: np.ndarray, positions: np.ndarray, rate: float,
-              convention: str = "pose2sim", units: str = "m") -> None:
+              convention: str = "pose2sim", units: str = "m", incomplete: str | None = None) -> None:
     """Write ``positions`` [T, L, 3] (world metres, NaN where missing) as a TRC file (module docstring), atomically.
 
     Frame numbers are 1..T as Pose2Sim writes them, ``times`` [T] the Time column, ``rate`` the DataRate
     (and CameraRate, OrigDataRate); line 1 names the file itself. ``convention`` maps world axes to the
-    file's (``"pose2sim"``: file (X, Y, Z) = (world y, world z, world x), Y up); ``units`` ``"m"`` or ``"mm"``."""
+    file's (``"pose2sim"``: file (X, Y, Z) = (world y, world z, world x), Y up); ``units`` ``"m"`` or ``"mm"``.
+    ``incomplete``, what is unfinished in the run exported, becomes the header key ``Incomplete``."""
     path = Path(path)
     _check_convention(convention)
     if units not in _UNITS:
@@ -260,8 +279,11 @@ def write_trc(path: str | os.PathLike, names: Sequence[str], times: np.ndarray, 
     count = len(values)
     out = io.StringIO()
     out.write(f"PathFileType\t4\t(X/Y/Z)\t{path.name}\n")
-    out.write("\t".join(TRC_HEADER_KEYS) + "\n")
-    out.write("\t".join([_rate_text(rate), _rate_text(rate), str(count), str(len(names)), units, _rate_text(rate), "1", str(count)]) + "\n")
+    header = {**dict(zip(TRC_HEADER_KEYS, [_rate_text(rate), _rate_text(rate), str(count), str(len(names)), units, _rate_text(rate), "1",
+                                            str(count)], strict=True)),
+              **({TRC_INCOMPLETE_KEY: _one_line(incomplete)} if incomplete else {})}
+    out.write("\t".join(header) + "\n")
+    out.write("\t".join(header.values()) + "\n")
     out.write("Frame#\tTime\t" + "\t\t\t".join(names) + "\t\t\n")
     out.write("\t\t" + "\t".join(f"{axis}{i}" for i in range(1, len(names) + 1) for axis in "XYZ") + "\n")
     for k in range(count):
@@ -376,14 +398,16 @@ def read_landmark_csv(path: str | os.PathLike) -> tuple[tuple[str, ...], np.ndar
 # --- C3D -----------------------------------------------------------------------------------------------------
 
 
-def write_c3d(path: str | os.PathLike, names: Sequence[str], times: np.ndarray, positions: np.ndarray, rate: float) -> None:
+def write_c3d(path: str | os.PathLike, names: Sequence[str], times: np.ndarray, positions: np.ndarray, rate: float,
+              incomplete: str | None = None) -> None:
     """Write ``positions`` [T, L, 3] (world metres, NaN where missing) as C3D POINT data through ezc3d, atomically.
 
     Values are written in millimetres (``POINT:UNITS = "mm"``) with ``POINT:LABELS`` = ``names`` and
     ``POINT:RATE`` = ``rate``. C3D has no fixed up axis, so mmcsplat's world frame is written unchanged
     (no axis swap, unlike TRC). A missing point is written as 0 with residual -1 (C3D's invalid point),
     a known one with residual 0. C3D holds a rate, not times: frame k is at k / rate from the first, so
-    ``times`` must be evenly spaced at 1 / ``rate`` (an InputError otherwise: a gap would be lost)."""
+    ``times`` must be evenly spaced at 1 / ``rate`` (an InputError otherwise: a gap would be lost).
+    ``incomplete``, what is unfinished in the run exported, becomes the parameter ``MMCSPLAT:INCOMPLETE``."""
     import ezc3d
 
     path = Path(path)
@@ -409,6 +433,8 @@ def write_c3d(path: str | os.PathLike, names: Sequence[str], times: np.ndarray, 
     c3d["parameters"]["POINT"]["UNITS"]["value"] = ["mm"]
     c3d["data"]["points"] = points
     c3d["data"]["meta_points"] = {"residuals": residuals}
+    if incomplete:
+        c3d.add_parameter(*C3D_INCOMPLETE_PARAMETER, [_one_line(incomplete)])
     with atomic_path(path) as temporary:
         written = temporary.with_name(temporary.name + ".c3d")  # ezc3d appends .c3d to a path that does not end so
         try:

@@ -39,3 +39,15 @@ def require_same_recording(run: Path, info: RunInfo, store: Recorded) -> None:
     if info.recording != store.fingerprint:
         raise RecordingMismatchError(f"run {run} was fitted on another recording than {store.url} holds (fingerprint "
                                      f"{info.recording[:12]}, found {store.fingerprint[:12]}): the recording differs — re-fit with a new --out")
+
+
+def require_frames(run: Path, store: Recorded, num_frames: int, needed: int, what: str) -> None:
+    """Refuse the session ``store`` of ``num_frames`` frames for the run directory ``run`` when the run needs
+    frames 0 to ``needed`` − 1 (``what``: which of its work needs them). A session replaced at the run's
+    path by a shorter recording is refused by its fingerprint; this names it for runs and sessions older
+    than fingerprints, which would otherwise fail on an index out of bounds."""
+    if needed > num_frames:
+        raise RecordingMismatchError(f"session {store.url} has {num_frames} frame(s) but run {run} needs frames up to {needed - 1} "
+                                     f"({what}): the session at that path is not the recording the run was fitted on — put that "
+                                     "recording back there, or re-fit with a new --out")
+

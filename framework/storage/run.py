@@ -1,6 +1,6 @@
 """A run directory's files, each named once: the first-frame fit writes ``run.json``, ``checkpoint.pt``,
 ``curves.csv`` and ``log.txt``; tracking adds ``tracks.zarr`` and ``track.json`` (and ``deformation.pt``
-for the deformation method); evaluation ``metrics.json``; landmarks ``landmarks.csv``, ``landmarks.json``, ``movement.json``, ``movement.csv``
+for the deformation method); evaluation ``metrics.json``; ``fit --folds`` ``folds.json`` above its folds; landmarks ``landmarks.csv``, ``landmarks.json``, ``movement.json``, ``movement.csv``
 (and an exported TRC); renders go to ``renders/``, the report to ``report.html``.
 
 Every module that reads or writes one of these names imports it from here (``tests/test_run_files.py``
@@ -28,6 +28,8 @@ TRACKING_UNFINISHED = "tracking.unfinished"
 DEFORMATION_CHECKPOINT = "deformation.pt"
 #: The evaluation's scores.
 METRICS_FILE = "metrics.json"
+#: The folds a leave-one-camera-out run (``fit --folds``) holds, planned before the first is fitted.
+FOLDS_FILE = "folds.json"
 #: The landmarks' positions per frame, and their record (source, binding, accuracy).
 LANDMARKS_CSV = "landmarks.csv"
 LANDMARKS_INFO = "landmarks.json"

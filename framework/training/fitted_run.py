@@ -15,7 +15,7 @@ import attrs
 import torch
 
 from mmcsplat.plugin_api.errors import InputError, MissingFileError
-from mmcsplat.storage.recording import require_same_recording
+from mmcsplat.storage.recording import require_frames, require_same_recording
 from mmcsplat.storage.run import CHECKPOINT, RUN_INFO
 from mmcsplat.storage.run_info import RunInfo
 from mmcsplat.storage.session import SessionReader
@@ -64,6 +64,7 @@ class FittedRun:
             raise MissingFileError(f"{self.path}: its session {self.info.session} cannot be opened ({error}); moved or deleted? put the "
                                    f"session back at that path (the run is bound to it)") from error
         require_same_recording(self.path, self.info, session)
+        require_frames(self.path, session, session.num_frames, self.info.frame + 1, f"it was fitted at frame {self.info.frame}")
         return session
 
     @cached_property
@@ -75,6 +76,12 @@ class FittedRun:
             digest.update(name.encode())
             digest.update(self.params[name].detach().cpu().contiguous().reshape(-1).view(torch.uint8).numpy().tobytes())
         return digest.hexdigest()
+
+    def require_tracked_frames(self, tracks: TrackReader) -> None:
+        """Refuse the run's session unless it holds every frame of its ``tracks``."""
+        first = int(tracks.attrs.get("first_frame", self.info.frame))
+        require_frames(self.path, self.session, self.session.num_frames, first + tracks.num_frames,
+                       f"tracked over frames {first}–{first + tracks.num_frames - 1}")
 
     def require_own_tracks(self, tracks: TrackReader) -> None:
         """Refuse ``tracks`` (read from this run) unless made on this run's recording from this fit: tracks
