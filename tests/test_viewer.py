@@ -128,7 +128,10 @@ def test_landmarks_are_shown_with_their_trails(run, tmp_path):
 def test_the_command_serves_until_ctrl_c(run):
     port = free_port()
     command = [sys.executable, "-m", "mmcsplat.cli.main", "view", str(run), "--port", str(port)]
-    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=dict(os.environ))
+    # Ctrl-C as a terminal delivers it: a test run started in the background (nohup, `&`) ignores SIGINT, and
+    # a child would inherit that and never stop.
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=dict(os.environ),
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         line = process.stdout.readline()
         assert f"http://127.0.0.1:{port}" in line, line + process.stderr.read() if process.poll() is not None else line
