@@ -92,6 +92,17 @@ def marker_offsets(image: np.ndarray, camera: Camera, radius: int = 3) -> np.nda
     return np.array(offsets)
 
 
+def write_blank_session(url: Path, cameras: Sequence[Camera], frames: int) -> Path:
+    """A session of black images at each camera's size, for tests that store their own flow beside them."""
+    from mmcsplat.storage.session import SessionWriter
+
+    with SessionWriter(url, cameras=cameras, num_frames=frames, fps=30.0) as writer:
+        for camera in cameras:
+            for t in range(frames):
+                writer.write_frame(camera.name, t, np.zeros((camera.height, camera.width, 3), np.uint8))
+    return url
+
+
 def no_session_left(out: Path) -> bool:
     """Nothing at ``out`` and no partial or temporary sibling of it."""
     return not out.exists() and not any(p.name.startswith(f".{out.name}") for p in out.parent.iterdir())

@@ -7,11 +7,10 @@ import numpy as np
 import pytest
 import torch
 import zarr
-from rig_fixtures import ring_cameras
+from rig_fixtures import ring_cameras, write_blank_session
 
 from mmcsplat.analysis.flow_joints import joint_prediction_errors
 from mmcsplat.storage.landmark_formats import write_trc
-from mmcsplat.storage.session import SessionWriter
 from mmcsplat.storage.session.flow import FlowPair, FlowWriter
 from mmcsplat.training.flow_lifting import camera_matrices, project
 
@@ -39,10 +38,7 @@ def write_joints(tmp_path, source: str):
 @pytest.mark.parametrize("source", ["trc", "ground truth"])
 def test_exact_flow_predicts_accelerating_joints(tmp_path, source):
     url = tmp_path / "s.zarr"
-    with SessionWriter(url, cameras=CAMERAS, num_frames=FRAMES, fps=30.0) as writer:
-        for camera in CAMERAS:
-            for t in range(FRAMES):
-                writer.write_frame(camera.name, t, np.zeros((120, 160, 3), np.uint8))
+    write_blank_session(url, CAMERAS, FRAMES)
     K, viewmats = camera_matrices(CAMERAS)
     with FlowWriter(url, method={"name": "exact"}, cameras=[camera.name for camera in CAMERAS]) as writer:
         for t in range(FRAMES - 1):

@@ -7,11 +7,10 @@ import math
 
 import numpy as np
 import torch
-from rig_fixtures import ring_cameras
+from rig_fixtures import ring_cameras, write_blank_session
 
 from mmcsplat.backends.torch_reference import TorchReferenceRenderer
 from mmcsplat.plugin_api.render_contract import Gaussians
-from mmcsplat.storage.session import SessionWriter
 from mmcsplat.storage.session.flow import FlowPair, FlowWriter
 from mmcsplat.training.flow_lifting import camera_matrices, project
 from mmcsplat.training.flow_prediction import FlowPrediction, visibility
@@ -46,10 +45,7 @@ def test_a_gaussian_outside_the_image_is_not_visible():
 def test_displacements_from_stored_flow(tmp_path):
     """Flow fields made from a known 3D shift of a small blob, stored in a session, lift back to the shift."""
     url = tmp_path / "s.zarr"
-    with SessionWriter(url, cameras=CAMERAS, num_frames=2, fps=30.0) as writer:
-        for camera in CAMERAS:
-            for t in range(2):
-                writer.write_frame(camera.name, t, np.zeros((72, 96, 3), np.uint8))
+    write_blank_session(url, CAMERAS, 2)
     shift = torch.tensor([0.02, -0.01, 0.015], dtype=torch.float64)
     centre = torch.zeros(1, 3, dtype=torch.float64)
     K, viewmats = camera_matrices(CAMERAS)

@@ -5,11 +5,11 @@ held off from the frame its slip passes the rule's 50 mm, in every camera."""
 from __future__ import annotations
 
 import numpy as np
-from rig_fixtures import ring_cameras
+from rig_fixtures import ring_cameras, write_blank_session
 
 from mmcsplat.analysis.landmark_flow import flow_slip
 from mmcsplat.analysis.lost_landmarks import LostRule, lost_line, lost_record, slipped
-from mmcsplat.storage.session import SessionReader, SessionWriter
+from mmcsplat.storage.session import SessionReader
 from mmcsplat.storage.session.flow import FlowPair, FlowWriter, SessionFlow
 
 CAMERAS = ring_cameras(["a", "b", "c"], width=160, height=120, distortion=(0, 0, 0, 0, 0))
@@ -26,10 +26,7 @@ def capture(tmp_path) -> SessionReader:
     """A session of blank images whose flow moves every pixel as the body's first point moves: a textured
     body filling the view."""
     url = tmp_path / "s.zarr"
-    with SessionWriter(url, cameras=CAMERAS, num_frames=FRAMES, fps=30.0) as writer:
-        for camera in CAMERAS:
-            for t in range(FRAMES):
-                writer.write_frame(camera.name, t, np.zeros((120, 160, 3), np.uint8))
+    write_blank_session(url, CAMERAS, FRAMES)
     with FlowWriter(url, method={"name": "exact"}, cameras=[camera.name for camera in CAMERAS]) as writer:
         for camera in CAMERAS:
             for t in range(FRAMES - 1):
@@ -73,10 +70,7 @@ def test_the_record_says_the_flow_found_it(tmp_path):
 
 def test_a_session_without_flow_is_judged_on_the_masks_alone(tmp_path):
     url = tmp_path / "s.zarr"
-    with SessionWriter(url, cameras=CAMERAS, num_frames=2, fps=30.0) as writer:
-        for camera in CAMERAS:
-            for t in range(2):
-                writer.write_frame(camera.name, t, np.zeros((120, 160, 3), np.uint8))
+    write_blank_session(url, CAMERAS, 2)
     points, carried = neighbourhoods()
     assert slipped(SessionReader(url), ["a", "b"], np.arange(2), points[:2], carried[:2], LostRule()) is None
     record = lost_record(("follows",), np.array([True]), np.arange(2), np.zeros((2, 1), bool), np.ones(2, bool), LostRule(), {})
