@@ -106,7 +106,7 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     def prepare(partial: Path) -> None:
         choice = prepare_capture_session(capture, partial, calibration=Path(settings.calibration) if settings.calibration else None,
                                          units=settings.units, frames=slice(*settings.frames), scale=settings.scale,
-                                         cameras=list(settings.cameras) or None, holdout=list(settings.holdout), keypoints=keypoints,
+                                         cameras=list(settings.cameras) or None, holdout=list(settings.holdout), source=source,
                                          progress=progress)
         write_json_atomic(out / MASKS_FILE, choice)
         log(f"run: masks: {choice['detail']}")

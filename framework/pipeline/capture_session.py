@@ -57,11 +57,11 @@ def keypoint_source(path: Path) -> dict[str, Any]:
 
 
 def prepare_capture_session(capture: Path, partial: Path, *, calibration: Path | None = None, units: str = "m", frames: slice | None = None,
-                            scale: float = 1.0, cameras: Sequence[str] | None = None, holdout: Sequence[str] = (), keypoints: Path | None = None,
+                            scale: float = 1.0, cameras: Sequence[str] | None = None, holdout: Sequence[str] = (), source: dict[str, Any] | None = None,
                             progress: bool = True) -> dict[str, Any]:
     """Ingest ``capture`` into ``partial`` (its calibration, units, frames, scale, cameras and held-out cameras as
     :func:`~mmcsplat.pipeline.ingest.ingest` takes them) and give it masks and plates (module docstring), the
-    masks from the 2D ``keypoints`` when given (a file or folder, :func:`keypoint_source`); returns which masks it used (:func:`mask_choice`)."""
+    masks from the 2D keypoints that ``source`` reads when given (:func:`keypoint_source`); returns which masks it used (:func:`mask_choice`)."""
     from mmcsplat.pipeline.ingest import ingest
     from mmcsplat.pipeline.plates import estimate_plates
     from mmcsplat.pipeline.segment import segment_session
@@ -69,7 +69,6 @@ def prepare_capture_session(capture: Path, partial: Path, *, calibration: Path |
 
     ingest(capture, partial, calibration=calibration, units=units, frames=frames, scale=scale, cameras=cameras, holdout=list(holdout),
            overwrite=True, progress=progress)
-    source = keypoint_source(keypoints) if keypoints else None
     recorded = any(SessionReader(partial).plate(name) is not None for name in SessionReader(partial).camera_names)
     segmenter, first, refined = ("keypoints", {"source": source}, {"source": source, "refine": "plate"}) if source else \
         ("background", {"method": "median"}, {"method": "plate"}) if recorded else ("parallax", {}, {"refine": "plate"})

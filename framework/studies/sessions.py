@@ -62,14 +62,15 @@ def prepare_flow(plan: SessionPlan, preset: str, progress: bool = True) -> None:
 def _captured(capture: dict, target: Path, progress: bool) -> None:
     """The capture folder made into the session ``target`` as ``mmcsplat run`` makes its own (ingested, masks
     and plates), in a hidden sibling renamed into place."""
-    from mmcsplat.pipeline.capture_session import prepare_capture_session
+    from mmcsplat.pipeline.capture_session import keypoint_source, prepare_capture_session
     from mmcsplat.pipeline.steps import made_in_place
 
     def make(partial: Path) -> None:
         prepare_capture_session(Path(capture["path"]), partial, calibration=Path(capture["calibration"]) if capture["calibration"] else None,
                                 units=capture["units"], frames=slice(*capture["frames"]) if capture["frames"] else None, scale=capture["scale"],
                                 cameras=capture["cameras"] or None, holdout=capture["holdout"],
-                                keypoints=Path(capture["keypoints"]) if capture["keypoints"] else None, progress=progress)
+                                source=keypoint_source(Path(capture["keypoints"])) if capture["keypoints"] else None,
+                                progress=progress)
 
     made_in_place(target, make)
 
