@@ -5,8 +5,9 @@ Gaussians that carry it, :func:`~mmcsplat.analysis.lost_landmarks.neighbourhoods
 as the image itself moves: between frames t and t+1 each point's projection moves by what the session's
 forward optical flow says at the pixel it starts from. The difference of the two, per image axis the median
 over the points the camera images with confident flow (forward and backward flow agree there), is the
-landmark's slip over that pair of frames; summed from the run's first frame, where the landmark was bound
-to the images, it is how far its image has slipped from theirs, in pixels. A leg the tracks leave behind
+landmark's slip over that pair of frames; summed over the last :data:`WINDOW` pairs, it is how far its image
+has slipped from theirs lately, in pixels. A window, not the sum from the run's first frame: the flow's small
+errors would add up over a long run until every landmark, followed or not, had slipped. A leg the tracks leave behind
 while the images show it swinging slips by the swing, though it may stay on the subject's masks (in front
 of the other leg, or inside a loose mask). :mod:`mmcsplat.analysis.lost_landmarks` turns the slip into a
 vote per camera.
@@ -22,6 +23,7 @@ from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.session.flow import FlowPair, SessionFlow, pair_present
 
 MIN_CONFIDENCE = 0.5  # forward–backward agreement below which a pixel's flow is an occlusion or noise
+WINDOW = 10  # pairs of frames the slip is summed over: a limb left behind slips its swing within them, the flow's bias over a long run does not add up
 
 
 def pair_slip(camera: Camera, before: np.ndarray, after: np.ndarray, flow: FlowPair, min_confidence: float = MIN_CONFIDENCE) -> np.ndarray:
@@ -45,23 +47,22 @@ def pair_slip(camera: Camera, before: np.ndarray, after: np.ndarray, flow: FlowP
     return result
 
 
-def flow_slip(flow: SessionFlow, cameras: Sequence[Camera], frames: np.ndarray, points: np.ndarray,
+def flow_slip(flow: SessionFlow, cameras: Sequence[Camera], frames: np.ndarray, points: np.ndarray, window: int = WINDOW,
               min_confidence: float = MIN_CONFIDENCE) -> np.ndarray:
-    """[V, T, L] px: each landmark's slip in each camera with flow, summed from the first of the session
-    ``frames`` [T] (consecutive) to each of them, from its neighbourhood ``points`` [T, L, P, 3] there; NaN at
-    the first frame and where the camera has not yet judged the landmark. A pair a camera has no flow for,
-    or does not image the landmark in with confident flow, adds nothing."""
+    """[V, T, L] px: each landmark's slip in each camera with flow over the last ``window`` pairs of the session
+    ``frames`` [T] (consecutive) up to each of them, summed, from its neighbourhood ``points`` [T, L, P, 3]
+    there; NaN at the first frame and where the camera judged the landmark in none of those pairs. A pair a
+    camera has no flow for, or does not image the landmark in with confident flow, adds nothing."""
     total = np.full((len(cameras), len(frames), points.shape[1]), np.nan)
     for v, camera in enumerate(cameras):
         pairs = pair_present(flow.present(camera.name))
-        summed, judged = np.zeros((points.shape[1], 2)), np.zeros(points.shape[1], dtype=bool)
+        steps = np.full((len(frames), points.shape[1], 2), np.nan)  # steps[k]: the slip from frame k − 1 to frame k
         for k in range(1, len(frames)):
             if pairs[frames[k - 1]]:
-                slip = pair_slip(camera, points[k - 1], points[k], flow.pair(int(frames[k - 1]), camera.name), min_confidence)
-                known = np.isfinite(slip[:, 0])
-                summed[known] += slip[known]
-                judged |= known
-            total[v, k, judged] = np.linalg.norm(summed[judged], axis=1)
+                steps[k] = pair_slip(camera, points[k - 1], points[k], flow.pair(int(frames[k - 1]), camera.name), min_confidence)
+            recent = steps[max(1, k - window + 1): k + 1]
+            judged = np.isfinite(recent[..., 0]).any(axis=0)
+            total[v, k, judged] = np.linalg.norm(np.nansum(recent[:, judged], axis=0), axis=1)
     return total
 
 

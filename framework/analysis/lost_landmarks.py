@@ -14,8 +14,8 @@ image it (and :data:`MIN_VIEWS` at least) find it off: one wrong mask is outvote
 
 The masks miss a limb that stays on the subject's silhouette — a leg left behind in front of the other,
 or inside a loose mask. Where the session has optical flow (``mmcsplat flow``), a frame also holds the
-landmark off when its neighbourhood's image has slipped from the images' motion since the run's first
-frame (:mod:`mmcsplat.analysis.landmark_flow`) by more than :data:`SLIP_MM` at the landmark's depth, and
+landmark off when its neighbourhood's image has slipped from the images' motion over the last
+:data:`~mmcsplat.analysis.landmark_flow.WINDOW` pairs of frames (:mod:`mmcsplat.analysis.landmark_flow`) by more than :data:`SLIP_MM` at the landmark's depth, and
 :data:`MIN_SLIP_PX` at least (flow's noise on small images), in at least :data:`VIEW_FRACTION` of the
 cameras with flow that image it (:data:`MIN_VIEWS` at least). Measured against the Pose2Sim demo's
 triangulated joints (docs/landmarks.md), the masks alone are precise but catch few lost landmarks; the
@@ -29,7 +29,7 @@ from collections.abc import Sequence
 import attrs
 import numpy as np
 
-from mmcsplat.analysis.landmark_flow import MIN_CONFIDENCE, flow_slip, slip_mm
+from mmcsplat.analysis.landmark_flow import MIN_CONFIDENCE, WINDOW, flow_slip, slip_mm
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.storage.session.flow import SessionFlow
@@ -58,6 +58,7 @@ class LostRule:
     min_views: int = MIN_VIEWS
     consecutive: int = CONSECUTIVE
     slip_mm: float = SLIP_MM
+    slip_window: int = WINDOW
     min_slip_px: float = MIN_SLIP_PX
     min_flow_confidence: float = MIN_CONFIDENCE
 
@@ -129,7 +130,7 @@ def slipped(session: SessionReader, cameras: Sequence[str], frames: np.ndarray, 
     with_flow = [session.camera(name) for name in cameras if flow.available and flow.has(name)]
     if not with_flow:
         return None
-    pixels = flow_slip(flow, with_flow, frames, points, rule.min_flow_confidence)
+    pixels = flow_slip(flow, with_flow, frames, points, rule.slip_window, rule.min_flow_confidence)
     judged = np.isfinite(pixels)
     far = (np.where(judged, slip_mm(pixels, with_flow, carried), 0.0) > rule.slip_mm) & (np.where(judged, pixels, 0.0) > rule.min_slip_px)
     return voted(far, judged, rule)

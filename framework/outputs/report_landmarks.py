@@ -182,7 +182,9 @@ def lost_html(record: dict[str, Any]) -> str:
     """The landmarks the tracks lost (RUN/landmarks.json's ``lost``): a sentence, and a table of the lost
     ones with the first frame, the number of frames each was lost and the signals that found it."""
     rule = record["rule"]
-    flow = (f" or, with the session's optical flow, their image slipped from the images' motion since the first frame by more than "
+    # Runs carried before the slip had a window summed it from the first frame.
+    since = f"over the last {rule['slip_window']} pairs of frames" if "slip_window" in rule else "since the first frame"
+    flow = (f" or, with the session's optical flow, their image slipped from the images' motion {since} by more than "
             f"{rule['slip_mm']:.0f} mm at their depth") if "slip_mm" in rule else ""
     parts = [f"<h3>Lost landmarks</h3><p>Where the tracks stopped following the images: a landmark is lost at the frames where it "
              f"and the Gaussians carrying it fell off the subject mask (by more than {rule['tolerance']:.1%} of the image diagonal){flow} "
