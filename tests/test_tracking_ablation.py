@@ -75,6 +75,16 @@ def test_flow_is_computed_once_for_the_cells_that_read_it(tmp_path, monkeypatch)
     assert run_study(study, tmp_path / "out", workers=0, progress=False).reused == 3 and len(calls) == 1
 
 
+def test_a_synthetic_cell_guides_its_track_with_the_projected_true_joints(tmp_path):
+    variant = iterative("keypoints", 'predict = "constant-velocity", lambda_keypoints = 0.1, keypoints = { name = "synthetic" }')
+    result = run_study(load_study(write_study(tmp_path, variant, f"synthetic = {{ {TINY} }}")), tmp_path / "out", workers=0, progress=False)
+    outcome = result.rows[0].outcome
+    assert outcome.status == "complete", outcome.error
+    summary = json.loads((tmp_path / "out" / "cells" / outcome.key / "track.json").read_text())["summary"]
+    guidance = summary["keypoint_guidance"]  # bound to the fit and used, not silently off; the held-out camera left out
+    assert guidance["weight"] == 0.1 and guidance["keypoints"] and guidance["cameras"] == ["cam_1", "cam_2", "cam_3"]
+
+
 def test_a_stored_session_read_in_place_gains_its_flow_and_nothing_else(tmp_path):
     write_session(tmp_path / "scene.zarr", frames=2, plates=True)
     frame = SessionReader(tmp_path / "scene.zarr").frame(1, "cam_1").rgb.copy()
@@ -121,10 +131,13 @@ def test_a_pose2sim_capture_cell_tracks_with_flow_and_scores_its_joints_against_
 
 def test_builtin_tracking_ablation_adds_one_option_a_row():
     study = load_study("tracking-ablation")
-    assert [variant.name for variant in study.variants] == ["constant-velocity", "+ flow prediction", "+ flow loss", "+ coarse to fine"]
+    assert [variant.name for variant in study.variants] == ["constant-velocity", "+ flow prediction", "+ flow loss", "+ coarse to fine",
+                                                            "+ keypoints"]
     options = [variant.config.plugin("dynamics").params for variant in study.variants]
-    assert [params["predict"] for params in options] == ["constant-velocity", "flow", "flow", "flow"]
-    assert [params.get("lambda_flow", 0) for params in options] == [0, 0, 0.01, 0.01]
-    assert [params.get("coarse_iterations", 0) for params in options] == [0, 0, 0, 10]
+    assert [params["predict"] for params in options] == ["constant-velocity", "flow", "flow", "flow", "flow"]
+    assert [params.get("lambda_flow", 0) for params in options] == [0, 0, 0.01, 0.01, 0.01]
+    assert [params.get("coarse_iterations", 0) for params in options] == [0, 0, 0, 10, 10]
+    assert [params.get("lambda_keypoints", 0) for params in options] == [0, 0, 0, 0, 0.1]
+    assert options[-1]["keypoints"] == {"name": "synthetic"}  # the synthetic capture's projected true joints
     assert study.sessions[0].synthetic["motion"] == "fast-kicks"
-    assert [cell.spec.flow for cell in expand(study, "out")] == [None, *[flow_module.DEFAULT_PRESET] * 3]
+    assert [cell.spec.flow for cell in expand(study, "out")] == [None, *[flow_module.DEFAULT_PRESET] * 4]
