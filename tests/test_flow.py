@@ -8,7 +8,17 @@ import pytest
 from rig_fixtures import ring_cameras
 
 from mmcsplat.cli.main import main
-from mmcsplat.pipeline.flow import DEFAULT_PRESET, DisFlow, compute_flow, consistency, method_record
+from mmcsplat.pipeline.flow import (
+    CROP_ALIGN,
+    CROP_MARGIN,
+    DEFAULT_PRESET,
+    DisFlow,
+    compute_flow,
+    consistency,
+    flow_complete,
+    mask_arrays,
+    method_record,
+)
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.storage.session import SessionReader, SessionUpdater, SessionWriter
 from mmcsplat.storage.session.flow import FlowWriter, SessionFlow
@@ -26,17 +36,19 @@ def texture(width: int, height: int) -> np.ndarray:
     return (255 * (smooth - smooth.min()) / np.ptp(smooth)).astype(np.uint8)
 
 
-def write_session(path, absent=()):
-    cameras = ring_cameras(["a", "b", "c"], width=96, height=72, distortion=(0, 0, 0, 0, 0))
-    base = texture(96, 72)
+def write_session(path, absent=(), mask=None, width=96, height=72):
+    """Frames of a texture moving by SHIFT, with masks ``mask(t)`` (default: empty, so the flow covers the image)."""
+    cameras = ring_cameras(["a", "b", "c"], width=width, height=height, distortion=(0, 0, 0, 0, 0))
+    base = texture(width, height)
     with SessionWriter(path, cameras=cameras, num_frames=FRAMES, fps=30.0, heldout=["c"]) as writer:
         for camera in cameras:
             for t in range(FRAMES):
                 if (camera.name, t) in absent:
                     continue
                 u, v = 20 - round(SHIFT[0] * t), 20 - round(SHIFT[1] * t)  # the content moves by +SHIFT
-                grey = base[v : v + 72, u : u + 96]
-                writer.write_frame(camera.name, t, np.repeat(grey[..., None], 3, axis=-1), mask=np.zeros((72, 96), bool))
+                grey = base[v : v + height, u : u + width]
+                masked = np.zeros((height, width), bool) if mask is None else mask(t)
+                writer.write_frame(camera.name, t, np.repeat(grey[..., None], 3, axis=-1), mask=masked)
     return path
 
 
@@ -49,7 +61,7 @@ def test_flow_follows_a_known_shift_and_is_stored(tmp_path, capsys):
     assert "a: 3 pairs of frames already computed" in capsys.readouterr().out
     flow = SessionFlow(session)
     assert flow.available and flow.cameras_with_flow == ("a", "b")  # the held-out camera's images stay out
-    assert flow.method == method_record(DEFAULT_PRESET)
+    assert flow.method == method_record(DEFAULT_PRESET, mask_arrays(SessionReader(session), ("a", "b")))
     pair = flow.pair(1, "a")
     inner = (slice(10, -10), slice(10, -10))
     assert np.allclose(np.median(pair.forward[inner], axis=0), SHIFT, atol=0.2)
@@ -71,7 +83,8 @@ def test_pairs_with_an_absent_frame_are_skipped(tmp_path):
 def test_an_interrupted_computation_resumes_and_is_invisible(tmp_path):
     session = write_session(tmp_path / "s.zarr")
     with pytest.raises(KeyboardInterrupt):
-        with FlowWriter(session, method=method_record(DEFAULT_PRESET), cameras=("a", "b")) as writer:
+        method = method_record(DEFAULT_PRESET, mask_arrays(SessionReader(session), ("a", "b")))
+        with FlowWriter(session, method=method, cameras=("a", "b")) as writer:
             pair = compute_pair_of(session, 0)
             writer.write("a", 0, pair)
             raise KeyboardInterrupt
@@ -93,6 +106,31 @@ def test_another_preset_replaces_the_flow_and_updates_keep_it(tmp_path):
         for t in range(FRAMES):
             updater.write("a", "mask", t, np.ones((72, 96), bool))
     assert SessionFlow(session).available
+    assert not flow_complete(session, preset="ultrafast")  # cut around the old masks: computed again
+
+
+def test_the_flow_is_computed_around_the_subject_only(tmp_path):
+    size = {"width": 224, "height": 160}
+    reach = CROP_MARGIN + CROP_ALIGN  # the box's widest reach beyond the masks
+
+    def square(t):  # the subject: a square moving with the texture
+        mask = np.zeros((size["height"], size["width"]), bool)
+        top, left = 72 + round(SHIFT[1] * t), 100 + round(SHIFT[0] * t)
+        mask[top : top + 12, left : left + 12] = True
+        return mask
+
+    whole = compute_pair_of(write_session(tmp_path / "whole.zarr", **size), 1)
+    session = write_session(tmp_path / "cropped.zarr", mask=square, **size)
+    compute_flow(session, progress=False)
+    pair = SessionFlow(session).pair(1, "a")
+    for flow, expected, subject in ((pair.forward, whole.forward, square(1)), (pair.backward, whole.backward, square(2))):
+        assert np.abs(flow[subject] - expected[subject]).max() < 0.05  # float16 storage
+        assert np.allclose(np.median(flow[subject], axis=0), np.median(expected[subject], axis=0), atol=0.01)
+    near = np.zeros_like(square(1))
+    near[72 - 2 - reach : 84 + reach, 100 - reach : 112 + 3 * 2 + reach] = True
+    assert pair.forward_confidence[~near].max() == 0 and pair.backward_confidence[~near].max() == 0
+    assert not np.any(pair.forward[~near]) and not np.any(pair.backward[~near])
+    assert np.median(pair.forward_confidence[square(1)]) > 0.8
 
 
 def test_an_incomplete_flow_is_refused(tmp_path):

@@ -9,7 +9,10 @@ upsampled ×2 (cubic), the flow then averaged back to the images' pixels. Each p
 from forward–backward consistency: following the forward flow and then the backward flow from where it
 lands should return to the pixel; the confidence is exp(−|f + b|² / (0.01 (|f|² + |b|²) + 0.5)), the
 tolerance of Sundaram et al. (2010) that grows with the motion, and 0 where the forward flow leaves the
-image. The preset was chosen by measurement (docs/dynamics.md, "Preset `fine`"). Frames stream through
+image. Where the session has masks, DIS runs only on a box around the subject (the union of both frames'
+masks, widened by :data:`CROP_MARGIN` and aligned to :data:`CROP_ALIGN` pixels): the flow is read only
+at the subject, and outside the box it is absent (zero, confidence 0); without masks, or with both empty,
+on the whole image. The preset was chosen by measurement (docs/dynamics.md, "Preset `fine`"). Frames stream through
 the session reader two at a time, so memory does not grow with the sequence; the result is stored in the
 session (:mod:`mmcsplat.storage.session.flow`), resumably.
 """
@@ -18,7 +21,7 @@ from __future__ import annotations
 
 import os
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import attrs
 import numpy as np
@@ -55,6 +58,14 @@ PRESETS = tuple(SETTINGS)
 DEFAULT_PRESET = "fine"
 
 
+#: Pixels added on every side of the subject's masks before the flow is computed on that box: room for the
+#: patches and the coarse pyramid levels around a limb at the masks' edge (docs/dynamics.md, "Flow on the
+#: subject only").
+CROP_MARGIN = 32
+#: The box's edges are rounded outwards to multiples of this many pixels, so that its pyramid levels halve evenly.
+CROP_ALIGN = 16
+
+
 @attrs.frozen
 class FlowSummary:
     """What :func:`compute_flow` did for one camera: pairs computed now, pairs kept (from an interrupted run,
@@ -68,13 +79,39 @@ class FlowSummary:
     confident_share: float | None
 
 
-def method_record(preset: str) -> dict:
+def method_record(preset: str, masks: Mapping[str, str | None] | None = None) -> dict:
     """How the flow is made, as stored with it (a different record means recomputing): the preset and its
-    settings, so that flow stored before a preset's settings changed is recomputed."""
+    settings, so that flow stored before a preset's settings changed is recomputed, and the crop around the
+    subject with the mask arrays ``masks`` (camera → array name, from :func:`mask_arrays`) it was cut
+    from, so that flow cut around masks a later segmentation replaced is recomputed."""
     import cv2
 
     return {"name": "dis", "preset": preset, "settings": attrs.asdict(SETTINGS[preset]), "opencv": cv2.__version__,
-            "confidence": "forward-backward"}
+            "confidence": "forward-backward", "crop": {"margin": CROP_MARGIN, "align": CROP_ALIGN, "masks": dict(masks or {})}}
+
+
+def mask_arrays(session: SessionReader, cameras: Sequence[str]) -> dict[str, str | None]:
+    """Camera → the name of the mask array the flow's crop is cut from (``None``: no masks, whole image)."""
+    return {name: session.field_array("mask", name) for name in cameras}
+
+
+def subject_box(first_mask: np.ndarray | None, second_mask: np.ndarray | None) -> tuple[slice, slice] | None:
+    """The rows and columns to compute the flow on: the union of both [H, W] masks widened by
+    :data:`CROP_MARGIN` and aligned to :data:`CROP_ALIGN` within the image; ``None`` (the whole image)
+    without masks or where both are empty."""
+    if first_mask is None or second_mask is None:
+        return None
+    union = np.logical_or(first_mask, second_mask)
+    rows, columns = np.flatnonzero(union.any(axis=1)), np.flatnonzero(union.any(axis=0))
+    if not rows.size:
+        return None
+
+    def span(low: int, high: int, size: int) -> slice:
+        start = max(0, (low - CROP_MARGIN) // CROP_ALIGN * CROP_ALIGN)
+        stop = min(size, -(-(high + 1 + CROP_MARGIN) // CROP_ALIGN) * CROP_ALIGN)
+        return slice(start, stop)
+
+    return span(rows[0], rows[-1], union.shape[0]), span(columns[0], columns[-1], union.shape[1])
 
 
 def grey(rgb: np.ndarray) -> np.ndarray:
@@ -131,18 +168,29 @@ class DisFlow:
         return cv2.resize(flow, (width, height), interpolation=cv2.INTER_AREA) / np.float32(factor)
 
 
-def flow_pair(first: np.ndarray, second: np.ndarray, dis: DisFlow) -> FlowPair:
-    """The forward and backward flow between two grey images, with their confidences."""
-    forward = dis.calc(first, second)
-    backward = dis.calc(second, first)
-    return FlowPair(forward, backward, consistency(forward, backward), consistency(backward, forward))
+def flow_pair(first: np.ndarray, second: np.ndarray, dis: DisFlow, box: tuple[slice, slice] | None = None) -> FlowPair:
+    """The forward and backward flow between two grey images, with their confidences; with ``box`` (from
+    :func:`subject_box`) computed inside it only, zero with confidence 0 outside."""
+    inside = box or (slice(None), slice(None))
+    first_part, second_part = np.ascontiguousarray(first[inside]), np.ascontiguousarray(second[inside])
+    forward, backward = dis.calc(first_part, second_part), dis.calc(second_part, first_part)
+    parts = (forward, backward, consistency(forward, backward), consistency(backward, forward))
+    if box is None:
+        return FlowPair(*parts)
+    whole = []
+    for part in parts:
+        field = np.zeros(first.shape + part.shape[2:], dtype=np.float32)
+        field[box] = part
+        whole.append(field)
+    return FlowPair(*whole)
 
 
 def flow_complete(url: str | os.PathLike, cameras: Sequence[str] | None = None, preset: str = DEFAULT_PRESET) -> bool:
     """Whether the session holds the flow of ``cameras`` (default: its training cameras) computed with ``preset``."""
     stored = SessionFlow(url)
-    names = tuple(cameras) if cameras else SessionReader(url, cache_bytes=0).train_cameras
-    return stored.method == method_record(preset) and stored.cameras_with_flow == names
+    session = SessionReader(url, cache_bytes=0)
+    names = tuple(cameras) if cameras else session.train_cameras
+    return stored.method == method_record(preset, mask_arrays(session, names)) and stored.cameras_with_flow == names
 
 
 def compute_flow(url: str | os.PathLike, cameras: Sequence[str] | None = None, preset: str = DEFAULT_PRESET, *,
@@ -159,15 +207,15 @@ def compute_flow(url: str | os.PathLike, cameras: Sequence[str] | None = None, p
     if flow_complete(url, names, preset):
         return [FlowSummary(name, 0, int(pair_present(session.present(name)).sum()), None, None) for name in names]
     summaries = []
-    with FlowWriter(url, method=method_record(preset), cameras=names) as writer:
+    with FlowWriter(url, method=method_record(preset, mask_arrays(session, names)), cameras=names) as writer:
         for name in names:
             pairs = writer.missing(name)
             kept = int(pair_present(session.present(name)).sum()) - len(pairs)
             confident, previous, began = [], None, time.process_time()
             for t in tqdm(pairs, desc=f"flow {name}", unit="pair", disable=not progress):
-                first = previous[1] if previous is not None and previous[0] == t else grey(session.frame(int(t), name).rgb)
-                second = grey(session.frame(int(t) + 1, name).rgb)
-                pair = flow_pair(first, second, dis)
+                first = previous[1] if previous is not None and previous[0] == t else session.frame(int(t), name)
+                second = session.frame(int(t) + 1, name)
+                pair = flow_pair(grey(first.rgb), grey(second.rgb), dis, subject_box(first.mask, second.mask))
                 writer.write(name, int(t), pair)
                 confident.append(float((pair.forward_confidence > 0.5).mean()))
                 previous = (t + 1, second)

@@ -13,7 +13,7 @@ import torch
 
 from mmcsplat.plugin_api.errors import PluginError
 from mmcsplat.plugin_api.interfaces import Renderer
-from mmcsplat.plugin_api.render_contract import Gaussians, RenderCameras, RenderOutput
+from mmcsplat.plugin_api.render_contract import Gaussians, RenderCameras, RenderOutput, all_finite
 from mmcsplat.training.plugin_hooks import plugin_hook
 
 
@@ -43,6 +43,6 @@ class CheckedRenderer(Renderer):
                 raise RendererContractError(f"renderer {self.name!r} returned {field} of shape {list(actual)} for {c} camera(s) of "
                                             f"{w}×{h} and {n} Gaussians; the contract is {list(shape)}")
         for field in ("rgb", "alpha"):
-            if not torch.isfinite(getattr(output, field)).all():  # inputs were finite (validate_render_inputs)
+            if not all_finite(getattr(output, field)):  # inputs were finite (validate_render_inputs)
                 raise RendererContractError(f"renderer {self.name!r} returned a non-finite {field} from finite Gaussians and cameras")
         return output

@@ -8,10 +8,11 @@ Layout (an optional part of a session; docs/session-store.md)::
             <camera>            channels: forward (u, v) on frame t's pixels towards t+1, backward (u, v) on
                                 frame t+1's pixels towards t, and the forward and backward confidences in [0, 1]
 
-Pair ``t`` (frames t and t+1) is stored where the camera holds both frames. The flow depends only on the
-images, which nothing but a new ingest (a new session store) changes, so it stays valid through segmenting
-and plates. A :class:`FlowWriter` writes into a new group no reader looks at and swaps it in with one write of
-the session's attributes; interrupted, it leaves that group for the next writer of the same method, which
+Pair ``t`` (frames t and t+1) is stored where the camera holds both frames. The flow depends on the
+images, which nothing but a new ingest (a new session store) changes, and on the masks it was cut around
+(its method record names them, so a new segmentation means recomputing); plates keep it. A
+:class:`FlowWriter` writes into a new group no reader looks at and swaps it in with one write of the
+session's attributes; interrupted, it leaves that group for the next writer of the same method, which
 keeps the pairs already written (each pair is one chunk: it is either there and decodes, or is computed
 again) and deletes groups of any other method.
 """

@@ -79,6 +79,10 @@ class SessionBase:
         cameras = self.camera_names if camera is None else (self.camera(camera).name,)
         return any(field in self._field_names.get(name, {}) for name in cameras)
 
+    def field_array(self, field: str, camera: str) -> str | None:
+        """The name of the array holding ``camera``'s ``field`` (a segmenter's run writes a new one), or ``None``."""
+        return self._field_names.get(self.camera(camera).name, {}).get(field)
+
     def _source_mask_array(self, camera: str) -> str | None:
         """The name of the array holding the masks ``camera`` was written with, or ``None``."""
         names = self._field_names.get(camera, {})
