@@ -21,7 +21,8 @@ carrying each keypoint of the ``keypoints`` source pulled towards the training c
 default); ``coarse_iterations`` fits each frame's first steps at reduced resolution
 (:mod:`mmcsplat.training.coarse_views`); ``stop_window``
 ends a frame's fit when its loss stops improving (:class:`~mmcsplat.training.loop.PlateauStop`), with
-``iterations`` the cap; ``track.json`` records each frame's iterations.
+``iterations`` the cap; ``track.json`` records each frame's iterations. ``lr_final_ratio`` decays the means'
+and rotations' learning rates over each frame's steps, so a frame ends settled.
 """
 
 from __future__ import annotations
