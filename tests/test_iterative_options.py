@@ -1,16 +1,19 @@
-"""The iterative dynamics' options: the flow loss, coarse to fine, and the per-frame stopping rule, each
-tracking a small moving scene end to end (`mmcsplat track`)."""
+"""The iterative dynamics' options: the flow loss, coarse to fine and the per-frame stopping rule, each
+tracking a small moving scene end to end (`mmcsplat track`), and the schedule of the settling rates."""
 
 from __future__ import annotations
 
 import json
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
+import torch
 from fitting_scene import moved, subject, write_fitted_run, write_flow_session, write_session
 
 from mmcsplat.cli import main
 from mmcsplat.pipeline.track import TRACK_INFO
+from mmcsplat.plugins.dynamics.iterative import IterativeDynamics
 from mmcsplat.storage.tracks import TrackReader
 
 TRUTH = subject(count=60, scale=0.02)
@@ -65,3 +68,15 @@ def test_flow_loss_without_flow_is_an_error_naming_the_session(tmp_path, capsys)
     assert main(["track", str(run), "--dynamics", "iterative", "--no-progress", "--set", "dynamics.lambda_flow=1"]) != 0
     message = capsys.readouterr().err
     assert "mmcsplat flow" in message and "scene.zarr" in message
+
+
+def test_the_means_and_rotations_rates_settle_over_each_frame():
+    optimizers = {name: torch.optim.Adam([torch.zeros(1, requires_grad=True)], lr=lr) for name, lr in
+                  (("means", 1e-2), ("quats", 1e-3), ("color_logits", 5e-3))}
+    settle = IterativeDynamics(iterations=11, lr_final_ratio=0.01)._settling(SimpleNamespace(optimizers=optimizers))
+    rates = []
+    for step in (0, 5, 10, 0):  # the next frame starts again from the full rates
+        settle(step)
+        rates.append([optimizers[name].param_groups[0]["lr"] for name in ("means", "quats", "color_logits")])
+    assert np.allclose(rates, [[1e-2, 1e-3, 5e-3], [1e-3, 1e-4, 5e-3], [1e-4, 1e-5, 5e-3], [1e-2, 1e-3, 5e-3]])
+

@@ -21,7 +21,8 @@ carrying each keypoint of the ``keypoints`` source pulled towards the training c
 default); ``coarse_iterations`` fits each frame's first steps at reduced resolution
 (:mod:`mmcsplat.training.coarse_views`); ``stop_window``
 ends a frame's fit when its loss stops improving (:class:`~mmcsplat.training.loop.PlateauStop`), with
-``iterations`` the cap; ``track.json`` records each frame's iterations.
+``iterations`` the cap; ``track.json`` records each frame's iterations. ``lr_final_ratio`` decays the means'
+and rotations' learning rates over each frame's steps, so a frame ends settled.
 """
 
 from __future__ import annotations
@@ -47,7 +48,7 @@ from mmcsplat.storage.tracks import TrackWriter
 from mmcsplat.training.coarse_views import CoarseToFine
 from mmcsplat.training.flow_prediction import FlowGuidance, FlowPrediction
 from mmcsplat.training.keypoint_guidance import KeypointGuidance
-from mmcsplat.training.loop import LossTerm, PlateauStop, Sample, Step, TrainingLoop
+from mmcsplat.training.loop import LossTerm, OptimizerStep, PlateauStop, Sample, Step, TrainingLoop
 from mmcsplat.training.model import GaussianModel
 from mmcsplat.training.motion_image import FlowLoss, with_motion
 from mmcsplat.training.schedule import CameraSchedule
@@ -93,6 +94,9 @@ class IterativeDynamics(Dynamics):
     foreground: float = parameter(0.5, doc="segmentation colour above which a Gaussian is foreground", validator=between(0, 1))
     means_lr: float | None = parameter(None, doc="learning rate of the means, scaled by the scene scale (none: the fit's)", validator=above(0))
     quats_lr: float | None = parameter(None, doc="learning rate of the rotations (none: the fit's)", validator=above(0))
+    lr_final_ratio: float = parameter(1.0, doc="the means' and rotations' learning rates decay exponentially over each frame's "
+                                      "iterations to this fraction of theirs, so a frame ends settled rather than where Adam's "
+                                      "last lr-sized steps left it (1: constant)", validator=between(0, 1))
     learn_colors: bool = parameter(True, doc="colours keep learning after the first frame (as Luiten et al.)")
     seed: int = parameter(0, doc="seed of the camera order")
     predict: str = parameter("flow", doc="each frame's start: 'flow' moves the foreground by the session's optical flow lifted to 3D "
@@ -158,7 +162,8 @@ class IterativeDynamics(Dynamics):
         guidance = self._keypoint_guidance(context, params, foreground)
         terms = [self._rigidity(prior, model), *([flow_loss] if flow_loss is not None else []),
                  *([guidance.term(params)] if guidance is not None else [])]
-        loop = TrainingLoop(model, context.renderer, context.settings, lambda_seg=self.lambda_seg, terms=terms)
+        loop = TrainingLoop(model, context.renderer, context.settings, lambda_seg=self.lambda_seg, terms=terms,
+                            optimizers=[self._settling(model)] if self.lr_final_ratio < 1 else [])
         stop = PlateauStop(self.stop_window, tolerance=self.stop_tolerance) if self.stop_window else None
         cameras = RenderCameras.each(context.cameras)
         generator = torch.Generator().manual_seed(self.seed)
@@ -203,6 +208,17 @@ class IterativeDynamics(Dynamics):
             rigid, rot, iso = prior.losses(model.params["means"], model.params["quats"])
             return self.lambda_rigid * rigid + self.lambda_rot * rot + self.lambda_iso * iso
         return term
+
+    def _settling(self, model: GaussianModel) -> OptimizerStep:
+        """Sets the means' and rotations' learning rates for step ``n`` of a frame: theirs times
+        ``lr_final_ratio ** (n / (iterations − 1))``."""
+        rates = {name: model.optimizers[name].param_groups[0]["lr"] for name in RESET_EACH_FRAME}
+
+        def settle(step: int) -> None:
+            factor = self.lr_final_ratio ** (step / max(self.iterations - 1, 1))
+            for name, rate in rates.items():
+                model.optimizers[name].param_groups[0]["lr"] = rate * factor
+        return settle
 
     def _loss_flow(self, context: TrackingContext) -> SessionFlow | None:
         """The session's flow for the flow loss when ``lambda_flow`` asks for it; an error naming the session
