@@ -26,7 +26,10 @@ elsewhere, so they disagree (plane plus parallax). Each step:
 5. **Refined against plates** (``refine = "plate"``, when the session has plates, e.g. estimated by
    ``mmcsplat plates`` with these masks held out): the geometric mask keeps only the pixels within
    ``refine_radius`` of one that differs from the plate. The plate trims the outline, where the
-   geometric mask spills onto the floor beside the subject.
+   geometric mask spills onto the floor beside the subject. Within the hull of change, the pixels whose
+   floor point no other camera sees are left unrefined: the first masks are weakest there, so a plate
+   estimated with them held out may show the still subject itself (a standing adult's torso facing the
+   camera, seen against the walls), and refining against it would drop the subject.
 """
 
 from __future__ import annotations
@@ -223,10 +226,12 @@ class ParallaxSegmenter(PostProcessedSegmenter):
         for t in present_frames(session, camera):
             mask = self._masks(session, int(t))[camera]
             if region is not None:
-                unjudged, median, hull = region
+                unjudged, median, hull, _ = region
                 mask = hull & (mask | unjudged | changed(session.frame(int(t), camera).rgb, median, self.change_threshold))
             if plate is not None:
                 differs = colour_difference(session.frame(int(t), camera).rgb, plate) > self.refine_threshold
+                if region is not None:
+                    differs |= region[3]  # a plate there may show the still subject itself: it cannot judge
                 mask = mask & dilate(differs, self.refine_radius)
             yield int(t), fill_holes(open_close(mask, 0, self.close_radius)), None
 
@@ -249,10 +254,10 @@ class ParallaxSegmenter(PostProcessedSegmenter):
             self._cache[key] = sweep_floor(cameras, medians, floor_normal(cameras))
         return self._cache[key]
 
-    def subject_region(self, session: SessionReader) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    def subject_region(self, session: SessionReader) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
         """Per camera (none when nothing changed): (its pixels whose floor point no other camera sees and
-        which changed at some time, its sequence's median image, the projection of the hull of change) —
-        :mod:`.change_region`."""
+        which changed at some time, its sequence's median image, the projection of the hull of change, the
+        pixels of that projection whose floor point no other camera sees) — :mod:`.change_region`."""
         key = ("region", str(session.url))
         if key not in self._cache:
             names = list(session.camera_names)
@@ -272,7 +277,7 @@ class ParallaxSegmenter(PostProcessedSegmenter):
                 moving = moving[main_pieces(moving, plane_basis(plane.normal), size)]
                 for camera, median, changes, hull in zip(cameras, medians, ever, hull_masks(moving, cameras, self.margin), strict=True):
                     judged = np.any([self._warp(session, camera, other)[1] for other in cameras if other.name != camera.name], axis=0)
-                    region[camera.name] = (~judged & changes, median, hull)
+                    region[camera.name] = (~judged & changes, median, hull, hull & ~judged)
             self._cache[key] = region
         return self._cache[key]
 
