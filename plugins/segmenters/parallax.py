@@ -343,22 +343,27 @@ class ParallaxSegmenter(PostProcessedSegmenter):
 
     def _voxels(self, session: SessionReader, cameras: Sequence[Camera], off: Sequence[np.ndarray]) -> np.ndarray:
         """Centres [N, 3] of the voxels above the floor, within the rig, that most cameras seeing them find off-plane."""
+        grid = self._grid_views(session)
+        seen, inside = np.zeros(len(grid[0]), int), np.zeros(len(grid[0]), int)
+        for camera, off_plane in zip(cameras, off, strict=True):
+            sees, pixel = grid[1][camera.name]
+            seen += sees
+            inside += sees & off_plane.ravel()[pixel]
+        return grid[0][(seen >= 2) & (inside >= self.agreement * seen)]
+
+    def _grid_views(self, session: SessionReader) -> tuple[np.ndarray, dict[str, tuple[np.ndarray, np.ndarray]]]:
+        """(the voxel centres [N, 3] :meth:`_voxels` judges, per camera name (seen [N] bool, flat pixel index
+        [N] int)), computed once: projecting the grid anew at every frame and pass was most of a frame's time."""
         key = ("grid", str(session.url))
         if key not in self._cache:
             plane = self.floor(session)
-            self._cache[key] = self._grid(cameras, plane, 2 * float(plane.height(rig_center(cameras)[None])[0]))[0]
-        grid = self._cache[key]
-        # Camera by camera, dropping a voxel once too many cameras miss it for it ever to reach the agreement:
-        # most voxels are empty air, gone after a few cameras.
-        alive = np.arange(len(grid))
-        seen, inside = np.zeros(len(grid), int), np.zeros(len(grid), int)
-        for view in zip(cameras, off, strict=True):
-            _, sees, on_mask = next(mask_hits(grid[alive], [view]))
-            seen[alive] += sees
-            inside[alive] += on_mask
-            alive = alive[seen[alive] - inside[alive] <= (1 - self.agreement) * len(cameras)]
-        alive = alive[(seen[alive] >= 2) & (inside[alive] >= self.agreement * seen[alive])]
-        return grid[alive]
+            cameras = [session.camera(name) for name in session.camera_names]
+            grid = self._grid(cameras, plane, 2 * float(plane.height(rig_center(cameras)[None])[0]))[0]
+            views = {}
+            for camera, (pixels, sees, _) in zip(cameras, mask_hits(grid, [(camera, np.zeros((camera.height, camera.width), bool)) for camera in cameras]), strict=True):
+                views[camera.name] = (sees, np.where(sees, pixels[:, 1] * camera.width + pixels[:, 0], 0))
+            self._cache[key] = (grid, views)
+        return self._cache[key]
 
     def _grid(self, cameras: Sequence[Camera], plane: Plane, top: float) -> tuple[np.ndarray, float]:
         """(voxel centres [N, 3], their size) over the floor ``plane``: within ``reach`` of the rig centre's
