@@ -4,6 +4,7 @@ synthetic capture with its masks and plates left out, and the implausible-mask c
 from __future__ import annotations
 
 import shutil
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -112,3 +113,23 @@ def test_a_subject_that_barely_changes_leaves_the_masks_unrestricted(sessions):
     assert default_registry().create("segmenter", "parallax").subject_region(bare) == {}
     with_region, without = (next(default_registry().create("segmenter", "parallax", region=region).segment(bare, "cam_0")) for region in ("change", "none"))
     assert with_region[0] == without[0] == 0 and np.array_equal(with_region[1], without[1]) and with_region[1].any()
+
+
+def test_refinement_leaves_the_hull_where_no_camera_sees_the_floor_unrefined(monkeypatch):
+    # A still block that a plate estimated from the sequence took for background: the frame equals the
+    # plate, so the plate test drops all of it — except where, within the hull of change, no other camera
+    # sees the floor behind it (its upper half, seen against a wall), which is left unrefined.
+    image = np.full((12, 12, 3), 90, np.uint8)
+    block, hull, unjudged = (np.zeros((12, 12), bool) for _ in range(3))
+    block[3:9, 3:9] = True
+    hull[1:11, 1:11] = True
+    unjudged[1:6, 1:11] = True
+    session = SimpleNamespace(present=lambda camera: np.ones(1, bool), plate=lambda camera: image,
+                              frame=lambda t, camera: SimpleNamespace(rgb=image))
+    parallax = type(default_registry().create("segmenter", "parallax"))
+    monkeypatch.setattr(parallax, "_masks", lambda self, session, t: {"cam": block})
+    for untrusted, kept in ((unjudged, block & unjudged), (np.zeros_like(block), np.zeros_like(block))):
+        region = {"cam": (np.zeros_like(block), image, hull, hull & untrusted)}
+        monkeypatch.setattr(parallax, "subject_region", lambda self, session, region=region: region)
+        (t, mask, _), = default_registry().create("segmenter", "parallax", refine="plate").raw(session, "cam")
+        assert t == 0 and np.array_equal(mask, kept)

@@ -26,7 +26,10 @@ elsewhere, so they disagree (plane plus parallax). Each step:
 5. **Refined against plates** (``refine = "plate"``, when the session has plates, e.g. estimated by
    ``mmcsplat plates`` with these masks held out): the geometric mask keeps only the pixels within
    ``refine_radius`` of one that differs from the plate. The plate trims the outline, where the
-   geometric mask spills onto the floor beside the subject.
+   geometric mask spills onto the floor beside the subject. Within the hull of change, the pixels whose
+   floor point no other camera sees are left unrefined: the first masks are weakest there, so a plate
+   estimated with them held out may show the still subject itself (a standing adult's torso facing the
+   camera, seen against the walls), and refining against it would drop the subject.
 """
 
 from __future__ import annotations
@@ -223,10 +226,12 @@ class ParallaxSegmenter(PostProcessedSegmenter):
         for t in present_frames(session, camera):
             mask = self._masks(session, int(t))[camera]
             if region is not None:
-                unjudged, median, hull = region
+                unjudged, median, hull, _ = region
                 mask = hull & (mask | unjudged | changed(session.frame(int(t), camera).rgb, median, self.change_threshold))
             if plate is not None:
                 differs = colour_difference(session.frame(int(t), camera).rgb, plate) > self.refine_threshold
+                if region is not None:
+                    differs |= region[3]  # a plate there may show the still subject itself: it cannot judge
                 mask = mask & dilate(differs, self.refine_radius)
             yield int(t), fill_holes(open_close(mask, 0, self.close_radius)), None
 
@@ -249,10 +254,10 @@ class ParallaxSegmenter(PostProcessedSegmenter):
             self._cache[key] = sweep_floor(cameras, medians, floor_normal(cameras))
         return self._cache[key]
 
-    def subject_region(self, session: SessionReader) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    def subject_region(self, session: SessionReader) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
         """Per camera (none when nothing changed): (its pixels whose floor point no other camera sees and
-        which changed at some time, its sequence's median image, the projection of the hull of change) —
-        :mod:`.change_region`."""
+        which changed at some time, its sequence's median image, the projection of the hull of change, the
+        pixels of that projection whose floor point no other camera sees) — :mod:`.change_region`."""
         key = ("region", str(session.url))
         if key not in self._cache:
             names = list(session.camera_names)
@@ -272,7 +277,7 @@ class ParallaxSegmenter(PostProcessedSegmenter):
                 moving = moving[main_pieces(moving, plane_basis(plane.normal), size)]
                 for camera, median, changes, hull in zip(cameras, medians, ever, hull_masks(moving, cameras, self.margin), strict=True):
                     judged = np.any([self._warp(session, camera, other)[1] for other in cameras if other.name != camera.name], axis=0)
-                    region[camera.name] = (~judged & changes, median, hull)
+                    region[camera.name] = (~judged & changes, median, hull, hull & ~judged)
             self._cache[key] = region
         return self._cache[key]
 
@@ -338,22 +343,27 @@ class ParallaxSegmenter(PostProcessedSegmenter):
 
     def _voxels(self, session: SessionReader, cameras: Sequence[Camera], off: Sequence[np.ndarray]) -> np.ndarray:
         """Centres [N, 3] of the voxels above the floor, within the rig, that most cameras seeing them find off-plane."""
+        grid = self._grid_views(session)
+        seen, inside = np.zeros(len(grid[0]), int), np.zeros(len(grid[0]), int)
+        for camera, off_plane in zip(cameras, off, strict=True):
+            sees, pixel = grid[1][camera.name]
+            seen += sees
+            inside += sees & off_plane.ravel()[pixel]
+        return grid[0][(seen >= 2) & (inside >= self.agreement * seen)]
+
+    def _grid_views(self, session: SessionReader) -> tuple[np.ndarray, dict[str, tuple[np.ndarray, np.ndarray]]]:
+        """(the voxel centres [N, 3] :meth:`_voxels` judges, per camera name (seen [N] bool, flat pixel index
+        [N] int)), computed once: projecting the grid anew at every frame and pass was most of a frame's time."""
         key = ("grid", str(session.url))
         if key not in self._cache:
             plane = self.floor(session)
-            self._cache[key] = self._grid(cameras, plane, 2 * float(plane.height(rig_center(cameras)[None])[0]))[0]
-        grid = self._cache[key]
-        # Camera by camera, dropping a voxel once too many cameras miss it for it ever to reach the agreement:
-        # most voxels are empty air, gone after a few cameras.
-        alive = np.arange(len(grid))
-        seen, inside = np.zeros(len(grid), int), np.zeros(len(grid), int)
-        for view in zip(cameras, off, strict=True):
-            _, sees, on_mask = next(mask_hits(grid[alive], [view]))
-            seen[alive] += sees
-            inside[alive] += on_mask
-            alive = alive[seen[alive] - inside[alive] <= (1 - self.agreement) * len(cameras)]
-        alive = alive[(seen[alive] >= 2) & (inside[alive] >= self.agreement * seen[alive])]
-        return grid[alive]
+            cameras = [session.camera(name) for name in session.camera_names]
+            grid = self._grid(cameras, plane, 2 * float(plane.height(rig_center(cameras)[None])[0]))[0]
+            views = {}
+            for camera, (pixels, sees, _) in zip(cameras, mask_hits(grid, [(camera, np.zeros((camera.height, camera.width), bool)) for camera in cameras]), strict=True):
+                views[camera.name] = (sees, np.where(sees, pixels[:, 1] * camera.width + pixels[:, 0], 0))
+            self._cache[key] = (grid, views)
+        return self._cache[key]
 
     def _grid(self, cameras: Sequence[Camera], plane: Plane, top: float) -> tuple[np.ndarray, float]:
         """(voxel centres [N, 3], their size) over the floor ``plane``: within ``reach`` of the rig centre's
