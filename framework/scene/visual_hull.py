@@ -15,13 +15,18 @@ from .camera import Camera
 View = tuple[Camera, np.ndarray]
 
 
+def image_hits(points: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """(pixels [N, 2] int, seen [N] bool — in front of ``camera`` and inside its image) of ``points`` [N, 3]."""
+    depth = (points @ camera.R.T + camera.t)[:, 2]
+    pixels = np.round(camera.project(points)).astype(int) if len(points) else np.zeros((0, 2), dtype=int)
+    return pixels, (depth > 0) & np.all((pixels >= 0) & (pixels < [camera.width, camera.height]), axis=1)
+
+
 def mask_hits(points: np.ndarray, views: Sequence[View]) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Per (camera, [H, W] bool mask) view: (pixels [N, 2] int, seen [N] bool — in front of the camera and
     inside its image —, inside [N] bool — seen and on the mask) of ``points`` [N, 3]."""
     for camera, mask in views:
-        depth = (points @ camera.R.T + camera.t)[:, 2]
-        pixels = np.round(camera.project(points)).astype(int) if len(points) else np.zeros((0, 2), dtype=int)
-        seen = (depth > 0) & np.all((pixels >= 0) & (pixels < [camera.width, camera.height]), axis=1)
+        pixels, seen = image_hits(points, camera)
         inside = np.zeros(len(points), dtype=bool)
         inside[seen] = mask[pixels[seen, 1], pixels[seen, 0]]
         yield pixels, seen, inside

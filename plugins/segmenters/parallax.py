@@ -46,7 +46,7 @@ from mmcsplat.plugins.segmenters.change_region import changed, hull_masks, main_
 from mmcsplat.plugins.segmenters.postprocess import PostProcessedSegmenter, dilate, open_close, present_frames
 from mmcsplat.scene.camera import Camera
 from mmcsplat.scene.rig import rig_center
-from mmcsplat.scene.visual_hull import mask_hits, pixel_rays
+from mmcsplat.scene.visual_hull import image_hits, pixel_rays
 from mmcsplat.storage.session import SessionReader
 
 #: Floor heights tried by the sweep, spread over [SWEEP_RANGE] × the rig centre's depth below the cameras,
@@ -360,7 +360,8 @@ class ParallaxSegmenter(PostProcessedSegmenter):
             cameras = [session.camera(name) for name in session.camera_names]
             grid = self._grid(cameras, plane, 2 * float(plane.height(rig_center(cameras)[None])[0]))[0]
             views = {}
-            for camera, (pixels, sees, _) in zip(cameras, mask_hits(grid, [(camera, np.zeros((camera.height, camera.width), bool)) for camera in cameras]), strict=True):
+            for camera in cameras:
+                pixels, sees = image_hits(grid, camera)
                 views[camera.name] = (sees, np.where(sees, pixels[:, 1] * camera.width + pixels[:, 0], 0))
             self._cache[key] = (grid, views)
         return self._cache[key]
