@@ -80,3 +80,8 @@ def test_the_means_and_rotations_rates_settle_over_each_frame():
         rates.append([optimizers[name].param_groups[0]["lr"] for name in ("means", "quats", "color_logits")])
     assert np.allclose(rates, [[1e-2, 1e-3, 5e-3], [1e-3, 1e-4, 5e-3], [1e-4, 1e-5, 5e-3], [1e-2, 1e-3, 5e-3]])
 
+
+
+def test_a_final_rate_of_zero_is_refused():  # every step after a frame's first would then change nothing
+    with pytest.raises(ValueError, match="lr_final_ratio"):
+        IterativeDynamics(lr_final_ratio=0)

@@ -96,7 +96,8 @@ class IterativeDynamics(Dynamics):
     quats_lr: float | None = parameter(None, doc="learning rate of the rotations (none: the fit's)", validator=above(0))
     lr_final_ratio: float = parameter(1.0, doc="the means' and rotations' learning rates decay exponentially over each frame's "
                                       "iterations to this fraction of theirs, so a frame ends settled rather than where Adam's "
-                                      "last lr-sized steps left it (1: constant)", validator=between(0, 1))
+                                      "last lr-sized steps left it (1: constant; 0 would stop every step after a frame's first)",
+                                      validator=attrs.validators.and_(above(0), between(0, 1)))
     learn_colors: bool = parameter(True, doc="colours keep learning after the first frame (as Luiten et al.)")
     seed: int = parameter(0, doc="seed of the camera order")
     predict: str = parameter("flow", doc="each frame's start: 'flow' moves the foreground by the session's optical flow lifted to 3D "
