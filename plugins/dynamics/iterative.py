@@ -84,7 +84,8 @@ class IterativeDynamics(Dynamics):
 
     cameras_per_frame: ClassVar[int] = 2  # each frame is fitted from its own images alone
 
-    iterations: int = parameter(2000, doc="Adam steps per frame, one training camera each", validator=at_least(0))
+    iterations: int = parameter(50, doc="Adam steps per frame, one training camera each (the reference study's 2000 take hours a "
+                                "frame on a real capture on a CPU)", validator=at_least(0))
     neighbours: int = parameter(20, doc="k of the neighbour graph over foreground Gaussians", validator=at_least(1))
     lambda_w: float = parameter(2000.0, doc="neighbour weights exp(−lambda_w·d²), d in metres", validator=at_least(0))
     lambda_rigid: float = parameter(4.0, doc="weight of the local-rigidity prior", validator=at_least(0))
@@ -92,7 +93,9 @@ class IterativeDynamics(Dynamics):
     lambda_iso: float = parameter(2.0, doc="weight of the isometry prior", validator=at_least(0))
     lambda_seg: float | None = parameter(None, doc="weight of the segmentation loss (none: the fit's)", validator=at_least(0))
     foreground: float = parameter(0.5, doc="segmentation colour above which a Gaussian is foreground", validator=between(0, 1))
-    means_lr: float | None = parameter(None, doc="learning rate of the means, scaled by the scene scale (none: the fit's)", validator=above(0))
+    means_lr: float | None = parameter(1.6e-3, doc="learning rate of the means, scaled by the scene scale: ten times the fit's, since "
+                                       "Adam moves a mean by about its rate a step and a frame's few dozen steps must reach a limb the "
+                                       "prediction left centimetres short (none: the fit's)", validator=above(0))
     quats_lr: float | None = parameter(None, doc="learning rate of the rotations (none: the fit's)", validator=above(0))
     lr_final_ratio: float = parameter(1.0, doc="the means' and rotations' learning rates decay exponentially over each frame's "
                                       "iterations to this fraction of theirs, so a frame ends settled rather than where Adam's "
