@@ -16,7 +16,7 @@ from mmcsplat.cli import main
 from mmcsplat.pipeline.track import TRACK_INFO, track_run
 from mmcsplat.plugins.dynamics.iterative import IterativeDynamics
 from mmcsplat.plugins.dynamics.rigidity import NeighbourGraph, RigidityPrior
-from mmcsplat.scene.quaternions import quat_multiply
+from mmcsplat.scene.quaternions import quat_multiply, quat_to_rotmat
 from mmcsplat.storage.curves import read_curves
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.storage.tracks import TrackReader
@@ -52,8 +52,6 @@ def test_rigid_motion_costs_nothing_and_bending_does():
     prior.remember(means, quats)
 
     rotation = random_rotation(g)
-    from mmcsplat.scene.quaternions import quat_to_rotmat
-
     R = quat_to_rotmat(rotation[None])[0]
     moved_means = means @ R.T + torch.tensor([0.1, -0.2, 0.05], dtype=torch.float64)
     moved_quats = quat_multiply(rotation.expand(60, 4), quats / quats.norm(dim=-1, keepdim=True))
@@ -65,6 +63,41 @@ def test_rigid_motion_costs_nothing_and_bending_does():
     twisted = moved_quats.clone()
     twisted[::2] = quat_multiply(random_rotation(g).expand(30, 4), twisted[::2])
     assert prior.losses(moved_means, twisted)[1] > 1e-3
+
+
+def test_a_first_frame_reference_keeps_a_slide_costly():
+    """A rigid motion costs nothing against the first frame; a slide of half the cloud keeps its cost after
+    remember() with the first frame as reference, where the previous-frame reference forgives it."""
+    g = torch.Generator().manual_seed(1)
+    means = torch.randn(40, 3, generator=g, dtype=torch.float64) * 0.02
+    quats = random_rotation(g).expand(40, 4).clone()
+    graph = NeighbourGraph.build(means, torch.ones(40, dtype=torch.bool), k=6, lambda_w=2000.0)
+    first, previous = RigidityPrior(graph, reference="first"), RigidityPrior(graph)
+    for prior in (first, previous):
+        prior.remember(means, quats)
+
+    rotation = random_rotation(g)
+    moved = means @ quat_to_rotmat(rotation[None])[0].T + torch.tensor([0.03, 0.0, -0.01], dtype=torch.float64)
+    turned = quat_multiply(rotation.expand(40, 4), quats)
+    assert max(float(loss) for loss in first.losses(moved, turned)) < 1e-6
+
+    slid = moved.clone()
+    slid[means[:, 0] > 0] += torch.tensor([0.005, 0.0, 0.0], dtype=torch.float64)  # half the cloud slides 5 mm
+    for prior in (first, previous):
+        prior.remember(slid, turned)
+    assert previous.losses(slid, turned)[0] < 1e-6  # forgiven: the slide became the reference
+    assert first.losses(slid, turned)[0] > 1e-4  # still measured against the first frame
+
+
+def test_a_strided_graph_reaches_further_at_the_same_size():
+    means = torch.randn(200, 3, generator=torch.Generator().manual_seed(2), dtype=torch.float64) * 0.05
+    foreground = torch.ones(200, dtype=torch.bool)
+    near = NeighbourGraph.build(means, foreground, k=5, lambda_w=2000.0)
+    far = NeighbourGraph.build(means, foreground, k=5, lambda_w=2000.0, stride=3)
+    wide = NeighbourGraph.build(means, foreground, k=15, lambda_w=2000.0)
+    assert far.neighbours.shape == near.neighbours.shape == (200, 5)
+    torch.testing.assert_close(far.neighbours, wide.neighbours[:, ::3])  # every third of the 15 nearest
+    assert far.distances.median() > near.distances.median()
 
 
 def test_too_few_foreground_gaussians_is_an_error():

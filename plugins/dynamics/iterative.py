@@ -87,8 +87,12 @@ class IterativeDynamics(Dynamics):
     iterations: int = parameter(50, doc="Adam steps per frame, one training camera each (the reference study's 2000 take hours a "
                                 "frame on a real capture on a CPU)", validator=at_least(0))
     neighbours: int = parameter(20, doc="k of the neighbour graph over foreground Gaussians", validator=at_least(1))
+    neighbour_stride: int = parameter(1, doc="each Gaussian's neighbours are every neighbour_stride-th of its neighbours·neighbour_stride "
+                                      "nearest: a longer reach at the same cost per step (1: the nearest)", validator=at_least(1))
     lambda_w: float = parameter(2000.0, doc="neighbour weights exp(−lambda_w·d²), d in metres", validator=at_least(0))
     lambda_rigid: float = parameter(4.0, doc="weight of the local-rigidity prior", validator=at_least(0))
+    rigid_reference: str = parameter("previous", doc="the frame the rigid and rotation priors compare with: 'previous' (Luiten's: "
+                                     "each frame's small slide is forgiven) or 'first' (slides add up)", validator=one_of("previous", "first"))
     lambda_rot: float = parameter(4.0, doc="weight of the rotation-similarity prior", validator=at_least(0))
     lambda_iso: float = parameter(2.0, doc="weight of the isometry prior", validator=at_least(0))
     lambda_seg: float | None = parameter(None, doc="weight of the segmentation loss (none: the fit's)", validator=at_least(0))
@@ -159,8 +163,8 @@ class IterativeDynamics(Dynamics):
         model = self._model(context)
         params = model.params
         foreground = torch.sigmoid(params["seg_logits"].detach()[:, 0]) > self.foreground
-        graph = NeighbourGraph.build(params["means"], foreground, self.neighbours, self.lambda_w)
-        prior = RigidityPrior(graph)
+        graph = NeighbourGraph.build(params["means"], foreground, self.neighbours, self.lambda_w, self.neighbour_stride)
+        prior = RigidityPrior(graph, self.rigid_reference)
         flow = self._loss_flow(context)
         flow_loss = FlowLoss(self.lambda_flow) if flow is not None else None
         guidance = self._keypoint_guidance(context, params, foreground)

@@ -1,6 +1,10 @@
 """The local-rigidity priors of per-frame tracking (Luiten et al. 2023): a neighbour graph over the
 foreground Gaussians, fixed after the first frame, and the rigid, rotation and isometry losses over it.
 
+The rigid and rotation losses compare with a reference frame: the previous one (Luiten's), or the first,
+so that a slow slide of Gaussians along a textureless limb adds up to a penalty instead of being forgiven
+a frame at a time.
+
 Each loss is the mean over (Gaussian, neighbour) pairs of sqrt(w·‖Δ‖² + 1e-20), w = exp(−λ_w·d²) with d
 the pair's first-frame distance (metres): a pair's weight falls to 1/e at d = 1/sqrt(λ_w).
 """
@@ -28,16 +32,20 @@ class NeighbourGraph:
     weights: torch.Tensor
 
     @classmethod
-    def build(cls, means: torch.Tensor, foreground: torch.Tensor, k: int, lambda_w: float) -> NeighbourGraph:
-        """The ``k`` nearest foreground neighbours of each ``foreground`` [N] bool Gaussian at ``means``."""
+    def build(cls, means: torch.Tensor, foreground: torch.Tensor, k: int, lambda_w: float, stride: int = 1) -> NeighbourGraph:
+        """``k`` foreground neighbours of each ``foreground`` [N] bool Gaussian at ``means``: every
+        ``stride``-th of its ``k·stride`` nearest (stride 1: the ``k`` nearest), so a graph reaches further
+        at the same cost per step."""
         indices = torch.nonzero(foreground).flatten()
         if len(indices) < 2:
             raise InputError(f"rigidity needs at least two foreground Gaussians (segmentation colour > threshold), found {len(indices)}")
-        k = min(k, len(indices) - 1)
+        nearest = min(k * stride, len(indices) - 1)
         points = means.detach()[indices].double().numpy()
-        distances, neighbours = cKDTree(points).query(points, k=k + 1)  # the first is the point itself
-        distances = torch.as_tensor(distances[:, 1:], dtype=torch.float32).reshape(len(indices), k)
-        neighbours = torch.as_tensor(neighbours[:, 1:], dtype=torch.long).reshape(len(indices), k)
+        distances, neighbours = cKDTree(points).query(points, k=nearest + 1)  # the first is the point itself
+        distances = distances.reshape(len(indices), -1)[:, 1::stride]
+        neighbours = neighbours.reshape(len(indices), -1)[:, 1::stride]
+        distances = torch.as_tensor(distances, dtype=torch.float32)
+        neighbours = torch.as_tensor(neighbours, dtype=torch.long)
         return cls(indices, neighbours, distances, torch.exp(-lambda_w * distances**2))
 
 
@@ -50,14 +58,18 @@ def weighted_distance(a: torch.Tensor, b: torch.Tensor, weights: torch.Tensor) -
 
 
 class RigidityPrior:
-    """The rigid, rotation and isometry losses of the current frame against the previous one.
+    """The rigid, rotation and isometry losses of the current frame against a reference frame.
 
-    ``remember(means, quats)`` records a frame as "previous" (its neighbour offsets and inverse
-    rotations); ``losses(means, quats)`` compares the current parameters with it.
+    ``remember(means, quats)`` records a frame as the reference (its neighbour offsets and inverse
+    rotations): every frame it is given with ``reference="previous"``, the first one only with
+    ``reference="first"``; ``losses(means, quats)`` compares the current parameters with it.
     """
 
-    def __init__(self, graph: NeighbourGraph) -> None:
+    def __init__(self, graph: NeighbourGraph, reference: str = "previous") -> None:
+        if reference not in ("previous", "first"):
+            raise ValueError(f"reference must be 'previous' or 'first', not {reference!r}")
         self.graph = graph
+        self.reference = reference
         self._offsets: torch.Tensor | None = None
         self._inverse: torch.Tensor | None = None
 
@@ -69,21 +81,24 @@ class RigidityPrior:
         return offsets, rotations
 
     def remember(self, means: torch.Tensor, quats: torch.Tensor) -> None:
-        """Make ``means``/``quats`` the previous frame the next losses compare against."""
+        """Make ``means``/``quats`` the frame the next losses compare against (with ``reference="first"``,
+        only the first frame given)."""
+        if self.reference == "first" and self._offsets is not None:
+            return
         with torch.no_grad():
             offsets, rotations = self._offsets_and_rotations(means, quats)
         self._offsets = offsets
         self._inverse = quat_conjugate(rotations)
 
     def losses(self, means: torch.Tensor, quats: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """(rigid, rot, iso): neighbour offsets rotated back into the previous frame's local axes versus
-        the previous offsets; relative rotations versus the neighbours'; neighbour distances versus the
-        first frame's."""
+        """(rigid, rot, iso): neighbour offsets rotated back into the reference frame's local axes versus
+        the reference offsets; rotations since the reference versus the neighbours'; neighbour distances
+        versus the first frame's."""
         if self._offsets is None or self._inverse is None:
             raise RuntimeError("RigidityPrior.remember() must record a previous frame first")
         graph = self.graph
         offsets, rotations = self._offsets_and_rotations(means, quats)
-        relative = quat_multiply(rotations, self._inverse)  # [F, 4]: rotation since the previous frame
+        relative = quat_multiply(rotations, self._inverse)  # [F, 4]: rotation since the reference frame
         back = torch.einsum("fji,fkj->fki", quat_to_rotmat(relative), offsets)  # Rᵀ·offset
         rigid = weighted_distance(back, self._offsets, graph.weights)
         rot = weighted_distance(relative[graph.neighbours], relative[:, None], graph.weights)
