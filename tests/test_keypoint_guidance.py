@@ -117,13 +117,33 @@ def test_unconfident_detections_are_ignored():
     exact = guidance(detections(points))
     # a wild detection whose source found it below its min_confidence (stored as confidence 0) pulls nothing
     unconfident = guidance(shifted(detections(points), "cam_2", 1, 1, (50.0, 50.0), confidence=0.0))
-    confident = guidance(shifted(detections(points), "cam_2", 1, 1, (50.0, 50.0)))
+    # a detection off by a few pixels, within what the other cameras allow, pulls
+    confident = guidance(shifted(detections(points), "cam_2", 1, 1, (6.0, 6.0)))
     model = params()
     for guide in (exact, unconfident, confident):
         guide.observe(1)
     assert unconfident.loss("cam_2", model["means"], model["quats"]).item() == pytest.approx(
         exact.loss("cam_2", model["means"], model["quats"]).item(), abs=1e-6)
     assert confident.loss("cam_2", model["means"], model["quats"]).item() > 1.0
+    assert confident.summary()["inconsistent_detections"] == {"cam_1": 0, "cam_2": 0, "cam_3": 0}
+
+
+def test_a_detection_the_other_cameras_contradict_is_left_out():
+    points = landmarks()
+    exact = guidance(detections(points))
+    wild = guidance(shifted(detections(points), "cam_2", 1, 1, (50.0, 50.0)))  # 71 px; the tolerance is 12 px here
+    model = params()
+    for guide in (exact, wild):
+        guide.observe(1)
+    assert wild.loss("cam_2", model["means"], model["quats"]).item() == pytest.approx(
+        exact.loss("cam_2", model["means"], model["quats"]).item(), abs=1e-6)
+    assert wild.summary()["inconsistent_detections"]["cam_2"] == 1
+    # seen by two cameras only, a keypoint whose detections no point explains pulls in neither
+    two = [o for o in detections(points) if o.camera != "cam_3"]
+    split = guidance(shifted(two, "cam_1", 1, 0, (0.0, 40.0)), cameras=TRAINING[:2])  # across the epipolar line
+    split.observe(1)
+    assert split.summary()["inconsistent_detections"] == {"cam_1": 1, "cam_2": 1}
+    assert split.loss("cam_1", model["means"], model["quats"]).item() == pytest.approx(0.0, abs=1e-6)
 
 
 def test_too_few_training_cameras_is_an_error_naming_them():

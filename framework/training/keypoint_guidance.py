@@ -12,7 +12,12 @@ detected there (confidence > 0: each source zeroes those below its ``min_confide
 penalty of the distance, in the stored image's pixels, between the projection of the keypoint's carried
 position (its anchors' weighted proposals, differentiable in their means and rotations) and the detection:
 d²/(2δ) within δ pixels, d − δ/2 beyond, so a wrong detection pulls no harder than a few pixels' worth.
-A held-out camera's detections never enter: only the training cameras' are kept.
+A held-out camera's detections never enter: only the training cameras' are kept. Nor does a detection the
+other training cameras contradict: at each frame the keypoints are triangulated from all training
+cameras' detections, and a detection whose reprojection misses it by more than :data:`MAX_DISAGREEMENT` of
+its image's diagonal is left out. Pulled towards two detections no 3D point explains (OpenPose's nose
+seen by only two cameras of the Pose2Sim demo misses its triangulation by 14–22 px in some frames, where
+every detection's 99th percentile is 9 px), the anchors settle at a point neither camera shows.
 """
 
 from __future__ import annotations
@@ -33,11 +38,35 @@ from mmcsplat.scene.triangulation import triangulate
 from .flow_lifting import camera_matrices, project
 from .loop import LossTerm
 
+#: A detection farther than this share of its image's diagonal from the reprojection of the keypoint
+#: triangulated from every training camera's detections is inconsistent with them (1/4-scale Pose2Sim: 11 px).
+MAX_DISAGREEMENT = 0.02
+
 
 def huber(distance_squared: torch.Tensor, delta: float) -> torch.Tensor:
     """The Huber penalty of distances given squared: d²/(2δ) below δ, d − δ/2 above (its gradient finite at 0)."""
     linear = torch.sqrt(distance_squared.clamp_min(delta**2)) - delta / 2
     return torch.where(distance_squared < delta**2, distance_squared / (2 * delta), linear)
+
+
+def consistent_detections(cameras: Sequence[Camera], observations: Sequence[KeypointObservations]) -> dict[str, np.ndarray]:
+    """Per camera, [F, K] bool: whether each detection of ``observations`` (one per camera of ``cameras``,
+    the same frames and keypoints) agrees with the others — within :data:`MAX_DISAGREEMENT` of its image's
+    diagonal of the reprojection of the keypoint triangulated from all of them at that frame. A keypoint
+    detected in fewer than two cameras has nothing to disagree with and is kept."""
+    K, viewmats = camera_matrices(cameras)
+    tolerance = np.array([MAX_DISAGREEMENT * np.hypot(camera.width, camera.height) for camera in cameras])
+    pixels = np.stack([o.pixels for o in observations])  # [C, F, K, 2]
+    confidence = np.stack([o.confidence for o in observations])
+    consistent = np.ones(confidence.shape, dtype=bool)
+    for k in range(pixels.shape[1]):
+        points = triangulate(cameras, pixels[:, k], confidence[:, k])
+        if not np.isfinite(points).any():
+            continue
+        reprojected = project(torch.as_tensor(np.nan_to_num(points)), K, viewmats)[0].numpy()
+        error = np.linalg.norm(reprojected - pixels[:, k], axis=-1)
+        consistent[:, k] = ~np.isfinite(points).all(-1) | ~(error > tolerance[:, None])
+    return {o.camera: consistent[c] for c, o in enumerate(observations)}
 
 
 class KeypointGuidance:
@@ -53,6 +82,7 @@ class KeypointGuidance:
         self._cameras = {camera.name: camera for camera in cameras}
         self._frames = {int(frame): k for k, frame in enumerate(frames)}
         self._observed = {o.camera: o for o in observations if o.camera in self._cameras}
+        self._consistent = consistent_detections([self._cameras[name] for name in self._observed], list(self._observed.values()))
         self._weights = torch.as_tensor(binding.weights)
         self._frame: int | None = None
 
@@ -99,7 +129,8 @@ class KeypointGuidance:
         target = torch.tensor(observed.pixels[self._frame], dtype=means.dtype)
         K, viewmats = camera_matrices([self._cameras[camera]])
         pixels, depth, _ = project(self.positions(means, quats), K.to(means.dtype), viewmats.to(means.dtype))
-        used = torch.as_tensor(self.binding.bound) & (confidence > 0) & torch.isfinite(target).all(-1) & (depth[0] > 0)
+        used = (torch.as_tensor(self.binding.bound) & (confidence > 0) & torch.isfinite(target).all(-1) & (depth[0] > 0)
+                & torch.as_tensor(self._consistent[camera][self._frame]))
         if not used.any():
             return None
         penalty = huber(((pixels[0][used] - target[used]) ** 2).sum(-1), self.huber_px)
@@ -114,5 +145,7 @@ class KeypointGuidance:
     def summary(self) -> dict[str, Any]:
         """What ``track.json`` records of the guidance."""
         return {"weight": self.weight, "huber_px": self.huber_px, "cameras": sorted(self._observed),
+                "inconsistent_detections": {camera: int((~self._consistent[camera] & (o.confidence > 0)).sum())
+                                            for camera, o in sorted(self._observed.items())},
                 "keypoints": [name for name, ok in zip(self.binding.names, self.binding.bound, strict=True) if ok],
                 "unbound": self.binding.unbound}
