@@ -60,12 +60,9 @@ def consistent_detections(cameras: Sequence[Camera], observations: Sequence[Keyp
     confidence = np.stack([o.confidence for o in observations])
     consistent = np.ones(confidence.shape, dtype=bool)
     for k in range(pixels.shape[1]):
-        points = triangulate(cameras, pixels[:, k], confidence[:, k])
-        if not np.isfinite(points).any():
-            continue
-        reprojected = project(torch.as_tensor(np.nan_to_num(points)), K, viewmats)[0].numpy()
+        reprojected = project(torch.as_tensor(triangulate(cameras, pixels[:, k], confidence[:, k])), K, viewmats)[0].numpy()
         error = np.linalg.norm(reprojected - pixels[:, k], axis=-1)
-        consistent[:, k] = ~np.isfinite(points).all(-1) | ~(error > tolerance[:, None])
+        consistent[:, k] = ~(error > tolerance[:, None])  # NaN (not triangulated, or not detected) is kept
     return {o.camera: consistent[c] for c, o in enumerate(observations)}
 
 
