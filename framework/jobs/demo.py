@@ -43,10 +43,6 @@ from mmcsplat.storage.run import (
 #: iteration of the default demo (256×192, the 8 400 Gaussians of its first-frame fit) measured 0.09 CPU
 #: seconds on one thread, so its 29 tracked frames take about 29 × 150 × 0.09 s ≈ 6.5 minutes.
 TRACK_ITERATIONS = 150
-#: The means' learning rate the demo tracks with, times the scene scale: the fit's. Its infant moves slowly
-#: enough for it, and the demo's published figures were measured at it (``iterative``'s own default, ten
-#: times this, is for real captures).
-TRACK_MEANS_LR = 1.6e-4
 SETTINGS_FILE = "demo.json"
 
 
@@ -117,7 +113,11 @@ class DemoResult:
 def tracking_choice(config: Config, iterations: int | None) -> tuple[str, list[str]]:
     """(dynamics method, tracking overrides): the method the configuration's [dynamics] table names, else
     ``iterative``; for ``iterative``, ``iterations`` per frame when given, else the table's, else
-    :data:`TRACK_ITERATIONS`, and the table's means' learning rate, else :data:`TRACK_MEANS_LR`."""
+    :data:`TRACK_ITERATIONS`, and the table's means' learning rate, else the fit's: the demo's infant moves
+    slowly enough for it, and its published figures were measured at it (``iterative``'s own default, ten
+    times the fit's, is for real captures)."""
+    from mmcsplat.training.settings import FitSettings  # torch: not when the command line starts
+
     table = config.get("dynamics") or {}
     method = table.get("name") or "iterative"
     if method != "iterative":
@@ -126,7 +126,7 @@ def tracking_choice(config: Config, iterations: int | None) -> tuple[str, list[s
                              f"but its [dynamics] table chooses {method!r}: set dynamics.KEY values instead")
         return method, []
     return method, [f"dynamics.iterations={iterations if iterations is not None else table.get('iterations', TRACK_ITERATIONS)}",
-                    f"dynamics.means_lr={table.get('means_lr', TRACK_MEANS_LR)}"]
+                    f"dynamics.means_lr={table.get('means_lr', FitSettings.from_config(config).lrs.means)}"]
 
 
 def run_demo(out: Path, settings: DemoSettings = DemoSettings(), progress: bool = True,
