@@ -18,7 +18,7 @@ from mmcsplat.cli.options import add_frames, add_names, add_progress, add_settin
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from mmcsplat.jobs.capture import DEFAULT_CONFIG, TRACK_MEANS_LR
+    from mmcsplat.jobs.capture import DEFAULT_CONFIG, TRACK_LAMBDA_PARTS, TRACK_MEANS_LR
 
     parser.add_argument("capture", type=Path, help="the capture folder (videos or images and a calibration)")
     parser.add_argument("--out", required=True, type=Path, help="output directory (created; reused steps are skipped)")
@@ -36,6 +36,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--track-iterations", type=int, default=50, metavar="N", help="iterations per frame of the iterative method (default 50)")
     parser.add_argument("--track-means-lr", type=float, default=TRACK_MEANS_LR, metavar="RATE",
                         help=f"learning rate of the means while tracking, times the scene scale (default {TRACK_MEANS_LR:g}: ten times the fit's)")
+    parser.add_argument("--track-parts", type=float, default=TRACK_LAMBDA_PARTS, metavar="WEIGHT",
+                        help=f"weight of the length prior within body parts, found from the joints' first frame (default {TRACK_LAMBDA_PARTS:g}; "
+                        "0: off; without joints there are no parts)")
     add_progress(parser)
 
 
@@ -46,6 +49,7 @@ def run(args: argparse.Namespace) -> int:
     settings = CaptureSettings(calibration=args.calibration, units=args.units, scale=args.scale, frames=frames, cameras=args.cameras or (),
                                holdout=args.holdout or (),
                                keypoints=args.keypoints, joints=args.joints, config=args.config, overrides=args.overrides,
-                               track_iterations=args.track_iterations, track_means_lr=args.track_means_lr)
+                               track_iterations=args.track_iterations, track_means_lr=args.track_means_lr,
+                               track_lambda_parts=args.track_parts)
     print(summary(run_capture(args.capture, args.out, settings, progress=not args.no_progress)))
     return 0

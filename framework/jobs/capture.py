@@ -45,6 +45,9 @@ DEFAULT_CONFIG = "visual-hull-plate"
 #: by about its rate a step, so at the fit's rate a frame's few dozen steps cannot reach a limb that moved
 #: several centimetres since the flow's prediction (docs/results.md, "On a real capture").
 TRACK_MEANS_LR = 1.6e-3
+#: Weight of the iterative method's length prior within body parts, whose parts come from the joints' first
+#: frame: without it a uniform limb shortens as it is tracked (docs/results.md, "Holding the body's parts").
+TRACK_LAMBDA_PARTS = 2.0
 
 
 @attrs.frozen
@@ -63,6 +66,7 @@ class CaptureSettings:
     overrides: tuple[str, ...] = attrs.field(default=(), converter=tuple)
     track_iterations: int = 50
     track_means_lr: float = TRACK_MEANS_LR
+    track_lambda_parts: float = TRACK_LAMBDA_PARTS
 
 
 @attrs.frozen
@@ -127,6 +131,9 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
         return list(renders.glob(pattern))
 
     tracking = [f"dynamics.iterations={settings.track_iterations}", f"dynamics.means_lr={settings.track_means_lr}"]
+    if joints is not None and settings.track_lambda_parts > 0:
+        tracking += [f"dynamics.lambda_parts={settings.track_lambda_parts}", "dynamics.skeleton.name=trc",
+                     f"dynamics.skeleton.path={json.dumps(str(joints))}"]  # quoted: a TOML string whatever the path holds
     steps = [
         # Into a hidden sibling renamed into place: a session half segmented is not a session.
         Step("ingest + masks + plates", session.exists, lambda: made_in_place(session, prepare)),

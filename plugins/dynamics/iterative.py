@@ -53,6 +53,7 @@ from mmcsplat.training.model import GaussianModel
 from mmcsplat.training.motion_image import FlowLoss, with_motion
 from mmcsplat.training.schedule import CameraSchedule
 
+from .body_parts import HUMAN_PARTS, PartPairs
 from .rigidity import NeighbourGraph, RigidityPrior
 
 FROZEN = ("opacity_logits", "log_scales")
@@ -124,6 +125,16 @@ class IterativeDynamics(Dynamics):
                                              "{name = \"openpose\", folder = \"pose_2d\"}", factory=dict, converter=dict)
     keypoint_huber_px: float = parameter(2.0, doc="pixels (of the stored images) beyond which a keypoint's pull stops growing",
                                          validator=above(0))
+    lambda_parts: float = parameter(0.0, doc="weight of the length prior within body parts: pairs of Gaussians on one part (a "
+                                    "forearm, the torso), found from the skeleton's joints at the first frame, keep their first-frame "
+                                    "distance (0: off; needs a skeleton)", validator=at_least(0))
+    skeleton: Mapping[str, Any] = parameter(doc="the joints that define the parts, at the first frame: a landmarks plugin's name and "
+                                            "parameters, e.g. {name = \"trc\", path = \"joints.trc\"}", factory=dict, converter=dict)
+    part_partners: int = parameter(8, doc="pairs drawn for each Gaussian on a part", validator=at_least(1))
+    part_reach: float = parameter(0.3, doc="a Gaussian belongs to a part within this share of the torso length of its joints' "
+                                  "segments", validator=above(0))
+    part_margin: float = parameter(0.02, doc="... and only if no other part is within this share of the torso length more (a "
+                                   "Gaussian at a joint belongs to neither part)", validator=at_least(0))
     coarse_factor: int = parameter(2, doc="resolution reduction of the coarse steps (pixel blocks averaged)", validator=at_least(2))
 
     @property
@@ -168,7 +179,8 @@ class IterativeDynamics(Dynamics):
         flow = self._loss_flow(context)
         flow_loss = FlowLoss(self.lambda_flow) if flow is not None else None
         guidance = self._keypoint_guidance(context, params, foreground)
-        terms = [self._rigidity(prior, model), *([flow_loss] if flow_loss is not None else []),
+        pairs = self._part_pairs(context, params, foreground)
+        terms = [self._rigidity(prior, model, pairs), *([flow_loss] if flow_loss is not None else []),
                  *([guidance.term(params)] if guidance is not None else [])]
         loop = TrainingLoop(model, context.renderer, context.settings, lambda_seg=self.lambda_seg, terms=terms,
                             optimizers=[self._settling(model)] if self.lr_final_ratio < 1 else [])
@@ -207,15 +219,36 @@ class IterativeDynamics(Dynamics):
             "prediction": "constant-velocity" if motion is None else "flow",
             "flow_loss": flow_loss is not None,
             "keypoint_guidance": guidance.summary() if guidance is not None else None,
+            "body_parts": pairs.summary() if pairs is not None else None,
             **({"flow_fallback_gaussians": motion.fallbacks} if motion is not None else {}),
         }
 
-    def _rigidity(self, prior: RigidityPrior, model: GaussianModel) -> LossTerm:
-        """The weighted local-rigidity priors as one loss term."""
+    def _rigidity(self, prior: RigidityPrior, model: GaussianModel, pairs: PartPairs | None) -> LossTerm:
+        """The weighted local-rigidity priors, and the parts' length prior, as one loss term."""
         def term(step: int, render: RenderOutput, view: TrainingView) -> torch.Tensor:
             rigid, rot, iso = prior.losses(model.params["means"], model.params["quats"])
-            return self.lambda_rigid * rigid + self.lambda_rot * rot + self.lambda_iso * iso
+            total = self.lambda_rigid * rigid + self.lambda_rot * rot + self.lambda_iso * iso
+            return total + self.lambda_parts * pairs.loss(model.params["means"]) if pairs is not None else total
         return term
+
+    def _part_pairs(self, context: TrackingContext, params: Mapping[str, torch.Tensor], foreground: torch.Tensor) -> PartPairs | None:
+        """The parts' pairs from the ``skeleton`` source's joints at the first frame, when ``lambda_parts``
+        asks for them; an error naming what is missing when they cannot be had."""
+        if self.lambda_parts == 0:
+            return None
+        table = dict(self.skeleton)
+        if "name" not in table:
+            raise InputError("dynamics.lambda_parts needs the joints that define the parts: set dynamics.skeleton.name=trc and "
+                             "dynamics.skeleton.path=…, or dynamics.lambda_parts=0")
+        name = table.pop("name")
+        first = context.frames.start
+        landmarks = context.plugins.create("landmarks", name, **table).read(context.session, [first])
+        joints = {joint: position for joint, position in zip(landmarks.names, landmarks.at(first), strict=True) if np.isfinite(position).all()}
+        pairs = PartPairs.build(params["means"], np.flatnonzero(foreground.numpy()), joints, HUMAN_PARTS, self.part_partners,
+                                self.part_reach, self.part_margin, self.seed)
+        logger.info("iterative: %d pairs over %d body parts (%s Gaussians) from %s", len(pairs.first), len(pairs.parts),
+                    "/".join(str(n) for n in pairs.members), landmarks.source)
+        return pairs
 
     def _settling(self, model: GaussianModel) -> OptimizerStep:
         """Sets the means' and rotations' learning rates for step ``n`` of a frame: theirs times
