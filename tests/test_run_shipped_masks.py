@@ -79,6 +79,8 @@ def test_run_uses_the_masks_the_capture_brings(tmp_path):
     assert all(session.plate_source(name)["kind"] == "estimated" for name in session.camera_names)
     metrics = json.loads((out / "run" / "metrics.json").read_text())
     assert metrics["heldout_cameras"] == ["cam_04"]
+    # No joints: no skeleton to find the body's parts from, so the tracking holds none.
+    assert json.loads((out / "run" / "track.json").read_text())["summary"]["body_parts"] is None
 
 
 def test_run_fits_on_shipped_masks_but_never_on_a_ground_truth(tmp_path):
