@@ -131,7 +131,7 @@ class IterativeDynamics(Dynamics):
     skeleton: Mapping[str, Any] = parameter(doc="the joints that define the parts, at the first frame: a landmarks plugin's name and "
                                             "parameters, e.g. {name = \"trc\", path = \"joints.trc\"}", factory=dict, converter=dict)
     part_partners: int = parameter(8, doc="pairs drawn for each Gaussian on a part", validator=at_least(1))
-    part_reach: float = parameter(0.3, doc="a Gaussian belongs to a part within this share of the torso length of its joints' "
+    part_reach: float = parameter(0.15, doc="a Gaussian belongs to a part within this share of the torso length of its joints' "
                                   "segments", validator=above(0))
     part_margin: float = parameter(0.02, doc="... and only if no other part is within this share of the torso length more (a "
                                    "Gaussian at a joint belongs to neither part)", validator=at_least(0))
