@@ -85,7 +85,8 @@ def test_a_skeleton_without_shoulders_and_hips_is_an_error_naming_its_joints():
 
 SCENE = subject(count=60, scale=0.02)
 FRAMES = 3
-#: A torso over the scene's x < 0 half and a forearm over its bending x > 0 half (see fitting_scene.moved).
+#: A torso over the scene's x < 0 half and a forearm over its bending x > 0 half (see fitting_scene.moved); the scene is a
+#: 24 × 12 × 8 cm cloud, not limbs, so the parts reach 0.3 of this 12 cm torso to hold most of it.
 SKELETON = {"LShoulder": (0, 0.03, 0), "RShoulder": (0, -0.03, 0), "LHip": (-0.12, 0.03, 0), "RHip": (-0.12, -0.03, 0), "LElbow": (0, 0, 0),
             "LWrist": (0.12, 0, 0)}
 SETTINGS = ["dynamics.iterations=30", "dynamics.means_lr=1e-3", "dynamics.predict=constant-velocity"]
@@ -101,7 +102,8 @@ def scene(tmp_path_factory):
 def test_tracking_with_the_parts_holds_their_lengths(scene):
     root, session = scene
     changes, summaries = {}, {}
-    for name, extra in (("free", []), ("held", ["dynamics.lambda_parts=10", "dynamics.skeleton.name=csv", f"dynamics.skeleton.path={root / 'skeleton.csv'}"])):
+    for name, extra in (("free", []), ("held", ["dynamics.lambda_parts=10", "dynamics.part_reach=0.3", "dynamics.skeleton.name=csv",
+                                                   f"dynamics.skeleton.path={root / 'skeleton.csv'}"])):
         run = write_fitted_run(root / name, session, SCENE)
         assert main(["track", str(run), "--dynamics", "iterative", "--no-progress", *sum((["--set", s] for s in (*SETTINGS, *extra)), [])]) == 0
         summaries[name] = json.loads((run / TRACK_INFO).read_text())["summary"]["body_parts"]
