@@ -18,7 +18,9 @@ Options: ``lambda_flow`` adds the flow loss (:mod:`mmcsplat.training.motion_imag
 since the previous frame against the session's observed flow on the subject's pixels);
 ``lambda_keypoints`` adds keypoint guidance (:mod:`mmcsplat.training.keypoint_guidance`: the Gaussians
 carrying each keypoint of the ``keypoints`` source pulled towards the training cameras' detections; off by
-default); ``coarse_iterations`` fits each frame's first steps at reduced resolution
+default); ``lambda_parts`` holds the Gaussians of each body part, found from the ``skeleton`` source's joints at
+the first frame, at their first-frame distances (:mod:`.body_parts`; off by default, on in ``mmcsplat run``
+with the capture's joints); ``coarse_iterations`` fits each frame's first steps at reduced resolution
 (:mod:`mmcsplat.training.coarse_views`); ``stop_window``
 ends a frame's fit when its loss stops improving (:class:`~mmcsplat.training.loop.PlateauStop`), with
 ``iterations`` the cap; ``track.json`` records each frame's iterations. ``lr_final_ratio`` decays the means'
@@ -39,7 +41,7 @@ import numpy as np
 import torch
 
 from mmcsplat.plugin_api.errors import InputError
-from mmcsplat.plugin_api.interfaces import Dynamics, TrackingContext, TrainingView
+from mmcsplat.plugin_api.interfaces import Dynamics, LandmarkSource, TrackingContext, TrainingView
 from mmcsplat.plugin_api.parameters import above, at_least, between, one_of, parameter
 from mmcsplat.plugin_api.render_contract import RenderCameras, RenderOutput
 from mmcsplat.scene.gaussian_table import GAUSSIAN_PARAMETERS
@@ -236,13 +238,10 @@ class IterativeDynamics(Dynamics):
         asks for them; an error naming what is missing when they cannot be had."""
         if self.lambda_parts == 0:
             return None
-        table = dict(self.skeleton)
-        if "name" not in table:
-            raise InputError("dynamics.lambda_parts needs the joints that define the parts: set dynamics.skeleton.name=trc and "
-                             "dynamics.skeleton.path=…, or dynamics.lambda_parts=0")
-        name = table.pop("name")
+        _, source = self._landmark_source(context, self.skeleton, "dynamics.lambda_parts needs the joints that define the parts: set "
+                                          "dynamics.skeleton.name=trc and dynamics.skeleton.path=…, or dynamics.lambda_parts=0")
         first = context.frames.start
-        landmarks = context.plugins.create("landmarks", name, **table).read(context.session, [first])
+        landmarks = source.read(context.session, [first])
         joints = {joint: position for joint, position in zip(landmarks.names, landmarks.at(first), strict=True) if np.isfinite(position).all()}
         pairs = PartPairs.build(params["means"], np.flatnonzero(foreground.numpy()), joints, HUMAN_PARTS, self.part_partners,
                                 self.part_reach, self.part_margin, self.seed)
@@ -281,17 +280,25 @@ class IterativeDynamics(Dynamics):
         first frame; an error naming what is missing when it cannot be had."""
         if self.lambda_keypoints == 0:
             return None
-        table = dict(self.keypoints)
-        if "name" not in table:
-            raise InputError("dynamics.lambda_keypoints needs a keypoint source: set dynamics.keypoints.name=openpose (or deeplabcut, "
-                             "sleap) and its dynamics.keypoints.folder=…, or dynamics.lambda_keypoints=0")
-        name = table.pop("name")
-        observations = context.plugins.create("landmarks", name, **table).observations(context.session, list(context.frames))
+        name, source = self._landmark_source(context, self.keypoints, "dynamics.lambda_keypoints needs a keypoint source: set "
+                                             "dynamics.keypoints.name=openpose (or deeplabcut, sleap) and its dynamics.keypoints.folder=…, "
+                                             "or dynamics.lambda_keypoints=0")
+        observations = source.observations(context.session, list(context.frames))
         if not observations:
             raise InputError(f"dynamics.keypoints: landmarks {name!r} gives no 2D detections to guide with: name a keypoint source "
                              "(openpose, deeplabcut, sleap)")
         return KeypointGuidance.bind(observations, context.cameras, list(context.frames), params, np.flatnonzero(foreground.numpy()),
                                      self.lambda_keypoints, self.keypoint_huber_px)
+
+    @staticmethod
+    def _landmark_source(context: TrackingContext, table: Mapping[str, Any], missing: str) -> tuple[str, LandmarkSource]:
+        """The landmarks plugin ``table`` names (``name`` and its parameters), and that name; ``missing`` is the
+        error when the table names none."""
+        params = dict(table)
+        if "name" not in params:
+            raise InputError(missing)
+        name = params.pop("name")
+        return name, context.plugins.create("landmarks", name, **params)
 
     @staticmethod
     def _flow_pairs(flow: SessionFlow, context: TrackingContext, t: int) -> dict[str, FlowPair]:
