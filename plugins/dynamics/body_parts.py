@@ -89,7 +89,7 @@ class PartPairs:
         torso = torso_length(joints)
         if torso is None or not torso > 0:
             raise InputError("dynamics.skeleton: the joints at the first frame name no shoulders and hips (LShoulder, RShoulder, LHip, "
-                             f"RHip), so the parts' size is unknown; they name {sorted(joints)}")
+                             f"RHip, or shoulder_left, … hip_right), so the parts' size is unknown; they name {sorted(joints)}")
         points = means.detach()[torch.as_tensor(foreground)].double().numpy()
         membership, present = part_members(points, joints, parts, reach * torso, margin * torso)
         generator = np.random.default_rng(seed)
