@@ -243,6 +243,32 @@ def test_a_dynamics_cell_tracks_and_charts_frame_by_frame(tmp_path):
     assert "joint angles, median error (°)" in (tmp_path / "out" / "results.md").read_text()
 
 
+def test_cells_differing_only_in_dynamics_share_one_fit(tmp_path):
+    """Two tracking rows in two worker processes at once: one fit, made under the lock the other waits on and
+    copied into both cells, each of whose run.json records its own dynamics; a row with another fit has its own."""
+    write_session(tmp_path / "moving.zarr", frames=3)
+    write_config(tmp_path / "fit.toml", iterations=2, checkpoint_every=2)
+    start = 'set = { "initializer.random" = { num_points = 2000, half_size = 0.45 } }\n'
+    study = load_study(write_study(tmp_path, 'folds = ["cam_0"]\n'
+                                   + variant("one step", start + 'dynamics = { name = "iterative", iterations = 1, neighbours = 4 }')
+                                   + variant("two steps", start + 'dynamics = { name = "iterative", iterations = 2, neighbours = 4 }')
+                                   + variant("other fit", start.replace("2000", "1000") + 'dynamics = { name = "iterative", iterations = 1, neighbours = 4 }'),
+                                   session='path = "moving.zarr"'))
+    result = run_study(study, tmp_path / "out", workers=2, progress=False)
+    assert all(row.outcome.status == "complete" for row in result.rows), [row.outcome.error for row in result.rows]
+    cells = {row.cell.variant: tmp_path / "out" / "cells" / row.outcome.key for row in result.rows}
+    fits = sorted(path.name for path in (tmp_path / "out" / "fits").iterdir() if path.is_dir())
+    assert len(fits) == 2
+    shared = json.loads((cells["one step"] / "cell.json").read_text())["fit"]
+    assert shared == json.loads((cells["two steps"] / "cell.json").read_text())["fit"] != json.loads((cells["other fit"] / "cell.json").read_text())["fit"]
+    assert (cells["one step"] / CHECKPOINT).read_bytes() == (cells["two steps"] / CHECKPOINT).read_bytes()
+    runs = {name: json.loads((cell / "run.json").read_text()) for name, cell in cells.items()}
+    assert runs["one step"]["wall_s"] == runs["two steps"]["wall_s"]  # the one fit's time, not two fits'
+    assert [runs[name]["config_values"]["dynamics"]["iterations"] for name in ("one step", "two steps")] == [1, 2]
+    assert "dynamics" not in json.loads((tmp_path / "out" / "fits" / fits[0] / "run.json").read_text())["config_values"]
+    assert [json.loads((cell / "track.json").read_text())["params"]["iterations"] for cell in (cells["one step"], cells["two steps"])] == [1, 2]
+
+
 def test_a_cell_recorded_before_the_movement_measures_still_reads(tmp_path):
     (tmp_path / RESULT_FILE).write_text(json.dumps({"key": "old", "status": "complete", "landmark_median_mm": 3.5}))
     outcome = CellOutcome.read(tmp_path)  # still done: not run again for the fields added since

@@ -4,22 +4,31 @@ the configuration has a ``[dynamics]`` table, the held-out evaluation, and the o
 OUT/cells/KEY/ is the cell's run directory (``run.json``, ``checkpoint.pt``, ``tracks.zarr``,
 ``metrics.json``), plus ``cell.json`` (what the cell is, written when it starts) and ``result.json``
 (how it ended, written last: a cell with one is done).
+
+Cells that differ only in their ``[dynamics]`` table (a tracking ablation's rows) start from one fit: it is
+made once in OUT/fits/FIT_KEY/ (:attr:`~mmcsplat.studies.spec.CellSpec.fit_key`), under a lock that a cell
+of the same fit in another worker waits on, and copied into each cell, whose ``run.json`` then records the
+cell's whole configuration. Their rows then differ by their tracking alone, and the fit's time is spent once.
 """
 
 from __future__ import annotations
 
 import json
+import shutil
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import attrs
 
 from mmcsplat.pipeline.steps import Step, fit_complete, run_steps
 from mmcsplat.storage.atomic import write_json_atomic
-from mmcsplat.storage.run import TRACK_INFO, TRACKS_DIR
+from mmcsplat.storage.run import RUN_INFO, TRACK_INFO, TRACKS_DIR
 from mmcsplat.storage.run_info import RunInfo
 from mmcsplat.studies.spec import CellSpec
+
+if TYPE_CHECKING:
+    from mmcsplat.configuration.config import Config
 
 CELL_FILE = "cell.json"
 RESULT_FILE = "result.json"
@@ -93,9 +102,10 @@ class CellOutcome:
         return cls(**{key: value for key, value in record.items() if key in known})
 
 
-def run_cell(spec: CellSpec, cell_dir: str | Path) -> CellOutcome:
-    """Run (or finish) one cell in ``cell_dir``; an error inside the cell is its outcome, not an
-    exception, so one failing cell never stops a study. Interruptions propagate."""
+def run_cell(spec: CellSpec, cell_dir: str | Path, fits_dir: str | Path | None = None) -> CellOutcome:
+    """Run (or finish) one cell in ``cell_dir``, a tracked cell from the shared fit in ``fits_dir`` when
+    given (module docstring); an error inside the cell is its outcome, not an exception, so one failing
+    cell never stops a study. Interruptions propagate."""
     import traceback
 
     from mmcsplat.training.finite import NonFiniteError
@@ -103,10 +113,11 @@ def run_cell(spec: CellSpec, cell_dir: str | Path) -> CellOutcome:
     cell_dir = Path(cell_dir)
     cell_dir.mkdir(parents=True, exist_ok=True)
     (cell_dir / RESULT_FILE).unlink(missing_ok=True)  # a retried cell is not done until it ends again
-    write_json_atomic(cell_dir / CELL_FILE, attrs.asdict(spec) | {"key": spec.key})
+    shared = Path(fits_dir) / spec.fit_key if fits_dir is not None and spec.has_dynamics else None
+    write_json_atomic(cell_dir / CELL_FILE, attrs.asdict(spec) | {"key": spec.key, "fit": str(shared) if shared else None})
     began = time.perf_counter()
     try:
-        fields = _run(spec, cell_dir)
+        fields = _run(spec, cell_dir, shared)
         outcome = CellOutcome(spec.key, COMPLETE, **fields, cell_wall_s=round(time.perf_counter() - began, 3))
     except Exception as error:  # the study reports it; the traceback goes to the cell's own record
         (cell_dir / "error.txt").write_text(traceback.format_exc())
@@ -116,10 +127,11 @@ def run_cell(spec: CellSpec, cell_dir: str | Path) -> CellOutcome:
     return outcome
 
 
-def _run(spec: CellSpec, cell_dir: Path) -> dict[str, Any]:
-    """The cell's steps — its first-frame fit (resumed from its checkpoint) unless complete, its tracking
-    unless done (a ``tracks.zarr`` without its ``track.json`` was cut short between the two and is
-    replaced) — then its evaluation and landmarks, and the fields of its outcome."""
+def _run(spec: CellSpec, cell_dir: Path, shared: Path | None) -> dict[str, Any]:
+    """The cell's steps — its first-frame fit (resumed from its checkpoint; in ``shared`` and copied, when
+    given) unless complete, its tracking unless done (a ``tracks.zarr`` without its ``track.json`` was cut
+    short between the two and is replaced) — then its evaluation and landmarks, and the fields of its
+    outcome."""
     from mmcsplat.pipeline.evaluate import evaluate_run
     from mmcsplat.pipeline.fit import FirstFrameFit
     from mmcsplat.pipeline.track import track_run
@@ -127,11 +139,21 @@ def _run(spec: CellSpec, cell_dir: Path) -> dict[str, Any]:
 
     resumed_at: int | None = None  # the iteration a fit run by this call went on from
 
-    def fit() -> None:
+    def fit(run: Path, config: Config) -> None:
         nonlocal resumed_at
-        resumed_at = FirstFrameFit(SessionReader(spec.session_url), spec.config, cell_dir, holdout=spec.holdout, progress=False).run().resumed_from
+        resumed_at = FirstFrameFit(SessionReader(spec.session_url), config, run, holdout=spec.holdout, progress=False).run().resumed_from
 
-    steps = [Step("first-frame fit", lambda: fit_complete(cell_dir), fit)]
+    def shared_fit() -> None:
+        import filelock
+
+        shared.parent.mkdir(parents=True, exist_ok=True)
+        with filelock.FileLock(shared.with_name(f"{shared.name}.lock")):  # a cell of the same fit elsewhere waits here
+            if not fit_complete(shared):
+                fit(shared, spec.fit_config)
+        _copy_fit(shared, cell_dir, spec)
+
+    steps = [Step("first-frame fit", lambda: fit_complete(cell_dir),
+                  shared_fit if shared is not None else lambda: fit(cell_dir, spec.config))]
     if spec.has_dynamics:
         steps.append(Step("track", (cell_dir / TRACK_INFO).exists,
                           lambda: track_run(cell_dir, progress=False, overwrite=(cell_dir / TRACKS_DIR).exists())))
@@ -158,6 +180,20 @@ def _run(spec: CellSpec, cell_dir: Path) -> dict[str, Any]:
         "resumed_at": resumed_at,
         **landmarks,
     }
+
+
+def _copy_fit(shared: Path, cell_dir: Path, spec: CellSpec) -> None:
+    """The shared fit's files copied into ``cell_dir``, run.json last (it marks the fit complete) and with
+    the cell's whole configuration, whose ``[dynamics]`` table tracking reads."""
+    for entry in shared.iterdir():
+        if entry.name == RUN_INFO:
+            continue
+        if entry.is_dir():
+            shutil.copytree(entry, cell_dir / entry.name, dirs_exist_ok=True)
+        else:
+            shutil.copyfile(entry, cell_dir / entry.name)
+    info = RunInfo.read(shared)
+    attrs.evolve(info, config_values=dict(spec.config_values)).write(cell_dir)
 
 
 #: The joint angles whose range of motion a cell reports (keys of :data:`mmcsplat.analysis.movement.JOINT_ANGLES`).

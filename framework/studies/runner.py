@@ -2,8 +2,9 @@
 local process pool, the calling process (``workers=0``), or Ray tasks — and its results written.
 
 Cells are independent and resumable, so executors only schedule them: each runs
-:func:`mmcsplat.studies.cells.run_cell`, which writes everything under OUT/cells/KEY/ (with Ray, OUT must be
-on storage every node sees).
+:func:`mmcsplat.studies.cells.run_cell`, which writes everything under OUT/cells/KEY/, and the first-frame
+fit that cells differing only in their dynamics share under OUT/fits/ (with Ray, OUT must be on storage
+every node sees).
 """
 
 from __future__ import annotations
@@ -24,9 +25,10 @@ from mmcsplat.studies.results import Aggregate, Findings, Row, aggregate, build_
 from mmcsplat.studies.spec import Cell, CellSpec, Study, StudyError, expand
 
 EXECUTORS = ("local", "ray")
-CELLS_DIR, CHARTS_DIR = "cells", "charts"
+CELLS_DIR, CHARTS_DIR, FITS_DIR = "cells", "charts", "fits"
 
-Job = tuple[CellSpec, Path]
+#: A cell to run: its spec, its directory and the directory of shared fits.
+Job = tuple[CellSpec, Path, Path]
 
 
 @attrs.frozen
@@ -84,7 +86,7 @@ def run_study(study: Study, out: str | Path, *, executor: str = "local", workers
         if done is not None and (done.status == COMPLETE or not retry_failed):
             outcomes[key] = done
         else:
-            jobs[key] = (cell.spec, out / CELLS_DIR / key)
+            jobs[key] = (cell.spec, out / CELLS_DIR / key, out / FITS_DIR)
     reused = len(outcomes)
     with tqdm(total=len(jobs), desc=f"study {study.name}", unit="cell", disable=not progress) as bar:
         for outcome in _execute(executor, list(jobs.values()), workers, ray_address):
@@ -150,8 +152,8 @@ def _execute(executor: str, jobs: list[Job], workers: int | None, ray_address: s
     if executor == "ray":
         yield from _ray(jobs, workers, ray_address)
     elif workers == 0:
-        for spec, cell_dir in jobs:
-            yield run_cell(spec, cell_dir)
+        for spec, cell_dir, fits_dir in jobs:
+            yield run_cell(spec, cell_dir, fits_dir)
     else:
         yield from _pool(jobs, workers or 1)
 
@@ -186,7 +188,7 @@ def _pool(jobs: list[Job], workers: int) -> Iterator[CellOutcome]:
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
                                initializer=_start_worker, initargs=(max(1, _cpus() // workers),))
     try:
-        futures = {pool.submit(run_cell, spec, cell_dir): spec for spec, cell_dir in jobs}
+        futures = {pool.submit(run_cell, spec, cell_dir, fits_dir): spec for spec, cell_dir, fits_dir in jobs}
         for future in as_completed(futures):
             try:
                 yield future.result()
@@ -213,8 +215,8 @@ def _ray(jobs: list[Job], workers: int | None, address: str | None) -> Iterator[
     try:
         while queue or pending:
             while queue and (workers is None or len(pending) < workers):
-                spec, cell_dir = queue.pop(0)
-                pending[task.remote(spec, str(cell_dir))] = spec
+                spec, cell_dir, fits_dir = queue.pop(0)
+                pending[task.remote(spec, str(cell_dir), str(fits_dir))] = spec
             (ready,), _ = ray.wait(list(pending), num_returns=1)
             spec = pending.pop(ready)
             try:

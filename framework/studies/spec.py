@@ -160,6 +160,16 @@ class CellSpec:
         return Config(self.config_source, self.config_values)
 
     @property
+    def fit_config(self) -> Config:
+        """The configuration without its ``[dynamics]`` table: all that the first-frame fit reads."""
+        return Config(self.config_source, {name: table for name, table in self.config_values.items() if name != "dynamics"})
+
+    @property
+    def fit_key(self) -> str:
+        """The key of the cell's first-frame fit: equal for cells that differ only in their dynamics."""
+        return cell_key(self.fit_config.values, self.session_identity, self.holdout, self.seed, self.backend)
+
+    @property
     def has_dynamics(self) -> bool:
         return "dynamics" in self.config_values
 
