@@ -13,7 +13,7 @@ from mmcsplat.backends.torch_reference import TorchReferenceRenderer
 from mmcsplat.plugin_api.render_contract import Gaussians
 from mmcsplat.storage.session.flow import FlowPair, FlowWriter
 from mmcsplat.training.flow_lifting import camera_matrices, project
-from mmcsplat.training.flow_prediction import FlowPrediction, visibility
+from mmcsplat.training.flow_prediction import FlowGuidance, FlowPrediction, visibility
 
 CAMERAS = ring_cameras(["a", "b", "c"], width=96, height=72, distortion=(0, 0, 0, 0, 0))
 
@@ -63,3 +63,8 @@ def test_displacements_from_stored_flow(tmp_path):
     # the flow is stored as float16: a few thousandths of a pixel, well under a millimetre here
     assert float((motion.displacement[0].double() - shift).norm()) < 1e-3
     assert not math.isnan(float(motion.displacement.sum()))
+    # The prediction moves a foreground Gaussian by the lifted shift times the gain (run's compensates DIS's shortfall).
+    gaussians = blobs([[0.0, 0.0, 0.0]], [[0.02]], [0.9])
+    for gain in (1.0, 2.0):
+        predicted = FlowGuidance(prediction, torch.tensor([True]), gain).predict(gaussians, gaussians.means.detach(), 0)
+        assert float((predicted[0].double() - gain * shift).norm()) < 2e-3

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from mmcsplat.cli import main
-from mmcsplat.jobs.capture import TRACK_LAMBDA_PARTS, TRACK_MEANS_LR
+from mmcsplat.jobs.capture import TRACK_FLOW_GAIN, TRACK_LAMBDA_PARTS, TRACK_MEANS_LR
 from mmcsplat.storage.landmark_formats import read_landmark_csv
 from mmcsplat.storage.session import SessionReader
 
@@ -40,10 +40,10 @@ def test_pose2sim_demo_runs_with_one_command(tmp_path):
     # The start cube was sized from the masks' hull: the configuration's 0.75 m holds too little of an adult.
     visual_hull = json.loads((run / "run.json").read_text())["config_values"]["initializer"][0]
     assert visual_hull["name"] == "visual-hull" and visual_hull["half_size"] > 0.75
-    # Tracked at run's means learning rate, not the fit's: a fast limb is out of reach of a few dozen steps at that;
-    # with the body's parts from the capture's joints, held at their lengths.
+    # Tracked at run's means learning rate, not the fit's (a fast limb is out of reach of a few dozen steps at that), from
+    # the flow's prediction at run's gain, with the body's parts from the capture's joints held at their lengths.
     track = json.loads((run / "track.json").read_text())
-    assert track["params"] == {"iterations": 5, "means_lr": TRACK_MEANS_LR, "lambda_parts": TRACK_LAMBDA_PARTS,
+    assert track["params"] == {"iterations": 5, "means_lr": TRACK_MEANS_LR, "flow_gain": TRACK_FLOW_GAIN, "lambda_parts": TRACK_LAMBDA_PARTS,
                                "skeleton": {"name": "trc", "path": str(POSE2SIM / "joints_3d.trc")}}
     parts = track["summary"]["body_parts"]
     assert "LElbow–LWrist" in parts["parts"] and "RHip–RKnee" in parts["parts"] and parts["pairs"] > 0

@@ -18,7 +18,7 @@ from mmcsplat.cli.options import add_frames, add_names, add_progress, add_settin
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from mmcsplat.jobs.capture import DEFAULT_CONFIG, TRACK_LAMBDA_PARTS, TRACK_MEANS_LR
+    from mmcsplat.jobs.capture import DEFAULT_CONFIG, TRACK_FLOW_GAIN, TRACK_LAMBDA_PARTS, TRACK_MEANS_LR
 
     parser.add_argument("capture", type=Path, help="the capture folder (videos or images and a calibration)")
     parser.add_argument("--out", required=True, type=Path, help="output directory (created; reused steps are skipped)")
@@ -39,6 +39,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--track-parts", type=float, default=TRACK_LAMBDA_PARTS, metavar="WEIGHT",
                         help=f"weight of the length prior within body parts, found from the joints' first frame (default {TRACK_LAMBDA_PARTS:g}; "
                         "0: off; without joints there are no parts)")
+    parser.add_argument("--track-flow-gain", type=float, default=TRACK_FLOW_GAIN, metavar="GAIN",
+                        help=f"the optical flow's lifted displacement times this starts each tracked frame (default {TRACK_FLOW_GAIN:g}: "
+                        "the flow reports about three quarters of a real limb's motion, and the fit does not close the gap; 1: as measured)")
     add_progress(parser)
 
 
@@ -50,6 +53,6 @@ def run(args: argparse.Namespace) -> int:
                                holdout=args.holdout or (),
                                keypoints=args.keypoints, joints=args.joints, config=args.config, overrides=args.overrides,
                                track_iterations=args.track_iterations, track_means_lr=args.track_means_lr,
-                               track_lambda_parts=args.track_parts)
+                               track_lambda_parts=args.track_parts, track_flow_gain=args.track_flow_gain)
     print(summary(run_capture(args.capture, args.out, settings, progress=not args.no_progress)))
     return 0

@@ -79,13 +79,15 @@ class FlowPrediction:
 
 
 class FlowGuidance:
-    """A frame-to-frame prediction that moves the ``foreground`` Gaussians [N] bool by the lifted flow and
-    everything else — the background, and foreground Gaussians the flow does not lift — at constant
-    velocity. ``fallbacks`` lists, per predicted frame, the foreground Gaussians left at constant velocity."""
+    """A frame-to-frame prediction that moves the ``foreground`` Gaussians [N] bool by the lifted flow times
+    ``gain`` and everything else — the background, and foreground Gaussians the flow does not lift — at
+    constant velocity. ``fallbacks`` lists, per predicted frame, the foreground Gaussians left at constant
+    velocity."""
 
-    def __init__(self, prediction: FlowPrediction, foreground: torch.Tensor) -> None:
+    def __init__(self, prediction: FlowPrediction, foreground: torch.Tensor, gain: float = 1.0) -> None:
         self.prediction = prediction
         self.foreground = torch.as_tensor(foreground).nonzero()[:, 0]
+        self.gain = gain
         self.fallbacks: list[int] = []
 
     def predict(self, gaussians: Gaussians, previous_means: torch.Tensor, t: int) -> torch.Tensor:
@@ -95,6 +97,6 @@ class FlowGuidance:
         predicted = 2 * means - previous_means
         motion = self.prediction.displacements(gaussians, t, self.foreground)
         lifted = self.foreground[motion.lifted]
-        predicted[lifted] = means[lifted] + motion.displacement[motion.lifted].to(means.dtype)
+        predicted[lifted] = means[lifted] + self.gain * motion.displacement[motion.lifted].to(means.dtype)
         self.fallbacks.append(motion.fallbacks)
         return predicted

@@ -113,6 +113,8 @@ class IterativeDynamics(Dynamics):
     predict: str = parameter("flow", doc="each frame's start: 'flow' moves the foreground by the session's optical flow lifted to 3D "
                              "(constant velocity without flow), 'constant-velocity' moves everything by its last change",
                              validator=one_of("flow", "constant-velocity"))
+    flow_gain: float = parameter(1.0, doc="the lifted flow's displacement is multiplied by this in the prediction: DIS reports about "
+                                 "three quarters of a real limb's motion (docs/results.md, \"The flow's shortfall\")", validator=above(0))
     lambda_flow: float = parameter(0.0, doc="weight of the flow loss: rendered motion since the previous frame against the session's "
                                    "optical flow on the subject's pixels, in pixels (0: off; needs `mmcsplat flow`)", validator=at_least(0))
     stop_window: int = parameter(0, doc="end a frame's fit when the mean loss over this many steps stops improving (0: always "
@@ -323,7 +325,7 @@ class IterativeDynamics(Dynamics):
             logger.info("iterative: %s has no optical flow in two training cameras (`mmcsplat flow` computes it): "
                            "constant-velocity prediction", context.session.url)
             return None
-        return FlowGuidance(prediction, foreground)
+        return FlowGuidance(prediction, foreground, self.flow_gain)
 
     def _predict(self, model: GaussianModel, previous: tuple[torch.Tensor, torch.Tensor], motion: FlowGuidance | None = None,
                  t: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
