@@ -13,6 +13,9 @@ flow → flow-guided track → landmarks → evaluate → renders → report.
   recorded plates keeps them.
 - Fit: ``visual-hull-plate`` with the start cube sized from the masks' visual hull (its reach from the
   rig centre plus 10 cm, never below the configuration's), so an adult or a mouse fits like an infant.
+- Track: ``iterative`` at :data:`TRACK_MEANS_LR`, each frame started from the optical flow's lifted motion
+  times :data:`TRACK_FLOW_GAIN`, and with joints the body's parts held at their lengths
+  (:data:`TRACK_LAMBDA_PARTS`).
 - Landmarks: a TRC of joints (``--joints FILE``, default the single ``CAPTURE/*.trc``) bound at the
   fitted frame, scored against its later frames and against the keypoints in every camera.
 
