@@ -37,6 +37,24 @@ def test_sigterm_during_a_fit_exits_143_and_the_fit_resumes(tmp_path):
     assert json.loads((out / "run.json").read_text())["resumed_from"] == stopped["iterations"]
 
 
+def test_a_signal_waits_until_files_written_together_are_written():
+    """A checkpoint and its record are written under signals_deferred: SIGTERM sent between them is handled after both."""
+    from mmcsplat.storage.atomic import signals_deferred
+
+    events = []
+    previous = signal.signal(signal.SIGTERM, lambda number, frame: events.append("signal"))
+    try:
+        with signals_deferred():
+            events.append("checkpoint")
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(0.05)
+            events.append("record")
+        time.sleep(0.05)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    assert events == ["checkpoint", "record", "signal"]
+
+
 def test_a_compiled_kernel_interrupted_mid_call_reads_as_an_interrupt(monkeypatch, capsys):
     import mmcsplat.cli.configs as command
     from mmcsplat.cli.main import main

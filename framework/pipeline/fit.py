@@ -27,6 +27,7 @@ from mmcsplat.plugin_api.interfaces import Densifier, Initializer, Renderer, Sce
 from mmcsplat.plugin_api.render_contract import RenderCameras
 from mmcsplat.scene.camera import Camera
 from mmcsplat.scene.rig import rig_center, rig_scale
+from mmcsplat.storage.atomic import signals_deferred
 from mmcsplat.storage.curves import TrainingCurve
 from mmcsplat.storage.locking import run_lock
 from mmcsplat.storage.run import CHECKPOINT
@@ -267,9 +268,10 @@ class FirstFrameFit:
             "curve": curve.rows,
             "densifier": densify_state,
         }
-        save_checkpoint(path, self._key(), state)
-        curve.write(self.out)
-        self._info(model, record, step, elapsed, RUNNING if step < self.settings.iterations else COMPLETE).write(self.out)
+        with signals_deferred():
+            save_checkpoint(path, self._key(), state)
+            curve.write(self.out)
+            self._info(model, record, step, elapsed, RUNNING if step < self.settings.iterations else COMPLETE).write(self.out)
 
     def _key(self) -> dict[str, Any]:
         """What a checkpoint must have been written with to be resumed."""

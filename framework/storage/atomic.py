@@ -1,4 +1,5 @@
-"""Atomic file writes: a reader sees the old file or the new one, never half of one."""
+"""Atomic file writes: a reader sees the old file or the new one, never half of one; and files written
+together (a checkpoint and the record naming its iteration) are not split by Ctrl-C or SIGTERM."""
 
 from __future__ import annotations
 
@@ -7,7 +8,9 @@ import glob
 import json
 import os
 import shutil
+import signal
 import tempfile
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -17,6 +20,27 @@ from mmcsplat.plugin_api.errors import MissingFileError, MmcsplatError, OutputEx
 
 #: The errors of a file system that has no room left (a full disk, an exhausted quota).
 NO_SPACE = (errno.ENOSPC, errno.EDQUOT)
+
+
+@contextmanager
+def signals_deferred() -> Iterator[None]:
+    """Ctrl-C and SIGTERM wait until the block has run: each file is atomic on its own, but a stop between
+    two of them would leave a checkpoint ahead of the record that says where it is. A signal that arrives
+    meanwhile is noted and raised again, to the handler of before, when the block ends. A signal mask would
+    not do: any of torch's or numba's threads may take the signal. Outside the main thread (which alone
+    sets handlers) nothing is deferred."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    pending: list[int] = []
+    previous = {number: signal.signal(number, lambda received, _frame: pending.append(received)) for number in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for number, handler in previous.items():
+            signal.signal(number, handler if handler is not None else signal.SIG_DFL)  # None: set outside Python
+        for number in pending:
+            signal.raise_signal(number)
 
 
 class DiskFullError(MmcsplatError, OSError):
