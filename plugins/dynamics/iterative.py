@@ -14,7 +14,8 @@ its extra loss term. It leaves out the initializers' extra losses and pruning: t
 first frame's scene (its depth maps, its region), and pruning would change the set of Gaussians every
 frame of the tracks holds.
 
-Options: ``lambda_flow`` adds the flow loss (:mod:`mmcsplat.training.motion_image`: the rendered motion
+Options: ``flow_gain`` multiplies the lifted flow in each frame's prediction (``mmcsplat run`` doubles it: the
+flow reports about three quarters of a real limb's motion); ``lambda_flow`` adds the flow loss (:mod:`mmcsplat.training.motion_image`: the rendered motion
 since the previous frame against the session's observed flow on the subject's pixels);
 ``lambda_keypoints`` adds keypoint guidance (:mod:`mmcsplat.training.keypoint_guidance`: the Gaussians
 carrying each keypoint of the ``keypoints`` source pulled towards the training cameras' detections; off by
