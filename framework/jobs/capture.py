@@ -100,7 +100,7 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     from mmcsplat.pipeline.flow import compute_flow, flow_complete
     from mmcsplat.pipeline.landmarks import track_landmarks
     from mmcsplat.pipeline.run_frames import RunStates
-    from mmcsplat.pipeline.track import track_run
+    from mmcsplat.pipeline.track import dynamics_choice, track_run
     from mmcsplat.storage.session import SessionReader
 
     capture, out = Path(capture).resolve(), Path(out).resolve()
@@ -111,7 +111,14 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     if source:
         log(f"run: keypoints: {source['name']} from {keypoints}")
     joints = found(capture, settings.joints, "*.trc", "joints TRC file")
-    load_config(settings.config, settings.overrides)  # a bad configuration fails before anything runs
+    tracking = [f"dynamics.iterations={settings.track_iterations}", f"dynamics.means_lr={settings.track_means_lr}",
+                f"dynamics.flow_gain={settings.track_flow_gain}"]
+    if joints is not None and settings.track_lambda_parts > 0:
+        tracking += [f"dynamics.lambda_parts={settings.track_lambda_parts}", "dynamics.skeleton.name=trc",
+                     f"dynamics.skeleton.path={json.dumps(str(joints))}"]  # quoted: a TOML string whatever the path holds
+    # A bad configuration, or bad tracking values, fail before anything runs.
+    load_config(settings.config, settings.overrides)
+    dynamics_choice(load_config(settings.config, [*settings.overrides, *tracking]), "iterative").build()
     out.mkdir(parents=True, exist_ok=True)
     session, run = out / "session.zarr", out / "run"
 
@@ -138,11 +145,6 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     def rendered(pattern: str) -> list[Path]:
         return list(renders.glob(pattern))
 
-    tracking = [f"dynamics.iterations={settings.track_iterations}", f"dynamics.means_lr={settings.track_means_lr}",
-                f"dynamics.flow_gain={settings.track_flow_gain}"]
-    if joints is not None and settings.track_lambda_parts > 0:
-        tracking += [f"dynamics.lambda_parts={settings.track_lambda_parts}", "dynamics.skeleton.name=trc",
-                     f"dynamics.skeleton.path={json.dumps(str(joints))}"]  # quoted: a TOML string whatever the path holds
     steps = [
         # Into a hidden sibling renamed into place: a session half segmented is not a session.
         Step("ingest + masks + plates", session.exists, lambda: made_in_place(session, prepare)),

@@ -54,12 +54,18 @@ def tracking_config(
         for override in overrides:
             values = apply_override(values, override, source)
         loaded = Config(source, values)
+    return loaded, dynamics_choice(loaded, dynamics)
+
+
+def dynamics_choice(loaded: Config, dynamics: str | None = None) -> PluginChoice:
+    """The dynamics method of ``loaded``: ``dynamics``, else the one its ``[dynamics]`` table names, else
+    :data:`DEFAULT_DYNAMICS`; the table's parameters are kept when it names that method or none."""
     table = loaded.values.get("dynamics", {})
     if not isinstance(table, Mapping) or not isinstance(table.get("name", ""), str):
         raise ConfigError(f"{loaded.source}: [dynamics] must be one table with a string 'name'")
     method = dynamics or table.get("name") or DEFAULT_DYNAMICS
     params = {key: value for key, value in table.items() if key != "name"} if table.get("name", method) == method else {}
-    return loaded, PluginChoice("dynamics", method, params)
+    return PluginChoice("dynamics", method, params)
 
 
 def require_cameras_per_frame(run: Path, session: SessionReader, cameras: Iterable[str], frames: range, method: str, needed: int) -> None:
