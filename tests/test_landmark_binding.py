@@ -1,6 +1,6 @@
 """Landmarks carried by Gaussians: a rigid motion carries them exactly (rotation included), anchors that
-tear apart show in the spread, a landmark far from every Gaussian is left out, and the accuracy figures
-are the ones asked for."""
+tear apart show in the spread, a landmark far from every Gaussian is left out, a reference off at the fitted
+frame is outvoted by the frames after it, and the accuracy figures are the ones asked for."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from mmcsplat.analysis.landmark_binding import confidence, landmark_accuracy
-from mmcsplat.scene.landmark_anchors import bind_landmarks, carry
+from mmcsplat.scene.landmark_anchors import bind_landmarks, bind_over_frames, carry
 
 NAMES = ("wrist", "elbow", "far")
 
@@ -79,3 +79,34 @@ def test_accuracy_over_moving_frames_beside_landmarks_held_still():
     assert accuracy.moving_pairs == 4 and accuracy.moving_median_mm == pytest.approx(1.0)
     assert accuracy.still_moving_median_mm == pytest.approx(50.0)  # a held at frame 0: 2, 4, 6, 8 cm off
     assert accuracy.per_frame_median_mm[0] is None and accuracy.per_landmark_median_mm["b"] == pytest.approx(1.0)
+
+
+def test_binding_over_frames_outvotes_a_reference_off_at_the_fitted_frame():
+    means, quats = cloud(3)
+    true = np.array([[0.02, 0.01, 0.0], [-0.02, 0.0, 0.01], [0.0, 0.03, -0.01]])
+    states, reference = [], []
+    for t in range(5):
+        rotation, shift = Rotation.from_euler("y", 0.2 * t), np.array([0.03 * t, 0.0, 0.0])
+        states.append(moved(means, quats, rotation, shift))
+        reference.append(rotation.apply(true) + shift)
+    reference = np.stack(reference)
+    reference[0, 0] += [0.05, 0.0, 0.0]  # the first landmark 5 cm off at the fitted frame
+    reference[2, 0] -= [0.0, 0.04, 0.0]  # ... and 4 cm off two frames later
+    reference[0, 2] = np.nan  # the third unknown at the fitted frame
+    names = ("ankle", "knee", "toe")
+    binding = bind_over_frames(names, reference, states, np.arange(len(means)))
+    assert binding.bound.all()
+    np.testing.assert_allclose(carry(binding, *states[0])[0], true, atol=1e-9)
+    one = bind_over_frames(names, reference[:1], states[:1], np.arange(len(means)))  # the fitted frame alone
+    assert one.unbound == ["toe"]
+    np.testing.assert_allclose(carry(one, *states[4])[0][0] - reference[4, 0], Rotation.from_euler("y", 0.8).apply([0.05, 0, 0]), atol=1e-9)
+
+
+def test_accuracy_leaves_out_the_frames_the_landmarks_were_bound_from():
+    reference = np.zeros((5, 1, 3))
+    reference[:, 0, 0] = np.arange(5) * 0.02
+    carried = reference + [0.002, 0.0, 0.0]
+    carried[:3] = reference[:3]
+    accuracy = landmark_accuracy(("a",), carried, reference, bound_from=3)
+    assert accuracy.pairs == 2 and accuracy.median_mm == pytest.approx(2.0)
+    assert accuracy.per_frame_median_mm[:3] == [None] * 3 and accuracy.still_median_mm == pytest.approx(70.0)

@@ -23,9 +23,9 @@ def confidence(spread: np.ndarray) -> np.ndarray:
 @attrs.frozen
 class LandmarkAccuracy:
     """3D error (mm) of carried landmarks against reference positions at the same frames: median and 90th
-    percentile over every (frame after the first, landmark) pair with both known, and over those where the
-    reference moved more than 1 cm from its fitted-frame position; ``still_*`` the same for landmarks held
-    at their fitted-frame positions (what a method that tracked nothing would score)."""
+    percentile over every (frame after those the landmarks were bound from, landmark) pair with both known,
+    and over those where the reference moved more than 1 cm from the bound position; ``still_*`` the same for
+    landmarks held at their bound positions (what a method that tracked nothing would score)."""
 
     median_mm: float | None
     p90_mm: float | None
@@ -43,11 +43,12 @@ def _stat(values: np.ndarray, q: float) -> float | None:
     return float(np.percentile(values, q) * 1000) if len(values) else None
 
 
-def landmark_accuracy(names: tuple[str, ...], carried: np.ndarray, reference: np.ndarray) -> LandmarkAccuracy:
+def landmark_accuracy(names: tuple[str, ...], carried: np.ndarray, reference: np.ndarray, bound_from: int = 1) -> LandmarkAccuracy:
     """:class:`LandmarkAccuracy` of ``carried`` [T, L, 3] against ``reference`` [T, L, 3] (frame 0 the fitted
-    frame, where carried equals the binding positions)."""
-    error = np.linalg.norm(carried - reference, axis=-1)[1:]  # [T-1, L]
-    still = np.linalg.norm(reference[:1] - reference, axis=-1)[1:]
+    frame, where carried holds the bound positions), scored after the first ``bound_from`` frames: the
+    reference there made the binding, so it cannot test it."""
+    error = np.linalg.norm(carried - reference, axis=-1)[bound_from:]  # [T - bound_from, L]
+    still = np.linalg.norm(carried[:1] - reference, axis=-1)[bound_from:]
     known = np.isfinite(error) & np.isfinite(still)
     moving = known & (still > MOVED)
     per_landmark = {name: _stat(error[known[:, j], j], 50) for j, name in enumerate(names)}
@@ -56,4 +57,4 @@ def landmark_accuracy(names: tuple[str, ...], carried: np.ndarray, reference: np
         median_mm=_stat(error[known], 50), p90_mm=_stat(error[known], 90),
         moving_median_mm=_stat(error[moving], 50), moving_p90_mm=_stat(error[moving], 90),
         still_median_mm=_stat(still[known], 50), still_moving_median_mm=_stat(still[moving], 50),
-        pairs=int(known.sum()), moving_pairs=int(moving.sum()), per_landmark_median_mm=per_landmark, per_frame_median_mm=[None, *per_frame])
+        pairs=int(known.sum()), moving_pairs=int(moving.sum()), per_landmark_median_mm=per_landmark, per_frame_median_mm=[None] * bound_from + per_frame)

@@ -489,14 +489,15 @@ def joint_angles(names: Sequence[str], positions: np.ndarray) -> tuple[dict[str,
     return angles, left_out
 
 
-def joint_angle_accuracy(names: Sequence[str], carried: np.ndarray, reference: np.ndarray) -> dict[str, Any] | None:
+def joint_angle_accuracy(names: Sequence[str], carried: np.ndarray, reference: np.ndarray, bound_from: int = 1) -> dict[str, Any] | None:
     """How far the joint angles of the ``carried`` landmarks are from those of the ``reference`` (both [T, L, 3],
-    the same ``names``; the reference is the source's own landmarks at the same frames) after the first, fitted,
-    frame where both are known: ``median_deg`` and ``p90_deg`` of the absolute difference over every (frame,
-    angle) pair, their count ``pairs``, and ``per_angle_median_deg``. None when no angle is known in both."""
+    the same ``names``; the reference is the source's own landmarks at the same frames) after the first
+    ``bound_from`` frames (those the landmarks were bound from), where both are known: ``median_deg`` and ``p90_deg`` of the
+    absolute difference over every (frame, angle) pair, their count ``pairs``, and ``per_angle_median_deg``. None when no
+    angle is known in both."""
     mine, _ = joint_angles(names, carried)
     theirs, _ = joint_angles(names, reference)
-    errors = {key: np.abs(mine[key][1:] - theirs[key][1:]) for key in mine}
+    errors = {key: np.abs(mine[key][bound_from:] - theirs[key][bound_from:]) for key in mine}
     errors = {key: error[np.isfinite(error)] for key, error in errors.items()}
     pooled = np.concatenate([np.zeros(0), *errors.values()])
     if not pooled.size:

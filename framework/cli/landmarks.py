@@ -1,11 +1,12 @@
 """Carry named landmarks (joints, keypoints) through a run: RUN/landmarks.csv and RUN/landmarks.json.
 
-The landmarks of --source at the run's fitted frame are bound to the subject's Gaussians there (the 8
-nearest within 10 cm, anchored in each one's local frame) and carried through every tracked frame (a run
-without tracks gives the fitted frame alone). Sources (`mmcsplat plugins landmarks`): trc and csv files of
-3D points, openpose keypoints triangulated in the session's cameras, the synthetic capture's joints.
-Where the source knows the landmarks at later frames too, the carried ones are scored against them (3D,
-mm); --keypoints scores them against 2D detections in every camera (px). Their movement measures (speeds,
+The landmarks of --source are bound to the subject's Gaussians at the run's fitted frame (the 8 nearest
+within 10 cm, anchored in each one's local frame), from the source's first 5 frames (--bind-frames: each
+carried back to the fitted frame, their median taken, so that one frame's error in the source is outvoted),
+and carried through every tracked frame (a run without tracks gives the fitted frame alone). Sources
+(`mmcsplat plugins landmarks`): trc and csv files of 3D points, openpose keypoints triangulated in the
+session's cameras, the synthetic capture's joints. Where the source knows the landmarks at the frames after
+those it was bound from, the carried ones are scored against them (3D, mm); --keypoints scores them against 2D detections in every camera (px). Their movement measures (speeds,
 paths, ranges, rhythms, left/right symmetry, knee, elbow, hip and shoulder flexion) go to RUN/movement.json
 and RUN/movement.csv. Every frame, each landmark is judged against the training cameras' subject masks and,
 where the session has optical flow (`mmcsplat flow`), against the images' motion: the landmarks the tracks
@@ -31,6 +32,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--anchors", type=int, default=8, metavar="K", help="Gaussians carrying each landmark (default 8)")
     parser.add_argument("--max-distance", type=float, default=0.1, metavar="M",
                         help="metres within which a Gaussian may carry a landmark (default 0.1); farther landmarks are left out, not invented")
+    parser.add_argument("--bind-frames", type=int, metavar="N",
+                        help="the source's first N frames bind the landmarks, and are not scored (default 5; 1: the fitted frame alone)")
     add_allow_incomplete(parser)
 
 
@@ -40,13 +43,14 @@ def run(args: argparse.Namespace) -> int:
     from mmcsplat.pipeline.landmarks import track_landmarks
     from mmcsplat.storage.run import LANDMARKS_CSV, LANDMARKS_INFO, MOVEMENT_CSV, MOVEMENT_JSON
 
-    if args.anchors < 1 or not args.max_distance > 0:
-        raise CommandError(f"--anchors must be ≥ 1 and --max-distance > 0, got {args.anchors} and {args.max_distance}")
+    if args.anchors < 1 or not args.max_distance > 0 or (args.bind_frames is not None and args.bind_frames < 1):
+        raise CommandError(f"--anchors and --bind-frames must be ≥ 1 and --max-distance > 0, got {args.anchors}, {args.bind_frames} and "
+                           f"{args.max_distance}")
     if args.keypoint_overrides and not args.keypoints:
         raise CommandError("--keypoints-set … needs --keypoints NAME")
     result = track_landmarks(args.run, args.source, settings_table(args.overrides), keypoints=args.keypoints,
                              keypoint_params=settings_table(args.keypoint_overrides), anchors=args.anchors, max_distance=args.max_distance,
-                             allow_incomplete=args.allow_incomplete)
+                             allow_incomplete=args.allow_incomplete, **({"bind_frames": args.bind_frames} if args.bind_frames else {}))
     info = result.info
     bound = len(info["names"]) - len(info["unbound"])
     print(f"{args.run / LANDMARKS_CSV}: {bound} landmarks over {info['frames'][1] - info['frames'][0]} frames"

@@ -2,9 +2,10 @@
 ``RUN/landmarks.json`` — and their movement measures, ``RUN/movement.json`` and ``RUN/movement.csv``.
 
 The landmarks of a source (a ``landmarks`` plugin: TRC or CSV file, triangulated 2D keypoints, a synthetic
-capture's joints) at the run's fitted frame are bound to the subject's Gaussians there and carried through
-its frames (:mod:`mmcsplat.scene.landmark_anchors`). Where the source also knows the landmarks at later
-frames, the carried ones are scored against them (3D, mm); where a keypoint source gives 2D detections,
+capture's joints) over the run's first frames (the fitted one and four more, so that one frame's error in the
+source is outvoted) are bound to the subject's Gaussians at the fitted frame and carried through its frames
+(:mod:`mmcsplat.scene.landmark_anchors`). Where the source also knows the landmarks at the frames after those,
+the carried ones are scored against them (3D, mm); where a keypoint source gives 2D detections,
 the carried landmarks are projected into each camera and scored against them (px), beside the detector's
 own disagreement with the source's 3D landmarks. Every frame, each landmark is judged against the training
 cameras' subject masks and, where the session has optical flow, against the images' motion, and the
@@ -31,7 +32,7 @@ from mmcsplat.pipeline.run_frames import RunStates
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.interfaces import KeypointObservations, Landmarks, LandmarkSource
 from mmcsplat.scene.camera import Camera
-from mmcsplat.scene.landmark_anchors import ANCHORS, MAX_DISTANCE, bind_landmarks, carry, subject_gaussians
+from mmcsplat.scene.landmark_anchors import ANCHORS, BIND_FRAMES, MAX_DISTANCE, bind_over_frames, carry, subject_gaussians
 from mmcsplat.storage.atomic import write_json_atomic, write_text_atomic
 from mmcsplat.storage.completeness import require_finished
 from mmcsplat.storage.landmark_formats import CSV_INCOMPLETE_COLUMN, write_landmark_csv
@@ -87,10 +88,11 @@ def write_movement(run: Path, summary: dict[str, Any]) -> None:
 
 def track_landmarks(run: str | Path, source: str, params: dict[str, Any] | None = None, *, keypoints: str | None = None,
                     keypoint_params: dict[str, Any] | None = None, anchors: int = ANCHORS, max_distance: float = MAX_DISTANCE,
-                    registry: Registry | None = None, allow_incomplete: bool = False) -> LandmarkRun:
+                    bind_frames: int = BIND_FRAMES, registry: Registry | None = None, allow_incomplete: bool = False) -> LandmarkRun:
     """Bind the landmarks of the ``landmarks`` plugin ``source`` (built with ``params``) at ``run``'s fitted
-    frame, carry them through its frames, score them, and write RUN/landmarks.csv and RUN/landmarks.json, and
-    their movement measures RUN/movement.json and RUN/movement.csv.
+    frame, from its first ``bind_frames`` frames (fewer when the run has no later frame left to score: all but
+    its last), carry them through its frames, score them after those, and write RUN/landmarks.csv and
+    RUN/landmarks.json, and their movement measures RUN/movement.json and RUN/movement.csv.
     ``keypoints`` names a second source whose 2D detections score the carried landmarks per camera. An
     unfinished run is refused, or with ``allow_incomplete`` labelled: ``incomplete`` and ``unfinished`` in
     landmarks.json and movement.json, an ``incomplete`` column in landmarks.csv."""
@@ -104,10 +106,12 @@ def track_landmarks(run: str | Path, source: str, params: dict[str, Any] | None 
     reference = plugin.read(session, frames)
     if not np.array_equal(reference.frames, frames):
         raise InputError(f"landmarks {source!r} returned frames {reference.frames[:3].tolist()}… for the run's {frames[:3].tolist()}…")
-    first = states.params(0)
-    candidates = subject_gaussians(first, states.foreground())
-    binding = bind_landmarks(reference.names, reference.positions[0], first["means"].detach().numpy().astype(np.float64),
-                             first["quats"].detach().numpy().astype(np.float64), candidates, anchors, max_distance)
+    if bind_frames < 1:
+        raise InputError(f"landmarks: bind_frames must be ≥ 1, got {bind_frames}")
+    bind_frames = max(1, min(bind_frames, len(frames) - 1))
+    candidates = subject_gaussians(states.params(0), states.foreground())
+    binding = bind_over_frames(reference.names, reference.positions[:bind_frames], [_state(states.params(k)) for k in range(bind_frames)],
+                               candidates, anchors, max_distance)
     if not binding.bound.any():
         nearest = np.nanmin(np.where(np.isfinite(binding.distances), binding.distances, np.nan)) if np.isfinite(binding.distances).any() else None
         raise InputError(f"{run}: no landmark of {reference.source or source} lies within {max_distance * 100:.0f} cm of the subject's Gaussians at "
@@ -119,9 +123,8 @@ def track_landmarks(run: str | Path, source: str, params: dict[str, Any] | None 
         rule, off, judged = LostRule(), np.zeros((len(frames), len(reference.names)), dtype=bool), np.zeros(len(frames), dtype=bool)
         points = np.empty((len(frames), len(reference.names), 1 + binding.anchors.shape[1], 3))
         for k in range(len(frames)):
-            params_k = states.params(k)
-            means = params_k["means"].detach().numpy().astype(np.float64)
-            carried[k], spread[k] = carry(binding, means, params_k["quats"].detach().numpy().astype(np.float64))
+            means, quats = _state(states.params(k))
+            carried[k], spread[k] = carry(binding, means, quats)
             points[k] = neighbourhoods(carried[k], binding.anchors, binding.weights, means)
             off_k = off_at_frame(session, states.info.train_cameras, int(frames[k]), points[k], rule)
             judged[k] = off_k is not None
@@ -134,19 +137,19 @@ def track_landmarks(run: str | Path, source: str, params: dict[str, Any] | None 
         info: dict[str, Any] = {
             "source": source, "params": {key: str(value) if isinstance(value, Path) else value for key, value in (params or {}).items()},
             "described": reference.source, "names": list(reference.names), "frames": [int(frames[0]), int(frames[-1]) + 1],
-            "anchors": anchors, "max_distance_m": max_distance, "unbound": binding.unbound,
+            "anchors": anchors, "max_distance_m": max_distance, "bind_frames": bind_frames, "unbound": binding.unbound,
             "nearest_gaussian_mm": {name: None if not np.isfinite(d) else round(float(d) * 1000, 2) for name, d in zip(binding.names, binding.distances, strict=True)},
             "spread_median_mm": float(np.nanmedian(spread) * 1000) if np.isfinite(spread).any() else None,
             "incomplete": bool(unfinished), "unfinished": unfinished,
         }
         info["lost"] = lost_record(reference.names, binding.bound, frames, off, judged, rule,
                                    {camera.name: rule.tolerance_px(camera) for camera in states.train_cameras}, slips)
-        if len(frames) > 1 and np.isfinite(reference.positions[1:]).any():
-            info["accuracy_3d"] = attrs.asdict(landmark_accuracy(reference.names, carried, reference.positions))
-            info["accuracy_joint_angles"] = joint_angle_accuracy(reference.names, carried, reference.positions)
+        if len(frames) > bind_frames and np.isfinite(reference.positions[bind_frames:]).any():
+            info["accuracy_3d"] = attrs.asdict(landmark_accuracy(reference.names, carried, reference.positions, bind_frames))
+            info["accuracy_joint_angles"] = joint_angle_accuracy(reference.names, carried, reference.positions, bind_frames)
         if keypoints is not None:
             info["accuracy_2d"] = _accuracy_2d(registry, keypoints, keypoint_params, session, set(states.info.heldout_cameras), frames,
-                                               reference, carried)
+                                               reference, carried, slice(bind_frames if len(frames) > bind_frames else 0, None))
         write_json_atomic(run / LANDMARKS_INFO, info)
         movement = movement_summary(reference.names, times, carried) | {"incomplete": bool(unfinished), "unfinished": unfinished}
         write_movement(run, movement)
@@ -157,6 +160,11 @@ def track_landmarks(run: str | Path, source: str, params: dict[str, Any] | None 
     return LandmarkRun(Landmarks(reference.names, frames, carried, source=f"carried by {run}"), spread, info, movement)
 
 
+def _state(params: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+    """(means, quats) of one frame's parameters, float64."""
+    return tuple(params[name].detach().numpy().astype(np.float64) for name in ("means", "quats"))
+
+
 def recorded_lost(run: str | Path) -> dict[str, Any] | None:
     """The ``lost`` record of RUN/landmarks.json (:func:`~mmcsplat.analysis.lost_landmarks.lost_record`);
     ``None`` for a run without landmarks or carried before lost landmarks were recorded."""
@@ -165,8 +173,9 @@ def recorded_lost(run: str | Path) -> dict[str, Any] | None:
 
 
 def _accuracy_2d(registry: Registry, name: str, params: dict[str, Any] | None, session: SessionReader, heldout: set[str],
-                 frames: np.ndarray, reference: Landmarks, carried: np.ndarray) -> dict[str, Any]:
-    """Per camera, the 2D errors of the carried and reference landmarks against the detections of ``name``."""
+                 frames: np.ndarray, reference: Landmarks, carried: np.ndarray, scored: slice) -> dict[str, Any]:
+    """Per camera, the 2D errors of the carried and reference landmarks against the detections of ``name``, over
+    the ``scored`` frames."""
     detector: LandmarkSource = registry.create("landmarks", name, **(params or {}))
     recorded_focal = {data["name"]: float(data["K"][0][0]) for data in session.provenance.get("source_cameras", [])}
     result = {}
@@ -176,11 +185,12 @@ def _accuracy_2d(registry: Registry, name: str, params: dict[str, Any] | None, s
         shared = [n for n in observed.names if n in reference.names]
         mine = [reference.names.index(n) for n in shared]
         theirs = [observed.names.index(n) for n in shared]
-        subset = attrs.evolve(observed, names=shared, pixels=observed.pixels[:, theirs], confidence=observed.confidence[:, theirs])
+        subset = attrs.evolve(observed, names=shared, frames=observed.frames[scored], pixels=observed.pixels[scored, theirs],
+                              confidence=observed.confidence[scored, theirs])
         stored = session.camera(observed.camera)
         recorded = recorded_focal.get(observed.camera)
         result[observed.camera] = {"heldout": observed.camera in heldout,
-                                   **pixel_errors(stored, carried[:, mine], reference.positions[:, mine], subset,
+                                   **pixel_errors(stored, carried[scored, mine], reference.positions[scored, mine], subset,
                                                   recorded / float(stored.K[0, 0]) if recorded else 1.0)}
     if not result:
         raise InputError(f"landmarks {name!r} gives no 2D detections to score against (--keypoints needs a keypoint source, e.g. openpose)")

@@ -1,5 +1,10 @@
 """Landmarks carried by the Gaussians: bound once at the fitted frame, then moved with them.
 
+Where the reference knows the landmarks over several frames, the binding takes the first ``BIND_FRAMES`` of
+them (:func:`bind_over_frames`): one frame of a triangulated reference can be centimetres off (at frame 0 of
+the Pose2Sim demo its left ankle is 51 mm from the all-camera triangulation of the same detections, 5 mm at
+the next frame), and a landmark bound there would carry that offset through every later frame.
+
 Each landmark is attached to its ``k`` nearest subject Gaussians within ``max_distance`` at the fitted
 frame, with weights falling with distance (1 / (d + 5 mm)), and anchored in each Gaussian's local frame:
 offset ``o = R₀ᵀ (p − μ₀)``. At frame t each anchor proposes ``μ_t + R_t o`` — so a Gaussian's rotation
@@ -17,7 +22,8 @@ keypoint guidance (:mod:`mmcsplat.training.keypoint_guidance`) pulls them, diffe
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+import warnings
+from collections.abc import Mapping, Sequence
 
 import attrs
 import numpy as np
@@ -27,6 +33,8 @@ from scipy.spatial import cKDTree
 from .quaternions import quat_to_rotmat
 
 ANCHORS = 8
+#: Frames of the reference a landmark is bound from, the fitted one first (docs/landmarks.md, "Binding and carrying").
+BIND_FRAMES = 5
 MAX_DISTANCE = 0.1  # metres: a joint centre lies a few centimetres inside an infant's limb, more in an adult's
 WEIGHT_SOFTENING = 0.005  # metres added to each distance, so that a Gaussian at the landmark does not take all the weight
 SUBJECT_OPACITY = 0.1  # Gaussians fainter than this carry no landmark: they are too easily floaters
@@ -111,3 +119,19 @@ def carry(binding: LandmarkBinding, means: np.ndarray, quats: np.ndarray) -> tup
     positions[~binding.bound] = np.nan
     spread[~binding.bound] = np.nan
     return positions, spread
+
+
+def bind_over_frames(names: tuple[str, ...], positions: np.ndarray, states: Sequence[tuple[np.ndarray, np.ndarray]], candidates: np.ndarray,
+                     anchors: int = ANCHORS, max_distance: float = MAX_DISTANCE) -> LandmarkBinding:
+    """Bind landmarks known at several frames, the fitted one first: ``positions`` [W, L, 3] and each frame's
+    Gaussians ``states`` (means [N, 3], quats [N, 4]). Each frame's positions are carried back to the fitted
+    frame through the Gaussians nearest them at that frame; the landmarks are bound, as
+    :func:`bind_landmarks`, at the per-coordinate median of those (a frame where the reference is off by
+    centimetres is outvoted; one where it is unknown is skipped)."""
+    fitted = states[0]
+    carried_back = [positions[0]] + [carry(bind_landmarks(names, positions[k], *states[k], candidates, anchors, max_distance), *fitted)[0]
+                                      for k in range(1, len(states))]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a landmark unknown at every frame: NaN, left unbound
+        start = np.nanmedian(np.stack(carried_back), axis=0)
+    return bind_landmarks(names, start, *fitted, candidates, anchors, max_distance)
