@@ -58,6 +58,7 @@ def test_demo_writes_every_output_and_names_it(demo):
     assert json.loads(paths.track_info.read_text())["params"]["iterations"] == 2
     landmarks = json.loads(paths.landmarks_info.read_text())
     assert landmarks["source"] == "synthetic" and len(landmarks["names"]) == 14
+    assert landmarks["bind_frames"] == 1  # exact joints: bound at the fitted frame alone
     moving = landmarks["accuracy_3d"]["moving_median_mm"]
     assert f"median error {'n/a' if moving is None else f'{moving:.1f} mm'}" in summary
     movement = json.loads(paths.movement.read_text())  # the synthetic infant's joints have every angle's landmarks

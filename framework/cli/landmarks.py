@@ -33,7 +33,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-distance", type=float, default=0.1, metavar="M",
                         help="metres within which a Gaussian may carry a landmark (default 0.1); farther landmarks are left out, not invented")
     parser.add_argument("--bind-frames", type=int, metavar="N",
-                        help="the source's first N frames bind the landmarks, and are not scored (default 5; 1: the fitted frame alone)")
+                        help="the source's first N frames bind the landmarks, and are not scored (default 5; 1, the fitted frame "
+                             "alone, for a source of exact landmarks: synthetic)")
     add_allow_incomplete(parser)
 
 

@@ -166,8 +166,7 @@ def run_demo(out: Path, settings: DemoSettings = DemoSettings(), progress: bool 
         return RunRenderer(RunStates(run), backend=settings.backend, progress=progress)
 
     def landmarks() -> None:
-        # The synthetic joints are exact: there is no error in them for several binding frames to outvote.
-        track_landmarks(run, "synthetic", bind_frames=1)
+        track_landmarks(run, "synthetic")
         export_landmarks(run, trc=paths.landmarks_trc)
 
     def render_trajectories_step() -> None:

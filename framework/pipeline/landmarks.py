@@ -88,10 +88,10 @@ def write_movement(run: Path, summary: dict[str, Any]) -> None:
 
 def track_landmarks(run: str | Path, source: str, params: dict[str, Any] | None = None, *, keypoints: str | None = None,
                     keypoint_params: dict[str, Any] | None = None, anchors: int = ANCHORS, max_distance: float = MAX_DISTANCE,
-                    bind_frames: int = BIND_FRAMES, registry: Registry | None = None, allow_incomplete: bool = False) -> LandmarkRun:
+                    bind_frames: int | None = None, registry: Registry | None = None, allow_incomplete: bool = False) -> LandmarkRun:
     """Bind the landmarks of the ``landmarks`` plugin ``source`` (built with ``params``) at ``run``'s fitted
-    frame, from its first ``bind_frames`` frames (fewer when the run has no later frame left to score: all but
-    its last), carry them through its frames, score them after those, and write RUN/landmarks.csv and
+    frame, from its first ``bind_frames`` frames (default :data:`BIND_FRAMES`, or 1 for an ``exact`` source; fewer
+    when the run has no later frame left to score: all but its last), carry them through its frames, score them after those, and write RUN/landmarks.csv and
     RUN/landmarks.json, and their movement measures RUN/movement.json and RUN/movement.csv.
     ``keypoints`` names a second source whose 2D detections score the carried landmarks per camera. An
     unfinished run is refused, or with ``allow_incomplete`` labelled: ``incomplete`` and ``unfinished`` in
@@ -106,6 +106,7 @@ def track_landmarks(run: str | Path, source: str, params: dict[str, Any] | None 
     reference = plugin.read(session, frames)
     if not np.array_equal(reference.frames, frames):
         raise InputError(f"landmarks {source!r} returned frames {reference.frames[:3].tolist()}… for the run's {frames[:3].tolist()}…")
+    bind_frames = bind_frames if bind_frames is not None else 1 if plugin.exact else BIND_FRAMES
     if bind_frames < 1:
         raise InputError(f"landmarks: bind_frames must be ≥ 1, got {bind_frames}")
     bind_frames = max(1, min(bind_frames, len(frames) - 1))

@@ -403,9 +403,14 @@ class KeypointObservations:
 
 class LandmarkSource(ABC):
     """Where named landmarks come from: a file of 3D points (TRC, CSV), 2D keypoints triangulated in the
-    session's cameras, a synthetic capture's joints. The landmarks at the fitted frame are bound to the
-    Gaussians there and carried through the tracks; at other frames they are the reference the carried
-    ones are compared with."""
+    session's cameras, a synthetic capture's joints. The landmarks over the first frames are bound to the
+    Gaussians at the fitted frame and carried through the tracks; at the frames after those they are the
+    reference the carried ones are compared with."""
+
+    #: Whether the landmarks are exact at every frame (a synthetic capture's joints): they are then bound at the
+    #: fitted frame alone, where a measured source is bound from several frames so that one frame's error is
+    #: outvoted (docs/landmarks.md, "Binding and carrying").
+    exact: bool = False
 
     @abstractmethod
     def read(self, session: SessionReader, frames: Sequence[int]) -> Landmarks:

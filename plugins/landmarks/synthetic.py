@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
+from typing import ClassVar
 
 import attrs
 import numpy as np
@@ -23,6 +24,7 @@ from mmcsplat.storage.session import SessionReader
 class SyntheticJoints(LandmarkSource):
     """The synthetic infant's 14 joints (waist, neck, shoulders, elbows, wrists, hips, knees, ankles)."""
 
+    exact: ClassVar[bool] = True
     path: str | None = parameter(None, doc="the capture's ground_truth.zarr (default: beside the session's source capture)")
 
     def _path(self, session: SessionReader) -> Path:
