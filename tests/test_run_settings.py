@@ -1,5 +1,5 @@
-"""``mmcsplat run`` checks its settings before its first step: bad tracking values fail at once, naming
-the value, and leave nothing behind."""
+"""``mmcsplat run``'s settings: bad tracking values fail before the first step, naming the value, and
+leave nothing behind; the reader's options reach the ingest."""
 
 from __future__ import annotations
 
@@ -20,3 +20,22 @@ def test_bad_tracking_values_fail_before_the_first_step(tmp_path, settings, mess
     with pytest.raises(InputError, match=message):
         run_capture(capture, out, settings, progress=False, log=lambda line: None)
     assert not out.exists()
+
+
+def test_reader_options_reach_the_ingest(tmp_path, monkeypatch):
+    class Stop(Exception):
+        """Ends the run at its ingest."""
+
+    seen = {}
+
+    def ingest(*args, **kwargs):
+        seen.update(kwargs)
+        raise Stop
+
+    monkeypatch.setattr("mmcsplat.pipeline.ingest.ingest", ingest)
+    capture = tmp_path / "capture"
+    capture.mkdir()
+    settings = CaptureSettings(reader_options=("size_mismatch=crop", "camera_map=order"))
+    with pytest.raises(Stop):
+        run_capture(capture, tmp_path / "out", settings, progress=False, log=lambda line: None)
+    assert seen["reader_options"] == {"size_mismatch": "crop", "camera_map": "order"}

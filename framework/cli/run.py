@@ -33,6 +33,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--joints", help="TRC file of joints to carry as landmarks (default: the capture's single *.trc)")
     parser.add_argument("--config", default=DEFAULT_CONFIG, help=f"configuration to fit with (default: {DEFAULT_CONFIG})")
     add_settings(parser, "override a configuration value (repeatable)")
+    add_settings(parser, "a parameter of the capture's reader (`mmcsplat plugins --show reader:NAME`), as `mmcsplat ingest --set` takes "
+                 "it: size_mismatch=crop for videos coded larger than calibrated, camera_map=order", dest="reader_options", flag="--reader-set")
     parser.add_argument("--track-iterations", type=int, default=50, metavar="N", help="iterations per frame of the iterative method (default 50)")
     parser.add_argument("--track-means-lr", type=float, default=TRACK_MEANS_LR, metavar="RATE",
                         help=f"learning rate of the means while tracking, times the scene scale (default {TRACK_MEANS_LR:g}: ten times the fit's)")
@@ -52,6 +54,7 @@ def run(args: argparse.Namespace) -> int:
     settings = CaptureSettings(calibration=args.calibration, units=args.units, scale=args.scale, frames=frames, cameras=args.cameras or (),
                                holdout=args.holdout or (),
                                keypoints=args.keypoints, joints=args.joints, config=args.config, overrides=args.overrides,
+                               reader_options=args.reader_options,
                                track_iterations=args.track_iterations, track_means_lr=args.track_means_lr,
                                track_lambda_parts=args.track_parts, track_flow_gain=args.track_flow_gain)
     print(summary(run_capture(args.capture, args.out, settings, progress=not args.no_progress)))

@@ -71,6 +71,7 @@ class CaptureSettings:
     joints: str | None = None
     config: str = DEFAULT_CONFIG
     overrides: tuple[str, ...] = attrs.field(default=(), converter=tuple)
+    reader_options: tuple[str, ...] = attrs.field(default=(), converter=tuple)
     track_iterations: int = 50
     track_means_lr: float = TRACK_MEANS_LR
     track_lambda_parts: float = TRACK_LAMBDA_PARTS
@@ -91,7 +92,7 @@ class CaptureResult:
 def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings = CaptureSettings(), progress: bool = True,
                 log: Callable[[str], None] = print) -> CaptureResult:
     """Run every step into ``out`` (module docstring); ``log`` gets one line per step."""
-    from mmcsplat.configuration.config import load_config
+    from mmcsplat.configuration.config import apply_override, load_config
     from mmcsplat.outputs.landmark_video import render_landmarks
     from mmcsplat.outputs.renders import RunRenderer, render_trajectories
     from mmcsplat.outputs.report import write_report
@@ -117,6 +118,9 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
         tracking += [f"dynamics.lambda_parts={settings.track_lambda_parts}", "dynamics.skeleton.name=trc",
                      f"dynamics.skeleton.path={json.dumps(str(joints))}"]  # quoted: a TOML string whatever the path holds
     # A bad configuration, or bad tracking values, fail before anything runs.
+    reader_options: dict[str, Any] = {}
+    for pair in settings.reader_options:
+        reader_options = apply_override(reader_options, pair, "--reader-set")
     load_config(settings.config, settings.overrides)
     dynamics_choice(load_config(settings.config, [*settings.overrides, *tracking]), "iterative").build()
     out.mkdir(parents=True, exist_ok=True)
@@ -126,7 +130,7 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
         choice = prepare_capture_session(capture, partial, calibration=Path(settings.calibration) if settings.calibration else None,
                                          units=settings.units, frames=slice(*settings.frames), scale=settings.scale,
                                          cameras=list(settings.cameras) or None, holdout=list(settings.holdout), source=source,
-                                         progress=progress)
+                                         reader_options=reader_options, progress=progress)
         write_json_atomic(out / MASKS_FILE, choice)
         log(f"run: masks: {choice['detail']}")
 

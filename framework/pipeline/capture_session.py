@@ -58,9 +58,9 @@ def keypoint_source(path: Path) -> dict[str, Any]:
 
 def prepare_capture_session(capture: Path, partial: Path, *, calibration: Path | None = None, units: str = "m", frames: slice | None = None,
                             scale: float = 1.0, cameras: Sequence[str] | None = None, holdout: Sequence[str] = (), source: dict[str, Any] | None = None,
-                            progress: bool = True) -> dict[str, Any]:
-    """Ingest ``capture`` into ``partial`` (its calibration, units, frames, scale, cameras and held-out cameras as
-    :func:`~mmcsplat.pipeline.ingest.ingest` takes them) and give it masks and plates (module docstring), the
+                            reader_options: dict[str, Any] | None = None, progress: bool = True) -> dict[str, Any]:
+    """Ingest ``capture`` into ``partial`` (its calibration, units, frames, scale, cameras, held-out cameras and
+    reader options as :func:`~mmcsplat.pipeline.ingest.ingest` takes them) and give it masks and plates (module docstring), the
     masks from the 2D keypoints that ``source`` reads when given (:func:`keypoint_source`); returns which masks it used (:func:`mask_choice`)."""
     from mmcsplat.pipeline.ingest import ingest
     from mmcsplat.pipeline.plates import estimate_plates
@@ -68,7 +68,7 @@ def prepare_capture_session(capture: Path, partial: Path, *, calibration: Path |
     from mmcsplat.storage.session import SessionReader
 
     ingest(capture, partial, calibration=calibration, units=units, frames=frames, scale=scale, cameras=cameras, holdout=list(holdout),
-           overwrite=True, progress=progress)
+           overwrite=True, progress=progress, reader_options=reader_options)
     recorded = any(SessionReader(partial).plate(name) is not None for name in SessionReader(partial).camera_names)
     segmenter, first, refined = ("keypoints", {"source": source}, {"source": source, "refine": "plate"}) if source else \
         ("background", {"method": "median"}, {"method": "plate"}) if recorded else ("parallax", {}, {"refine": "plate"})
