@@ -6,9 +6,9 @@ carried back to the fitted frame, their median taken, so that one frame's error 
 and carried through every tracked frame (a run without tracks gives the fitted frame alone). Sources
 (`mmcsplat plugins landmarks`): trc and csv files of 3D points, openpose keypoints triangulated in the
 session's cameras, the synthetic capture's joints. Where the source knows the landmarks at the frames after
-those it was bound from, the carried ones are scored against them (3D, mm); --keypoints scores them against 2D detections in every camera (px). Their movement measures (speeds,
-paths, ranges, rhythms, left/right symmetry, knee, elbow, hip and shoulder flexion) go to RUN/movement.json
-and RUN/movement.csv. Every frame, each landmark is judged against the training cameras' subject masks and,
+those it was bound from, the carried ones are scored against them (3D, mm); --keypoints scores them against
+2D detections in every camera (px). Their movement measures (speeds, paths, ranges, rhythms, left/right
+symmetry, knee, elbow, hip and shoulder flexion) go to RUN/movement.json and RUN/movement.csv. Every frame, each landmark is judged against the training cameras' subject masks and,
 where the session has optical flow (`mmcsplat flow`), against the images' motion: the landmarks the tracks
 lost (off the masks, or slipped from the flow, in most cameras for 3 frames or more) and from which frame are
 printed and recorded in RUN/landmarks.json. `mmcsplat export RUN --trc/--csv/--c3d` writes the landmarks for OpenSim, Pose2Sim and

@@ -90,9 +90,10 @@ def track_landmarks(run: str | Path, source: str, params: dict[str, Any] | None 
                     keypoint_params: dict[str, Any] | None = None, anchors: int = ANCHORS, max_distance: float = MAX_DISTANCE,
                     bind_frames: int | None = None, registry: Registry | None = None, allow_incomplete: bool = False) -> LandmarkRun:
     """Bind the landmarks of the ``landmarks`` plugin ``source`` (built with ``params``) at ``run``'s fitted
-    frame, from its first ``bind_frames`` frames (default :data:`BIND_FRAMES`, or 1 for an ``exact`` source; fewer
-    when the run has no later frame left to score: all but its last), carry them through its frames, score them after those, and write RUN/landmarks.csv and
-    RUN/landmarks.json, and their movement measures RUN/movement.json and RUN/movement.csv.
+    frame, from its first ``bind_frames`` frames (default :data:`BIND_FRAMES`, or 1 for an ``exact`` source;
+    fewer when the run has no later frame left to score: all but its last), carry them through its frames,
+    score them after those, and write RUN/landmarks.csv and RUN/landmarks.json, and their movement measures
+    RUN/movement.json and RUN/movement.csv.
     ``keypoints`` names a second source whose 2D detections score the carried landmarks per camera. An
     unfinished run is refused, or with ``allow_incomplete`` labelled: ``incomplete`` and ``unfinished`` in
     landmarks.json and movement.json, an ``incomplete`` column in landmarks.csv."""
