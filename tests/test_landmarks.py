@@ -124,6 +124,16 @@ def test_no_landmark_near_the_subject_is_an_error(scene, tmp_path, capsys):
     assert main(["landmarks", str(run), "--source", "csv", "--set", f"path={mm}", "--set", "units=mm"]) == 0
 
 
+def test_bind_frames_chooses_the_frames_bound_from_and_left_unscored(scene, capsys):
+    run, path, _ = scene
+    assert main(["landmarks", str(run), "--source", "csv", "--set", f"path={path}", "--bind-frames", "0"]) == 2
+    assert "--bind-frames must be ≥ 1" in capsys.readouterr().err
+    with pytest.warns(UserWarning, match="landmarks far"):
+        assert main(["landmarks", str(run), "--source", "csv", "--set", f"path={path}", "--bind-frames", "1"]) == 0
+    info = json.loads((run / "landmarks.json").read_text())
+    assert info["bind_frames"] == 1 and info["accuracy_3d"]["pairs"] == CARRIED * (FRAMES - 1)
+
+
 def test_the_overlay_video_and_the_report_show_them(scene):
     import imageio.v3 as iio
 
