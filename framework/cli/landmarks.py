@@ -51,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
         raise CommandError("--keypoints-set … needs --keypoints NAME")
     result = track_landmarks(args.run, args.source, settings_table(args.overrides), keypoints=args.keypoints,
                              keypoint_params=settings_table(args.keypoint_overrides), anchors=args.anchors, max_distance=args.max_distance,
-                             allow_incomplete=args.allow_incomplete, **({"bind_frames": args.bind_frames} if args.bind_frames else {}))
+                             bind_frames=args.bind_frames, allow_incomplete=args.allow_incomplete)
     info = result.info
     bound = len(info["names"]) - len(info["unbound"])
     print(f"{args.run / LANDMARKS_CSV}: {bound} landmarks over {info['frames'][1] - info['frames'][0]} frames"

@@ -43,12 +43,9 @@ def add_frames(parser: argparse.ArgumentParser, help: str) -> None:
 
 def settings_table(pairs: list[str]) -> dict:
     """The table ``--set KEY=VALUE`` options make, for a plugin's parameters (dotted keys make tables)."""
-    from mmcsplat.configuration.config import apply_override
+    from mmcsplat.configuration.config import apply_overrides
 
-    table: dict = {}
-    for pair in pairs:
-        table = apply_override(table, pair, "--set")
-    return table
+    return apply_overrides({}, pairs, "--set")
 
 
 def add_allow_incomplete(parser: argparse.ArgumentParser) -> None:

@@ -128,9 +128,15 @@ def load_config(name_or_path: str | Path, overrides: Iterable[str] = ()) -> Conf
         values = tomllib.loads(text)
     except tomllib.TOMLDecodeError as error:
         raise ConfigError(f"{source}: invalid TOML: {error}") from error
+    return Config(source, apply_overrides(values, overrides, source))
+
+
+def apply_overrides(values: Mapping[str, Any], overrides: Iterable[str], source: str = "configuration") -> dict[str, Any]:
+    """A copy of ``values`` with each ``dotted.key=value`` of ``overrides`` applied in turn (:func:`apply_override`)."""
+    result = dict(values)
     for override in overrides:
-        values = apply_override(values, override, source)
-    return Config(source, values)
+        result = apply_override(result, override, source)
+    return result
 
 
 def apply_override(values: Mapping[str, Any], override: str, source: str = "configuration") -> dict[str, Any]:

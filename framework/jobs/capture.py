@@ -92,7 +92,7 @@ class CaptureResult:
 def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings = CaptureSettings(), progress: bool = True,
                 log: Callable[[str], None] = print) -> CaptureResult:
     """Run every step into ``out`` (module docstring); ``log`` gets one line per step."""
-    from mmcsplat.configuration.config import apply_override, load_config
+    from mmcsplat.configuration.config import apply_overrides, load_config
     from mmcsplat.outputs.landmark_video import render_landmarks
     from mmcsplat.outputs.renders import RunRenderer, render_trajectories
     from mmcsplat.outputs.report import write_report
@@ -117,11 +117,8 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     if joints is not None and settings.track_lambda_parts > 0:
         tracking += [f"dynamics.lambda_parts={settings.track_lambda_parts}", "dynamics.skeleton.name=trc",
                      f"dynamics.skeleton.path={json.dumps(str(joints))}"]  # quoted: a TOML string whatever the path holds
-    # A bad configuration, or bad tracking values, fail before anything runs.
-    reader_options: dict[str, Any] = {}
-    for pair in settings.reader_options:
-        reader_options = apply_override(reader_options, pair, "--reader-set")
-    load_config(settings.config, settings.overrides)
+    # A bad reader option, configuration or tracking value fails before anything runs.
+    reader_options = apply_overrides({}, settings.reader_options, "--reader-set")
     dynamics_choice(load_config(settings.config, [*settings.overrides, *tracking]), "iterative").build()
     out.mkdir(parents=True, exist_ok=True)
     session, run = out / "session.zarr", out / "run"

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from mmcsplat.configuration.config import Config, ConfigError, PluginChoice, apply_override, load_config
+from mmcsplat.configuration.config import Config, ConfigError, PluginChoice, apply_overrides, load_config
 from mmcsplat.configuration.registry import Registry, default_registry
 from mmcsplat.plugin_api.errors import InputError, OutputExistsError, PluginError
 from mmcsplat.plugin_api.interfaces import Dynamics, TrackingContext
@@ -49,11 +49,8 @@ def tracking_config(
     if config is not None:
         loaded = load_config(config, overrides)
     else:
-        values: Mapping[str, Any] = info.config_values
         source = f"the configuration of {Path(run) / RUN_INFO}"
-        for override in overrides:
-            values = apply_override(values, override, source)
-        loaded = Config(source, values)
+        loaded = Config(source, apply_overrides(info.config_values, overrides, source))
     return loaded, dynamics_choice(loaded, dynamics)
 
 
