@@ -66,7 +66,8 @@ class DefaultDensifier(Densifier):
             return
         height, width = render.rgb.shape[1:3]
         # The threshold is in normalised device coordinates, as 3DGS and gsplat measure it.
-        ndc = grad.detach() * torch.tensor([width / 2.0, height / 2.0], dtype=grad.dtype)
+        # A GPU renderer's means2d stays on its device (its .grad is only there); the statistics live with the model.
+        ndc = grad.detach().to(state["grad_sum"].device) * torch.tensor([width / 2.0, height / 2.0], dtype=grad.dtype)
         visible = render.radii > 0
         for camera in range(grad.shape[0]):
             seen = visible[camera]

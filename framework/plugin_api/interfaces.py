@@ -255,7 +255,8 @@ class Densifier(ABC):
     @abstractmethod
     def step_post_backward(self, model: GaussianModel, state: dict[str, Any], step: int, render: RenderOutput) -> None:
         """After the optimiser step: accumulate statistics (``render.means2d.grad``, ``render.radii``) and
-        clone, split, prune or relocate Gaussians."""
+        clone, split, prune or relocate Gaussians. ``means2d`` (and its gradient) stays on the renderer's
+        device, which for a GPU backend is not the model's: move it before mixing the two."""
 
 
 # ---------------------------------------------------------------------------------------------- dynamics
