@@ -54,7 +54,13 @@ class Tolerance:
     image jumps by up to ~1/255 there); 1 in 2000 pixels covers that and still catches a wrong formula.
     radius_mismatch_fraction: fraction of Gaussians whose radius may differ by 1 (ceil of 3·sqrt(λ₁) at
     an integer, in float32).
-    deviations: names of exact-value checks the backend documents it does not meet (skipped with ``reason``).
+    deviations: names of exact-value checks the backend documents it does not meet (with ``reason``):
+    ``alpha_cap``, ``early_termination`` and ``jacobian_clamp`` (the closed form of a Gaussian beyond the
+    clamp's limits) are skipped; ``tile_cover`` (tiles assigned by the backend's
+    own boxes) leaves out of the closed-form α check the fringe pixels where both α values are below
+    :data:`FRINGE_ALPHA`; ``transmittance_from_alpha`` (a backward pass that recovers transmittance as
+    1 − α of the pixel, which float32 holds to ~1e-7 absolute, so to ~1e-3 relative behind a nearly
+    opaque pixel) checks the early-termination gradients to a relative 1e-3 instead of 1e-5 absolute.
     """
 
     forward_atol: float = 1e-4
@@ -63,6 +69,11 @@ class Tolerance:
     radius_mismatch_fraction: float = 1e-4
     deviations: frozenset[str] = frozenset()
     reason: str = ""
+
+
+#: Beyond the page's 3σ radius a Gaussian's α is at most o·e^(−4.5) < 0.0112: a backend that assigns
+#: tiles by other boxes (``tile_cover``) may add or drop such pixels, never brighter ones.
+FRINGE_ALPHA = 3 / 255
 
 
 # --------------------------------------------------------------------------------------------- scenes
@@ -244,6 +255,13 @@ def assert_gradients_close(actual: Sequence[torch.Tensor], expected: Sequence[to
         assert error <= rtol, f"grad {name}: relative error {error:.3g} against torch-reference (allowed {rtol:g})"
 
 
+def clamp_limits(intrinsics: Sequence[float], width: int, height: int) -> list[tuple[float, float]]:
+    """The Jacobian clamp's (negative, positive) limits of x/z and y/z: 1.3 × the field of view's half-widths."""
+    fx, fy, cx, cy = intrinsics
+    return [(cx / fx + 0.3 * width / (2 * fx), (width - cx) / fx + 0.3 * width / (2 * fx)),
+            (cy / fy + 0.3 * height / (2 * fy), (height - cy) / fy + 0.3 * height / (2 * fy))]
+
+
 def closed_form_single(
     mean: Sequence[float], scale: float, opacity: float, intrinsics: Sequence[float], width: int, height: int
 ) -> tuple[torch.Tensor, int]:
@@ -251,8 +269,7 @@ def closed_form_single(
     world-to-camera), in plain float64 Python: its α image [H, W] and its radius."""
     x, y, z = mean
     fx, fy, cx, cy = intrinsics
-    lim = [(cx / fx + 0.3 * width / (2 * fx), (width - cx) / fx + 0.3 * width / (2 * fx)),
-           (cy / fy + 0.3 * height / (2 * fy), (height - cy) / fy + 0.3 * height / (2 * fy))]
+    lim = clamp_limits(intrinsics, width, height)
     tx = z * min(max(x / z, -lim[0][0]), lim[0][1])
     ty = z * min(max(y / z, -lim[1][0]), lim[1][1])
     j = [[fx / z, 0.0, -fx * tx / z**2], [0.0, fy / z, -fy * ty / z**2]]
@@ -414,11 +431,17 @@ class RendererContract:
         """One isotropic Gaussian, every pixel's α and the radius against the page evaluated in plain
         Python: fx ≠ fy, an off-centre principal point, and the Jacobian clamp far off-screen."""
         fx, fy, cx, cy, width, height = 50.0, 60.0, 17.5, 8.5, 40, 30
+        (x_neg, x_pos), (y_neg, y_pos) = clamp_limits((fx, fy, cx, cy), width, height)
+        if not (-x_neg <= mean[0] / mean[2] <= x_pos and -y_neg <= mean[1] / mean[2] <= y_pos):
+            self.skip_deviation(tolerance, "jacobian_clamp")
         K = torch.tensor([[[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]])
         out = renderer.render(gaussians_from([mean], [[scale] * 3], [opacity]), RenderCameras(K, torch.eye(4)[None], width, height))
         expected_alpha, expected_radius = closed_form_single(mean, scale, opacity, (fx, fy, cx, cy), width, height)
         assert int(out.radii[0, 0]) == expected_radius, f"radius {int(out.radii[0, 0])}, expected {expected_radius}"
-        error = (out.alpha[0].detach().cpu().double() - expected_alpha).abs()
+        got = out.alpha[0].detach().cpu().double()
+        error = (got - expected_alpha).abs()
+        if "tile_cover" in tolerance.deviations:
+            error[(got < FRINGE_ALPHA) & (expected_alpha < FRINGE_ALPHA)] = 0.0
         v, u = divmod(int(error.argmax()), width)
         assert float(error.max()) <= 1e-5, f"alpha at pixel ({u}, {v}) is {float(out.alpha[0, v, u])}, expected {float(expected_alpha[v, u])}"
         assert float(expected_alpha.max()) > 0.02, "the Gaussian must reach the image"
@@ -471,7 +494,8 @@ class RendererContract:
         depth = sum(w * z for w, z in zip(weights, zs)) / sum(weights)
         assert float(pixel(out, "depth", 20, 10)) == pytest.approx(depth, abs=1e-5)
         (grad,) = torch.autograd.grad(out.rgb[0, 10, 20].sum(), [gaussians.colors])
-        assert grad[:, 0].tolist() == pytest.approx(weights + [0.0], abs=1e-5)
+        rel = 1e-3 if "transmittance_from_alpha" in tolerance.deviations else None
+        assert grad[:, 0].tolist() == pytest.approx(weights + [0.0], rel=rel, abs=1e-5), f"colour gradients {grad[:, 0].tolist()}"
 
     def test_equal_depths_composite_in_index_order(self, renderer: Renderer, tolerance: Tolerance) -> None:
         colors = [[1, 0, 0], [0, 1, 0], [0, 0, 1]]
