@@ -1,7 +1,9 @@
-"""``mmcsplat run``'s settings: bad tracking values fail before the first step, naming the value, and
-leave nothing behind; the reader's options reach the ingest."""
+"""``mmcsplat run``'s settings: bad tracking values and reader options fail before the first step, naming
+the value, and leave nothing behind; the reader's options reach the ingest."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import pytest
 
@@ -33,9 +35,26 @@ def test_reader_options_reach_the_ingest(tmp_path, monkeypatch):
         raise Stop
 
     monkeypatch.setattr("mmcsplat.pipeline.ingest.ingest", ingest)
+    monkeypatch.setattr("mmcsplat.pipeline.ingest.capture_reader", lambda *args, **kwargs: None)  # the folder below is empty
     capture = tmp_path / "capture"
     capture.mkdir()
     settings = CaptureSettings(reader_options=("size_mismatch=crop", "camera_map=order"))
     with pytest.raises(Stop):
         run_capture(capture, tmp_path / "out", settings, progress=False, log=lambda line: None)
     assert seen["reader_options"] == {"size_mismatch": "crop", "camera_map": "order"}
+
+
+DEMO = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "pose2sim_demo"
+
+
+@pytest.mark.skipif(not DEMO.is_dir(), reason="needs ../shared/data/pose2sim_demo")
+@pytest.mark.parametrize(("options", "message"), [
+    (("size_mismatch=nonsense",), "size_mismatch must be one of"),
+    (("nosuch=1",), "unknown parameter"),
+    (("size_mismatch",), "--reader-set: 'size_mismatch' must look like key.path=value"),
+])
+def test_bad_reader_options_fail_before_anything_is_written(tmp_path, options, message):
+    out = tmp_path / "out"
+    with pytest.raises(InputError, match=message):
+        run_capture(DEMO, out, CaptureSettings(reader_options=options), progress=False, log=lambda line: None)
+    assert not out.exists()

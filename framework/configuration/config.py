@@ -145,7 +145,7 @@ def apply_override(values: Mapping[str, Any], override: str, source: str = "conf
     key, sep, raw = override.partition("=")
     key = key.strip()
     if not sep or not key:
-        raise ConfigError(f"override {override!r} must look like key.path=value")
+        raise ConfigError(f"{source}: {override!r} must look like key.path=value")
     try:
         value = tomllib.loads(f"v = {raw.strip()}")["v"]
     except tomllib.TOMLDecodeError:

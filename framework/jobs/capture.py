@@ -99,6 +99,7 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     from mmcsplat.pipeline.evaluate import evaluate
     from mmcsplat.pipeline.fit import FirstFrameFit
     from mmcsplat.pipeline.flow import compute_flow, flow_complete
+    from mmcsplat.pipeline.ingest import capture_reader
     from mmcsplat.pipeline.landmarks import track_landmarks
     from mmcsplat.pipeline.run_frames import RunStates
     from mmcsplat.pipeline.track import dynamics_choice, track_run
@@ -120,8 +121,10 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     # A bad reader option, configuration or tracking value fails before anything runs.
     reader_options = apply_overrides({}, settings.reader_options, "--reader-set")
     dynamics_choice(load_config(settings.config, [*settings.overrides, *tracking]), "iterative").build()
-    out.mkdir(parents=True, exist_ok=True)
     session, run = out / "session.zarr", out / "run"
+    if not session.exists():
+        capture_reader(capture, reader_options=reader_options)
+    out.mkdir(parents=True, exist_ok=True)
 
     def prepare(partial: Path) -> None:
         choice = prepare_capture_session(capture, partial, calibration=Path(settings.calibration) if settings.calibration else None,

@@ -17,7 +17,7 @@ undistorted like the frames and stored with the session, for fits that composite
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -31,6 +31,7 @@ from mmcsplat.storage.capture_files import PLATES_FOLDER
 from mmcsplat.storage.session.format import local_path
 
 if TYPE_CHECKING:
+    from mmcsplat.plugin_api.interfaces import Reader
     from mmcsplat.storage.session import SessionReader
 
 
@@ -48,6 +49,14 @@ def parse_frames(text: str) -> slice:
     if step is not None and step <= 0:
         raise InputError(f"frames {text!r}: STEP must be positive")
     return slice(start, stop, step)
+
+
+def capture_reader(source: Path, format: str | None = None, reader_options: Mapping[str, object] | None = None) -> tuple[str, Reader]:
+    """(name, reader) of the registered reader ``format`` (else the one that recognises ``source``) made with
+    ``reader_options``: an unknown or invalid option fails here, before anything is read or written."""
+    registry = default_registry()
+    name = format or detect_format(source, registry)
+    return name, registry.create("reader", name, **(reader_options or {}))
 
 
 def detect_format(source: Path, registry: Registry | None = None) -> str:
@@ -214,9 +223,7 @@ def ingest(
     calibration = None if calibration is None else Path(calibration).resolve()
     if not scale > 0:
         raise InputError(f"scale must be positive, got {scale}")
-    registry = default_registry()
-    name = format or detect_format(source, registry)
-    reader = registry.create("reader", name, **(reader_options or {}))
+    name, reader = capture_reader(source, format, reader_options)
     if skip_missing:
         if not (attrs.has(type(reader)) and "missing_frames" in attrs.fields_dict(type(reader))):
             raise InputError(f"--skip-missing: the {name} reader has no missing_frames option: it lists no image files that could be missing")
