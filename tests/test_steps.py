@@ -52,7 +52,21 @@ def test_a_failed_first_run_does_not_lock_its_out_to_its_settings(tmp_path):
         with pytest.raises(InputError) as failed:
             run_capture(capture, out, settings, progress=False, log=lambda _: None)
         assert "other settings" not in str(failed.value)
-        assert not (out / SETTINGS_FILE).exists() and list(out.iterdir()) == []
+        assert not out.exists()  # no reader recognises the folder: refused before anything is made
+
+
+def test_a_folder_made_before_a_setting_existed_resumes_when_its_value_is_unchanged(tmp_path):
+    made = CaptureSettings()
+    old = {key: value for key, value in json.loads(json.dumps(attrs.asdict(made))).items() if key not in ("reader_options", "track_flow_gain")}
+    (tmp_path / SETTINGS_FILE).write_text(json.dumps(old))
+    with pytest.raises(InputError, match=r"track_flow_gain 1.0, now 2.0\)"):  # before the setting, tracking used the plugin's 1
+        SettingsRecord.of(tmp_path / SETTINGS_FILE, made).check()
+    SettingsRecord.of(tmp_path / SETTINGS_FILE, CaptureSettings(track_flow_gain=1.0)).check()  # reader_options () as before
+    with pytest.raises(InputError, match=r"reader_options \[\], now \['size_mismatch=crop'\]"):
+        SettingsRecord.of(tmp_path / SETTINGS_FILE, CaptureSettings(track_flow_gain=1.0, reader_options=("size_mismatch=crop",))).check()
+    (tmp_path / "job.json").write_text("{}")
+    with pytest.raises(InputError, match="size None, now 1"):  # a setting with no before value is taken as changed
+        SettingsRecord.of(tmp_path / "job.json", Settings(1)).check()
 
 
 def test_a_store_appears_whole_or_not_at_all(tmp_path):

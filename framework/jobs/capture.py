@@ -35,7 +35,7 @@ from typing import Any
 import attrs
 
 from mmcsplat.pipeline.capture_session import DEFAULT_SCALE, found, keypoint_source, prepare_capture_session
-from mmcsplat.pipeline.steps import SettingsRecord, Step, StepTime, fit_complete, fresh, made_in_place, run_steps
+from mmcsplat.pipeline.steps import BEFORE_FIELD, SettingsRecord, Step, StepTime, fit_complete, fresh, made_in_place, run_steps
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.storage.atomic import write_json_atomic
 from mmcsplat.storage.run import LANDMARKS_CSV, LANDMARKS_INFO, METRICS_FILE, MOVEMENT_JSON, RENDERS_DIR, REPORT_FILE, RUN_INFO, TRACK_INFO, TRACKS_DIR
@@ -71,11 +71,11 @@ class CaptureSettings:
     joints: str | None = None
     config: str = DEFAULT_CONFIG
     overrides: tuple[str, ...] = attrs.field(default=(), converter=tuple)
-    reader_options: tuple[str, ...] = attrs.field(default=(), converter=tuple)
+    reader_options: tuple[str, ...] = attrs.field(default=(), converter=tuple, metadata={BEFORE_FIELD: ()})
     track_iterations: int = 50
     track_means_lr: float = TRACK_MEANS_LR
     track_lambda_parts: float = TRACK_LAMBDA_PARTS
-    track_flow_gain: float = TRACK_FLOW_GAIN
+    track_flow_gain: float = attrs.field(default=TRACK_FLOW_GAIN, metadata={BEFORE_FIELD: 1.0})
 
 
 @attrs.frozen

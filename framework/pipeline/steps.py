@@ -41,25 +41,34 @@ class StepTime:
     reused: bool
 
 
+#: attrs metadata key of a settings field added after folders were made without it: the value it had in effect there.
+BEFORE_FIELD = "before"
+
+
 @attrs.frozen
 class SettingsRecord:
     """``path`` (e.g. OUT/demo.json) records the ``settings`` a job's folder is made with. It is written only
     once a step has succeeded, so a first run that fails before making anything does not tie its folder to
-    its settings (a rerun with corrected ones goes ahead)."""
+    its settings (a rerun with corrected ones goes ahead). ``before`` holds, for settings added after
+    folders were made without them, the value those folders had in effect: a folder whose record lacks
+    such a setting resumes when the value is unchanged. A setting without one is taken as changed."""
 
     path: Path
     settings: dict[str, Any]
+    before: dict[str, Any] = attrs.field(factory=dict)
 
     @classmethod
     def of(cls, path: Path, settings: Any) -> SettingsRecord:
-        """The record at ``path`` of the attrs instance ``settings``, as JSON reads it back."""
-        return cls(Path(path), json.loads(json.dumps(attrs.asdict(settings))))
+        """The record at ``path`` of the attrs instance ``settings``, as JSON reads it back; a field's
+        :data:`BEFORE_FIELD` metadata is its ``before``."""
+        before = {field.name: field.metadata[BEFORE_FIELD] for field in attrs.fields(type(settings)) if BEFORE_FIELD in field.metadata}
+        return cls(Path(path), json.loads(json.dumps(attrs.asdict(settings))), json.loads(json.dumps(before)))
 
     def check(self) -> None:
         """Refuse when the folder was made with other settings, naming each that differs."""
         if not self.path.exists():
             return
-        made = json.loads(self.path.read_text())
+        made = {**self.before, **json.loads(self.path.read_text())}
         changed = sorted(key for key in self.settings.keys() | made.keys() if made.get(key) != self.settings.get(key))
         if changed:
             raise InputError(f"{self.path.parent} was made with other settings ({self.path}: "
