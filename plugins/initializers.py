@@ -26,6 +26,8 @@ from mmcsplat.scene.visual_hull import REGION_SHARE, in_hull, mask_hits, mask_vo
 
 INITIAL_OPACITY = 0.1
 INITIAL_SEG = 0.5
+#: A mask covering less than this share of its image holds no subject (a person or an infant at 1/4 scale covers 2–10 %).
+NEARLY_EMPTY_MASK = 1e-3
 
 
 def gaussians_at(points: np.ndarray, colors: np.ndarray | None, generator: torch.Generator, segmentation: np.ndarray | None = None) -> Gaussians:
@@ -238,7 +240,10 @@ class VisualHullInitializer(Initializer):
             if total >= self.num_points:
                 break
         if total == 0:
-            raise InputError("visual-hull initializer: no point lies inside every view's mask — are the masks and calibration consistent?")
+            cover = {camera.name: float(np.mean(mask > 0.5)) for camera, mask, _ in views}
+            faint = [f"{name} ({share:.3%} of its pixels)" for name, share in cover.items() if share < NEARLY_EMPTY_MASK]
+            why = f"the masks of {', '.join(faint)} are nearly empty" if faint else "are the masks and calibration consistent?"
+            raise InputError(f"visual-hull initializer: no point lies inside every view's mask at frame {scene.frame}: {why}")
         points = np.concatenate(kept_points)[: self.num_points]
         colors = np.concatenate(kept_colors)[: self.num_points]
         return gaussians_at(points, colors, generator, segmentation_start(points, scene))

@@ -135,10 +135,18 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
         log(f"run: masks: {choice['detail']}")
 
     def fit() -> None:
-        first = FirstFrameFit(SessionReader(session), load_config(settings.config, settings.overrides), run, progress=progress)
-        for grown in first.grown_regions:
-            log(f"run: {grown}")
-        first.run()
+        try:
+            first = FirstFrameFit(SessionReader(session), load_config(settings.config, settings.overrides), run, progress=progress)
+            for grown in first.grown_regions:
+                log(f"run: {grown}")
+            first.run()
+        except InputError as error:
+            if json.loads((out / MASKS_FILE).read_text()).get("masks") != "parallax":
+                raise
+            frames = SessionReader(session).num_frames
+            raise InputError(f"{error} (the masks come from the subject's motion against plates estimated from these {frames} frames: where "
+                             "they are nearly empty it barely moved; give more frames, a plates/ folder of the empty scene, or 2D keypoints "
+                             "in pose_2d/ or --keypoints)") from error
 
     def landmarks() -> None:
         track_landmarks(run, "trc", {"path": str(joints)}, keypoints=source["name"] if source else None,
