@@ -25,7 +25,7 @@ import torch
 
 from mmcsplat.plugin_api.errors import InputError
 
-from .rigidity import EPSILON
+from .rigidity import EPSILON, gather_rows
 
 #: Rigid parts of a human body by OpenPose's (and Pose2Sim's) keypoint names and by the synthetic infant's
 #: joint names; a part naming joints a skeleton lacks keeps the ones it has (two at least).
@@ -116,5 +116,5 @@ class PartPairs:
         """Mean over the pairs of |‖μ_i − μ_j‖ − first-frame length| (0 without pairs)."""
         if not len(self.first):
             return means.sum() * 0
-        lengths = (means[self.first] - means[self.second]).norm(dim=-1)
+        lengths = (gather_rows(means, self.first) - gather_rows(means, self.second)).norm(dim=-1)
         return torch.sqrt((lengths - self.lengths) ** 2 + EPSILON).mean()

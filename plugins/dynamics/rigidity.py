@@ -21,6 +21,13 @@ from mmcsplat.scene.quaternions import quat_conjugate, quat_multiply, quat_to_ro
 EPSILON = 1e-20
 
 
+def gather_rows(values: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+    """``values[index]`` for an integer ``index`` of any shape, through ``index_select``: its backward
+    adds rows (index_add) where advanced indexing's scatters with accumulation, 3–4× slower on the CPU at
+    the graph's size (15 000 Gaussians × 20 neighbours: 5.8 against 1.5 ms per gather and its gradient)."""
+    return torch.index_select(values, 0, index.reshape(-1)).reshape(*index.shape, *values.shape[1:])
+
+
 @attrs.frozen(eq=False)
 class NeighbourGraph:
     """``foreground`` [F] indices of the Gaussians the priors hold together; for each, ``neighbours``
@@ -75,10 +82,10 @@ class RigidityPrior:
 
     def _offsets_and_rotations(self, means: torch.Tensor, quats: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         index = self.graph.foreground
-        centres = means[index]
-        offsets = centres[self.graph.neighbours] - centres[:, None]  # [F, k, 3]
-        rotations = quats[index] / quats[index].norm(dim=-1, keepdim=True)
-        return offsets, rotations
+        centres = gather_rows(means, index)
+        offsets = gather_rows(centres, self.graph.neighbours) - centres[:, None]  # [F, k, 3]
+        rotations = gather_rows(quats, index)
+        return offsets, rotations / rotations.norm(dim=-1, keepdim=True)
 
     def remember(self, means: torch.Tensor, quats: torch.Tensor) -> None:
         """Make ``means``/``quats`` the frame the next losses compare against (with ``reference="first"``,
@@ -101,6 +108,6 @@ class RigidityPrior:
         relative = quat_multiply(rotations, self._inverse)  # [F, 4]: rotation since the reference frame
         back = torch.einsum("fji,fkj->fki", quat_to_rotmat(relative), offsets)  # Rᵀ·offset
         rigid = weighted_distance(back, self._offsets, graph.weights)
-        rot = weighted_distance(relative[graph.neighbours], relative[:, None], graph.weights)
+        rot = weighted_distance(gather_rows(relative, graph.neighbours), relative[:, None], graph.weights)
         iso = weighted_distance(offsets.norm(dim=-1), graph.distances, graph.weights)
         return rigid, rot, iso
