@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 
+import attrs
 import torch
 import torch.nn.functional as F
 
@@ -53,6 +54,55 @@ def photometric_loss(image: torch.Tensor, target: torch.Tensor, ssim_weight: flo
     """(1 − λ)·L1 + λ·(1 − SSIM), the reference study's image loss with λ = 0.2."""
     l1 = (image - target).abs().mean()
     return (1.0 - ssim_weight) * l1 + ssim_weight * (1.0 - ssim(image, target))
+
+
+#: How far around a pixel its SSIM reads.
+SSIM_REACH = SSIM_WINDOW // 2
+
+
+def _integral(values: torch.Tensor) -> torch.Tensor:
+    """[H + 1, W + 1] float64 summed-area table of an [H, W] map: any rectangle's sum in four lookups."""
+    table = torch.zeros(values.shape[0] + 1, values.shape[1] + 1, dtype=torch.float64)
+    table[1:, 1:] = values.double().cumsum(0).cumsum(1)
+    return table
+
+
+@attrs.frozen(eq=False)
+class StaticPhotometric:
+    """The per-pixel L1 and SSIM of an image that does not change (a view's backdrop alone) against its target,
+    as summed-area tables, so that :func:`windowed_photometric_loss` adds to a window's values the rest's."""
+
+    l1: torch.Tensor
+    ssim: torch.Tensor
+    elements: int
+
+    @classmethod
+    def of(cls, image: torch.Tensor, target: torch.Tensor) -> StaticPhotometric:
+        """From the unchanging [H, W, C] ``image`` and its ``target``."""
+        with torch.no_grad():
+            return cls(_integral((image - target).abs().sum(-1)), _integral(ssim_map(image, target).sum(-1)), target.numel())
+
+    @staticmethod
+    def outside(table: torch.Tensor, rows: slice, columns: slice) -> torch.Tensor:
+        """The table's total less its sum over ``rows`` × ``columns``."""
+        inside = table[rows.stop, columns.stop] - table[rows.start, columns.stop] - table[rows.stop, columns.start] + table[rows.start, columns.start]
+        return table[-1, -1] - inside
+
+
+def windowed_photometric_loss(image: torch.Tensor, target: torch.Tensor, static: StaticPhotometric, rows: slice, columns: slice,
+                              ssim_weight: float = 0.2) -> torch.Tensor:
+    """:func:`photometric_loss` of ``image`` [H, W, C] against ``target``, computed where it can differ from
+    ``static``'s image: ``rows`` × ``columns`` must hold every pixel where ``image`` differs from it, widened
+    by :data:`SSIM_REACH` (clipped to the image). Equal to the whole image's loss in value and gradient: the
+    SSIM of a pixel further out reads only unchanged pixels, and inside, the crop's zero padding sits
+    :data:`SSIM_REACH` beyond the window or on the image's own border."""
+    height, width = image.shape[:2]
+    crop = (slice(max(rows.start - SSIM_REACH, 0), min(rows.stop + SSIM_REACH, height)),
+            slice(max(columns.start - SSIM_REACH, 0), min(columns.stop + SSIM_REACH, width)))
+    inner = (slice(rows.start - crop[0].start, rows.stop - crop[0].start), slice(columns.start - crop[1].start, columns.stop - crop[1].start))
+    l1 = (image[rows, columns] - target[rows, columns]).abs().sum() + StaticPhotometric.outside(static.l1, rows, columns).to(image.dtype)
+    similarity = ssim_map(image[crop], target[crop])[inner].sum() + StaticPhotometric.outside(static.ssim, rows, columns).to(image.dtype)
+    return (1.0 - ssim_weight) * l1 / static.elements + ssim_weight * (1.0 - similarity / static.elements)
 
 
 def psnr(image: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
