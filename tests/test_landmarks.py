@@ -67,7 +67,7 @@ def test_landmarks_follow_the_tracks_and_are_scored(scene, capsys):
     assert np.nanmax(extra["spread_mm"]) < 0.01 and np.nanmin(extra["confidence"]) > 0.99  # rigid: the anchors agree
     info = json.loads((run / "landmarks.json").read_text())
     accuracy = info["accuracy_3d"]
-    # Bound from 4 of the 5 frames (the default 5 leaves the last to score), scored on the last alone.
+    # Bound from 4 of the 5 frames (the default 7 is cut to leave the last to score), scored on the last alone.
     assert info["bind_frames"] == FRAMES - 1 and accuracy["per_frame_median_mm"][: FRAMES - 1] == [None] * (FRAMES - 1)
     assert accuracy["median_mm"] < 0.01 and accuracy["pairs"] == CARRIED
     assert accuracy["still_moving_median_mm"] > 10 and info["unbound"] == ["far"]

@@ -1,7 +1,7 @@
 """Carry named landmarks (joints, keypoints) through a run: RUN/landmarks.csv and RUN/landmarks.json.
 
 The landmarks of --source are bound to the subject's Gaussians at the run's fitted frame (the 8 nearest
-within 10 cm, anchored in each one's local frame), from the source's first 5 frames (--bind-frames: each
+within 10 cm, anchored in each one's local frame), from the source's first 7 frames (--bind-frames: each
 carried back to the fitted frame, their median taken, so that one frame's error in the source is outvoted),
 and carried through every tracked frame (a run without tracks gives the fitted frame alone). Sources
 (`mmcsplat plugins landmarks`): trc and csv files of 3D points, openpose keypoints triangulated in the
@@ -33,7 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-distance", type=float, default=0.1, metavar="M",
                         help="metres within which a Gaussian may carry a landmark (default 0.1); farther landmarks are left out, not invented")
     parser.add_argument("--bind-frames", type=int, metavar="N",
-                        help="the source's first N frames bind the landmarks, and are not scored (default 5; 1, the fitted frame "
+                        help="the source's first N frames bind the landmarks, and are not scored (default 7; 1, the fitted frame "
                              "alone, for a source of exact landmarks: synthetic)")
     add_allow_incomplete(parser)
 

@@ -34,7 +34,7 @@ from .quaternions import quat_to_rotmat
 
 ANCHORS = 8
 #: Frames of the reference a landmark is bound from, the fitted one first (docs/landmarks.md, "Binding and carrying").
-BIND_FRAMES = 5
+BIND_FRAMES = 7
 MAX_DISTANCE = 0.1  # metres: a joint centre lies a few centimetres inside an infant's limb, more in an adult's
 WEIGHT_SOFTENING = 0.005  # metres added to each distance, so that a Gaussian at the landmark does not take all the weight
 SUBJECT_OPACITY = 0.1  # Gaussians fainter than this carry no landmark: they are too easily floaters
