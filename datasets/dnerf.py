@@ -33,7 +33,7 @@ from typing import Any
 import attrs
 import numpy as np
 
-from mmcsplat.datasets.posed_images import ALPHA_THRESHOLD, MISSING_FRAMES_PARAMETER, PosedImage, PosedImageRecording, missing_files
+from mmcsplat.datasets.posed_images import ALPHA_THRESHOLD, MISSING_FRAMES_PARAMETER, PosedImage, PosedImageRecording, missing_files, rigid_pose
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.interfaces import Reader
 from mmcsplat.scene.camera import Camera
@@ -154,7 +154,7 @@ def _parse_split(path: Path, source: Path, split: str, scale: float, missing_fra
     images: list[list[_Image]] = []
     for index, (frame, file) in enumerate(zip(frames, files)):
         where = f"{path}: frames[{index}]"
-        c2w = _pose(where, frame["transform_matrix"])
+        c2w = rigid_pose(where, frame["transform_matrix"])
         key = tuple(np.round(c2w[:3], _DECIMALS).ravel().tolist())
         if key not in poses:
             poses[key] = len(cameras)
@@ -180,17 +180,3 @@ def _number(where: Path | str, key: str, value: Any) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
         raise InputError(f"{where}: {key!r} must be a finite number, got {value!r}")
     return float(value)
-
-
-def _pose(where: str, value: Any) -> np.ndarray:
-    """A rigid 4×4 camera-to-world matrix (a 3×4 one is completed)."""
-    try:
-        matrix = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InputError(f"{where}: 'transform_matrix' must be a 4×4 matrix of numbers") from None
-    if matrix.shape not in ((4, 4), (3, 4)) or not np.all(np.isfinite(matrix)):
-        raise InputError(f"{where}: 'transform_matrix' must be a finite 4×4 matrix, got shape {matrix.shape}")
-    rotation = matrix[:3, :3]
-    if not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-5) or np.linalg.det(rotation) < 0:
-        raise InputError(f"{where}: 'transform_matrix' is not a rigid transform (its 3×3 part is not a rotation)")
-    return np.vstack([matrix[:3], [0.0, 0.0, 0.0, 1.0]])

@@ -52,7 +52,7 @@ import attrs
 import numpy as np
 
 from mmcsplat.datasets.dnerf import GL_TO_CV
-from mmcsplat.datasets.posed_images import MISSING_FRAMES_PARAMETER, PosedImage, PosedImageRecording, missing_files
+from mmcsplat.datasets.posed_images import MISSING_FRAMES_PARAMETER, PosedImage, PosedImageRecording, missing_files, rigid_pose
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.interfaces import Reader
 from mmcsplat.plugin_api.parameters import finite_positive, parameter
@@ -169,20 +169,6 @@ def _applied_transform(path: Path, value: Any) -> np.ndarray | None:
     return matrix[:3]
 
 
-def _pose(where: str, value: Any) -> np.ndarray:
-    """A rigid 4×4 camera-to-world matrix (a 3×4 one is completed)."""
-    try:
-        matrix = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InputError(f"{where}: 'transform_matrix' must be a 4×4 matrix of numbers") from None
-    if matrix.shape not in ((4, 4), (3, 4)) or not np.all(np.isfinite(matrix)):
-        raise InputError(f"{where}: 'transform_matrix' must be a finite 4×4 matrix, got shape {matrix.shape}")
-    rotation = matrix[:3, :3]
-    if not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-5) or np.linalg.det(rotation) < 0:
-        raise InputError(f"{where}: 'transform_matrix' is not a rigid transform (its 3×3 part is not a rotation)")
-    return np.vstack([matrix[:3], [0.0, 0.0, 0.0, 1.0]])
-
-
 def _file(source: Path, where: str, key: str, value: Any) -> Path:
     """The file a ``file_path`` or ``mask_path`` names, relative to the folder."""
     if not isinstance(value, str) or not value:
@@ -224,7 +210,7 @@ def _parse_frame(path: Path, source: Path, document: Mapping[str, Any], index: i
     mask = _file(source, where, "mask_path", entry["mask_path"]) if entry.get("mask_path") is not None else None
     image = PosedImage(_file(source, where, "file_path", entry["file_path"]), mask, where)
     return _Frame(index, image, _camera_name(where, entry.get("camera")), _time(where, entry), K, (int(size[0]), int(size[1])),
-                  np.array(distortion, dtype=np.float64), _pose(where, entry["transform_matrix"]))
+                  np.array(distortion, dtype=np.float64), rigid_pose(where, entry["transform_matrix"]))
 
 
 def _camera_name(where: str, value: Any) -> str | None:

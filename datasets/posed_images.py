@@ -47,6 +47,21 @@ def missing_files(paths: Sequence[Path], what: str, policy: str) -> set[Path]:
     return set(missing)
 
 
+def rigid_pose(where: str, value: Any) -> np.ndarray:
+    """A rigid 4×4 camera-to-world ``transform_matrix`` (a 3×4 one is completed), as D-NeRF's and nerfstudio's
+    transforms.json give it; ``where`` names the frame in errors."""
+    try:
+        matrix = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{where}: 'transform_matrix' must be a 4×4 matrix of numbers") from None
+    if matrix.shape not in ((4, 4), (3, 4)) or not np.all(np.isfinite(matrix)):
+        raise InputError(f"{where}: 'transform_matrix' must be a finite 4×4 matrix, got shape {matrix.shape}")
+    rotation = matrix[:3, :3]
+    if not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-5) or np.linalg.det(rotation) < 0:
+        raise InputError(f"{where}: 'transform_matrix' is not a rigid transform (its 3×3 part is not a rotation)")
+    return np.vstack([matrix[:3], [0.0, 0.0, 0.0, 1.0]])
+
+
 @attrs.frozen
 class PosedImage:
     """One image of a camera: its file, its mask file (if any) and where it was listed (for errors)."""
