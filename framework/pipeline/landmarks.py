@@ -2,8 +2,8 @@
 ``RUN/landmarks.json`` — and their movement measures, ``RUN/movement.json`` and ``RUN/movement.csv``.
 
 The landmarks of a source (a ``landmarks`` plugin: TRC or CSV file, triangulated 2D keypoints, a synthetic
-capture's joints) over the run's first frames (the fitted one and four more, so that one frame's error in the
-source is outvoted) are bound to the subject's Gaussians at the fitted frame and carried through its frames
+capture's joints) over the run's first frames (the fitted one and the next few, :data:`~mmcsplat.scene.landmark_anchors.BIND_FRAMES`
+in all, so that one frame's error in the source is outvoted) are bound to the subject's Gaussians at the fitted frame and carried through its frames
 (:mod:`mmcsplat.scene.landmark_anchors`). Where the source also knows the landmarks at the frames after those,
 the carried ones are scored against them (3D, mm); where a keypoint source gives 2D detections,
 the carried landmarks are projected into each camera and scored against them (px), beside the detector's

@@ -60,6 +60,12 @@ def photometric_loss(image: torch.Tensor, target: torch.Tensor, ssim_weight: flo
 SSIM_REACH = SSIM_WINDOW // 2
 
 
+def widened(rows: slice, columns: slice, by: int, height: int, width: int) -> tuple[slice, slice]:
+    """The box ``rows`` × ``columns`` widened by ``by`` pixels on every side, clipped to a ``height`` × ``width`` image."""
+    return (slice(max(rows.start - by, 0), min(rows.stop + by, height)),
+            slice(max(columns.start - by, 0), min(columns.stop + by, width)))
+
+
 def _integral(values: torch.Tensor) -> torch.Tensor:
     """[H + 1, W + 1] float64 summed-area table of an [H, W] map: any rectangle's sum in four lookups."""
     table = torch.zeros(values.shape[0] + 1, values.shape[1] + 1, dtype=torch.float64)
@@ -97,8 +103,7 @@ def windowed_photometric_loss(image: torch.Tensor, target: torch.Tensor, static:
     SSIM of a pixel further out reads only unchanged pixels, and inside, the crop's zero padding sits
     :data:`SSIM_REACH` beyond the window or on the image's own border."""
     height, width = image.shape[:2]
-    crop = (slice(max(rows.start - SSIM_REACH, 0), min(rows.stop + SSIM_REACH, height)),
-            slice(max(columns.start - SSIM_REACH, 0), min(columns.stop + SSIM_REACH, width)))
+    crop = widened(rows, columns, SSIM_REACH, height, width)
     inner = (slice(rows.start - crop[0].start, rows.stop - crop[0].start), slice(columns.start - crop[1].start, columns.stop - crop[1].start))
     l1 = (image[rows, columns] - target[rows, columns]).abs().sum() + StaticPhotometric.outside(static.l1, rows, columns).to(image.dtype)
     similarity = ssim_map(image[crop], target[crop])[inner].sum() + StaticPhotometric.outside(static.ssim, rows, columns).to(image.dtype)

@@ -57,9 +57,7 @@ def changed_window(alpha: torch.Tensor) -> tuple[slice, slice] | None:
         return None
     columns = torch.nonzero(alpha.detach().amax(dim=0) > 0)[:, 0]
     height, width = alpha.shape
-    reach = losses.SSIM_REACH
-    window = (slice(max(int(rows[0]) - reach, 0), min(int(rows[-1]) + 1 + reach, height)),
-              slice(max(int(columns[0]) - reach, 0), min(int(columns[-1]) + 1 + reach, width)))
+    window = losses.widened(slice(int(rows[0]), int(rows[-1]) + 1), slice(int(columns[0]), int(columns[-1]) + 1), losses.SSIM_REACH, height, width)
     share = (window[0].stop - window[0].start) * (window[1].stop - window[1].start) / (height * width)
     return window if share <= WINDOW_SHARE else None
 
