@@ -24,21 +24,21 @@ import numpy as np
 import torch
 
 from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.scene.human_skeleton import FEET, HEAD, LIMB_BONES, TORSO
+from mmcsplat.scene.human_skeleton import torso_length as human_torso_length
 
 from .rigidity import EPSILON, gather_rows
 
+#: The synthetic infant's names of the torso's corners, in human_skeleton.TORSO's order.
+SYNTHETIC_TORSO = ("shoulder_left", "shoulder_right", "hip_right", "hip_left")
 #: Rigid parts of a human body by OpenPose's (and Pose2Sim's) keypoint names and by the synthetic infant's
 #: joint names; a part naming joints a skeleton lacks keeps the ones it has (two at least).
 HUMAN_PARTS: tuple[tuple[str, ...], ...] = (
-    ("LShoulder", "LElbow"), ("LElbow", "LWrist"), ("RShoulder", "RElbow"), ("RElbow", "RWrist"),
-    ("LHip", "LKnee"), ("LKnee", "LAnkle"), ("RHip", "RKnee"), ("RKnee", "RAnkle"),
-    ("LAnkle", "LHeel", "LBigToe", "LSmallToe"), ("RAnkle", "RHeel", "RBigToe", "RSmallToe"),
-    ("LShoulder", "RShoulder", "LHip", "RHip", "Neck"), ("Head", "Nose", "LEye", "REye", "LEar", "REar"),
+    *LIMB_BONES, *FEET, (*TORSO, "Neck"), HEAD,
     ("shoulder_left", "elbow_left"), ("elbow_left", "wrist_left"), ("shoulder_right", "elbow_right"), ("elbow_right", "wrist_right"),
     ("hip_left", "knee_left"), ("knee_left", "ankle_left"), ("hip_right", "knee_right"), ("knee_right", "ankle_right"),
-    ("shoulder_left", "shoulder_right", "hip_left", "hip_right"),
+    SYNTHETIC_TORSO,
 )
-TORSO_ENDS = ((("LShoulder", "RShoulder"), ("LHip", "RHip")), (("shoulder_left", "shoulder_right"), ("hip_left", "hip_right")))
 
 
 def _segment_distances(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -50,9 +50,10 @@ def _segment_distances(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.n
 
 def torso_length(joints: Mapping[str, np.ndarray]) -> float | None:
     """Mid-shoulders to mid-hips, by either naming; ``None`` when the skeleton lacks them."""
-    for (s1, s2), (h1, h2) in TORSO_ENDS:
-        if all(name in joints for name in (s1, s2, h1, h2)):
-            return float(np.linalg.norm((joints[s1] + joints[s2]) / 2 - (joints[h1] + joints[h2]) / 2))
+    for corners in (TORSO, SYNTHETIC_TORSO):
+        if all(name in joints for name in corners):
+            named = dict(zip(TORSO, corners, strict=True))
+            return float(human_torso_length(lambda name: joints[named[name]]))
     return None
 
 

@@ -33,15 +33,14 @@ from mmcsplat.plugin_api.interfaces import KeypointObservations
 from mmcsplat.plugin_api.parameters import above, at_least, one_of, parameter
 from mmcsplat.plugin_api.registration import PluginBuilder
 from mmcsplat.plugins.segmenters.postprocess import KEEP, PostProcessedSegmenter, dilate, open_close, present_frames
+from mmcsplat.scene.human_skeleton import HEAD, LIMB_BONES, TORSO
+from mmcsplat.scene.human_skeleton import torso_length as human_torso_length
 from mmcsplat.storage.session import SessionReader
 
 #: Limbs drawn as thick segments, by keypoint name (pairs naming a keypoint the model lacks are skipped).
-LIMBS = (("LShoulder", "LElbow"), ("LElbow", "LWrist"), ("RShoulder", "RElbow"), ("RElbow", "RWrist"),
-         ("LHip", "LKnee"), ("LKnee", "LAnkle"), ("RHip", "RKnee"), ("RKnee", "RAnkle"),
+LIMBS = (*LIMB_BONES,
          ("LAnkle", "LHeel"), ("LAnkle", "LBigToe"), ("LHeel", "LBigToe"), ("RAnkle", "RHeel"), ("RAnkle", "RBigToe"), ("RHeel", "RBigToe"),
          ("Neck", "Head"), ("Neck", "Nose"))
-TORSO = ("LShoulder", "RShoulder", "RHip", "LHip")
-HEAD = ("Head", "Nose")
 #: Widths as shares of the torso length (neck to mid-hip): an adult's thigh is about a third of it.
 LIMB_WIDTH = 0.3
 HEAD_RADIUS = 0.3
@@ -56,10 +55,9 @@ def torso_length(observed: KeypointObservations) -> float | None:
     if not all(name in index for name in TORSO):
         return None
     points, seen = observed.pixels, observed.confidence > 0
-    top = (points[:, index["LShoulder"]] + points[:, index["RShoulder"]]) / 2
-    bottom = (points[:, index["LHip"]] + points[:, index["RHip"]]) / 2
     visible = seen[:, [index[name] for name in TORSO]].all(axis=1)
-    return float(np.median(np.linalg.norm(top - bottom, axis=-1)[visible])) if visible.any() else None
+    lengths = human_torso_length(lambda name: points[:, index[name]])
+    return float(np.median(lengths[visible])) if visible.any() else None
 
 
 def is_human(names: tuple[str, ...]) -> bool:
@@ -116,7 +114,7 @@ def skeleton_mask(pixels: np.ndarray, seen: np.ndarray, names: tuple[str, ...], 
     for a, b in LIMBS:
         if usable(a) and usable(b):
             cv2.line(canvas, tuple(fixed[index[a]]), tuple(fixed[index[b]]), 1, width, cv2.LINE_AA, shift=4)
-    for name in HEAD:
+    for name in HEAD[:2]:  # the head's centre, else the nose: eyes and ears lie off the centre
         if usable(name):
             cv2.circle(canvas, tuple(fixed[index[name]]), round(HEAD_RADIUS * scale * 16), 1, -1, cv2.LINE_AA, shift=4)
             break
