@@ -15,7 +15,7 @@ from mmcsplat.cli import main
 from mmcsplat.configuration.registry import default_registry
 from mmcsplat.plugins.landmarks.openpose import MODELS
 from mmcsplat.storage.landmark_formats import read_trc
-from mmcsplat.storage.session import SessionReader
+from mmcsplat.storage.session import SessionReader, SessionUpdater
 
 POSE2SIM = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "pose2sim_demo"
 FRAMES = 3
@@ -86,6 +86,34 @@ def test_skeleton_masks_cover_the_figure(scene, tmp_path):
         assert 0.005 < mask.mean() < 0.5
     assert main(["segment", str(copy), "--segmenter", "keypoints", "--set", "refine=plate",
                  "--set", f'source={{name="openpose", folder="{folder}"}}', "--no-progress"]) == 2  # no plate yet: said so
+
+
+def test_a_plate_holding_the_still_subject_leaves_the_torso_in_the_refined_mask(scene, tmp_path):
+    """An estimated plate may keep a trunk that barely moved: refined against a plate equal to the frame,
+    nothing differs, and the torso's polygon alone is left as the mask."""
+    import shutil
+
+    session, folder = scene
+    copy = tmp_path / "session.zarr"
+    shutil.copytree(session, copy)
+    reader = SessionReader(copy)
+    with SessionUpdater(copy) as updater:
+        for camera in reader.camera_names:
+            updater.write_plate(camera, reader.frame(1, camera).rgb, {"kind": "estimated"})
+
+    def segment(torso: bool) -> int:
+        return main(["segment", str(copy), "--segmenter", "keypoints", "--set", "refine=plate", "--set", f"torso={str(torso).lower()}",
+                     "--set", f'source={{name="openpose", folder="{folder}"}}', "--no-progress"])
+
+    assert segment(False) == 2  # every mask empty: refused as implausible, nothing written
+    assert segment(True) == 0
+    joints = figure_at(1)
+    corners = joints[[MODELS["BODY_25B"].index(name) for name in ("LShoulder", "RShoulder", "RHip", "LHip")]]
+    for camera in reader.cameras:
+        mask = SessionReader(copy).frame(1, camera.name).mask
+        centre = camera.project(corners.mean(axis=0, keepdims=True)).round().astype(int)[0]
+        wrist = camera.project(joints[[MODELS["BODY_25B"].index("LWrist")]]).round().astype(int)[0]
+        assert mask[centre[1], centre[0]] and not mask[wrist[1], wrist[0]], camera.name
 
 
 @pytest.mark.skipif(not POSE2SIM.is_dir(), reason=f"shared real data not found at {POSE2SIM}")

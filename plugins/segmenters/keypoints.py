@@ -16,7 +16,10 @@ Each frame's detections are drawn filled, in one of three shapes chosen by what 
 This coarse silhouette is already a mask (``refine = "none"``). With a clean plate (recorded, or estimated
 by ``mmcsplat plates`` with these masks excluding the subject), ``refine = "plate"`` keeps the pixels that
 differ from the plate within the silhouette grown by ``margin``: the body's true outline, and never a
-bystander or a moving object away from the subject, which plate differences alone would take.
+bystander or a moving object away from the subject, which plate differences alone would take. A human's
+torso (``torso``: the polygon of shoulders and hips, inside the body) is kept whatever the plate shows: an
+estimated plate keeps what barely moved, and the Pose2Sim demo's cam_01 and cam_02 plates hold a ghost of
+the trunk that the refinement cut out of the masks (docs/real-data.md, "Masks and plates without a model").
 """
 
 from __future__ import annotations
@@ -99,17 +102,25 @@ def outline_mask(pixels: np.ndarray, seen: np.ndarray, names: tuple[str, ...], e
     return canvas.astype(bool)
 
 
+def torso_mask(pixels: np.ndarray, seen: np.ndarray, names: tuple[str, ...], shape: tuple[int, int]) -> np.ndarray:
+    """[H, W] bool: the polygon of one frame's shoulders and hips among ``pixels`` [K, 2] (``seen`` [K] bool);
+    empty unless all four are seen."""
+    index = {name: j for j, name in enumerate(names)}
+    canvas = np.zeros(shape, dtype=np.uint8)
+    if all(name in index and seen[index[name]] for name in TORSO):
+        cv2.fillPoly(canvas, [_fixed(pixels)[[index[name] for name in TORSO]]], 1, cv2.LINE_AA, shift=4)
+    return canvas.astype(bool)
+
+
 def skeleton_mask(pixels: np.ndarray, seen: np.ndarray, names: tuple[str, ...], shape: tuple[int, int], scale: float) -> np.ndarray:
     """[H, W] bool: the filled skeleton of one frame's keypoints ``pixels`` [K, 2] (``seen`` [K] bool)."""
     index = {name: j for j, name in enumerate(names)}
-    canvas = np.zeros(shape, dtype=np.uint8)
+    canvas = torso_mask(pixels, seen, names, shape).astype(np.uint8)
     fixed = _fixed(pixels)
 
     def usable(name: str) -> bool:
         return name in index and bool(seen[index[name]])
 
-    if all(usable(name) for name in TORSO):
-        cv2.fillPoly(canvas, [fixed[[index[name] for name in TORSO]]], 1, cv2.LINE_AA, shift=4)
     width = max(1, round(LIMB_WIDTH * scale))
     for a, b in LIMBS:
         if usable(a) and usable(b):
@@ -132,6 +143,8 @@ class KeypointSegmenter(PostProcessedSegmenter):
     margin: float = parameter(0.3, doc="plate: the skeleton grown by this share of its size (torso length, or the keypoints' extent) bounds the mask",
                               validator=at_least(0))
     threshold: float = parameter(20.0, doc="plate: grey levels of difference from the plate that count as subject", validator=above(0))
+    torso: bool = parameter(True, doc="plate: a human's torso (the polygon of shoulders and hips) is kept whatever the plate shows, since "
+                            "an estimated plate may hold a trunk that barely moved")
     # Every piece of a mask bounded by the skeleton is the subject: refined against the plate, a body often
     # splits at the belt or the knees (the Pose2Sim demo's cam_01 kept only its legs as the central piece).
     keep: str = parameter("all", doc="the mask's component kept: all (the skeleton bounds the mask), central or largest",
@@ -173,4 +186,6 @@ class KeypointSegmenter(PostProcessedSegmenter):
             if plate is not None:
                 difference = np.abs(session.frame(int(t), camera).rgb.astype(np.int16) - plate.astype(np.int16)).max(axis=-1)
                 mask = open_close(difference > self.threshold, 1, 2) & dilate(mask, round(self.margin * scale))
+                if self.torso and human:
+                    mask |= torso_mask(observed.pixels[k], seen, observed.names, shape)
             yield int(t), mask, None
