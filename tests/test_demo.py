@@ -12,7 +12,7 @@ import pytest
 from mmcsplat.analysis.lost_landmarks import lost_line
 from mmcsplat.cli import main
 from mmcsplat.configuration.config import load_config
-from mmcsplat.jobs.demo import TRACK_ITERATIONS, DemoPaths, tracking_choice
+from mmcsplat.jobs.demo import DemoPaths, tracking_choice
 
 TINY = ["--num-frames", "3", "--width", "64", "--height", "48", "--track-iterations", "2", "--no-progress",
         "--set", "fit.iterations=10"]  # fmt: skip
@@ -86,12 +86,11 @@ def test_rerun_with_other_settings_is_refused(demo, capsys):
 
 def test_tracking_iterations_come_from_option_then_table_then_default():
     bare = load_config("paper-masked")
-    rate = "dynamics.means_lr=0.00016"  # the fit's
-    assert tracking_choice(bare, None) == ("iterative", [f"dynamics.iterations={TRACK_ITERATIONS}", rate])
-    assert tracking_choice(bare, 7) == ("iterative", ["dynamics.iterations=7", rate])
+    assert tracking_choice(bare, None) == ("iterative", [])  # the method's defaults, as `run` tracks
+    assert tracking_choice(bare, 7) == ("iterative", ["dynamics.iterations=7"])
     table = load_config("paper-masked", ["dynamics.name=iterative", "dynamics.iterations=40", "dynamics.means_lr=0.002"])
-    assert tracking_choice(table, None) == ("iterative", ["dynamics.iterations=40", "dynamics.means_lr=0.002"])
-    assert tracking_choice(table, 7) == ("iterative", ["dynamics.iterations=7", "dynamics.means_lr=0.002"])
+    assert tracking_choice(table, None) == ("iterative", [])  # the table's settings, kept by the tracking step
+    assert tracking_choice(table, 7) == ("iterative", ["dynamics.iterations=7"])
     other = load_config("paper-masked", ["dynamics.name=deformation"])
     assert tracking_choice(other, None) == ("deformation", [])
     with pytest.raises(ValueError, match="chooses 'deformation'"):

@@ -16,8 +16,6 @@ from mmcsplat.cli.options import add_progress, add_settings
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from mmcsplat.jobs.demo import TRACK_ITERATIONS
-
     parser.add_argument("--out", required=True, type=Path, help="output directory (created; reused steps are skipped)")
     parser.add_argument("--config", default="masked-plate", help="configuration to fit and track with (default: masked-plate)")
     parser.add_argument("--backend", help="renderer backend (default: the configuration's)")
@@ -27,7 +25,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--height", type=int, default=192, help="image height of the synthetic capture in pixels (default 192)")
     parser.add_argument("--track-iterations", type=int, metavar="N",
                         help="iterations per frame of the iterative method (default: the configuration's [dynamics] "
-                             f"table, else {TRACK_ITERATIONS})")
+                             "table, else the method's own)")
     add_progress(parser)
 
 

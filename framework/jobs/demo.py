@@ -39,10 +39,6 @@ from mmcsplat.storage.run import (
     TRACKS_DIR,
 )
 
-#: Iterations per frame of the ``iterative`` method when the configuration has no [dynamics] table. One
-#: iteration of the default demo (256×192, the 8 400 Gaussians of its first-frame fit) measured 0.09 CPU
-#: seconds on one thread, so its 29 tracked frames take about 29 × 150 × 0.09 s ≈ 6.5 minutes.
-TRACK_ITERATIONS = 150
 SETTINGS_FILE = "demo.json"
 
 
@@ -51,7 +47,7 @@ class DemoSettings:
     """What the demo makes: ``frames`` frames of ``width`` × ``height`` from the synthetic capture's
     cameras, fitted with configuration ``config`` after ``overrides`` on renderer ``backend`` (default:
     the configuration's), tracked with ``track_iterations`` iterations per frame of ``iterative``
-    (default: the configuration's [dynamics] table, else :data:`TRACK_ITERATIONS`)."""
+    (default: the configuration's [dynamics] table, else the method's own: :func:`tracking_choice`)."""
 
     frames: int = 30
     width: int = 256
@@ -112,21 +108,17 @@ class DemoResult:
 
 def tracking_choice(config: Config, iterations: int | None) -> tuple[str, list[str]]:
     """(dynamics method, tracking overrides): the method the configuration's [dynamics] table names, else
-    ``iterative``; for ``iterative``, ``iterations`` per frame when given, else the table's, else
-    :data:`TRACK_ITERATIONS`, and the table's means' learning rate, else the fit's: the demo's infant moves
-    slowly enough for it, and its published figures were measured at it (``iterative``'s own default, ten
-    times the fit's, is for real captures)."""
-    from mmcsplat.training.settings import FitSettings  # torch: not when the command line starts
-
+    ``iterative``, at the table's settings, else the method's defaults (those ``mmcsplat run`` tracks with:
+    on the demo they follow the infant more closely and twice as fast as the fit's means rate at 150
+    iterations a frame, docs/performance.md, "The demo"); ``iterations`` per frame of ``iterative`` when given."""
     table = config.get("dynamics") or {}
     method = table.get("name") or "iterative"
-    if method != "iterative":
-        if iterations is not None:
-            raise InputError(f"{config.source}: --track-iterations sets the iterative method's iterations per frame, "
-                             f"but its [dynamics] table chooses {method!r}: set dynamics.KEY values instead")
+    if iterations is None:
         return method, []
-    return method, [f"dynamics.iterations={iterations if iterations is not None else table.get('iterations', TRACK_ITERATIONS)}",
-                    f"dynamics.means_lr={table.get('means_lr', FitSettings.from_config(config).lrs.means)}"]
+    if method != "iterative":
+        raise InputError(f"{config.source}: --track-iterations sets the iterative method's iterations per frame, "
+                         f"but its [dynamics] table chooses {method!r}: set dynamics.KEY values instead")
+    return method, [f"dynamics.iterations={iterations}"]
 
 
 def run_demo(out: Path, settings: DemoSettings = DemoSettings(), progress: bool = True,
@@ -194,7 +186,7 @@ def run_demo(out: Path, settings: DemoSettings = DemoSettings(), progress: bool 
              lambda: write_report(run, paths.report, backend=settings.backend)),
     ]
     times = run_steps("demo", steps, log, SettingsRecord.of(paths.out / SETTINGS_FILE, settings))
-    iterations = json.loads(paths.track_info.read_text())["params"].get("iterations")
+    iterations = json.loads(paths.track_info.read_text())["summary"].get("iterations_per_frame")
     return DemoResult(paths, method, iterations, json.loads(paths.metrics.read_text()), json.loads(paths.landmarks_info.read_text()), times)
 
 
