@@ -52,7 +52,7 @@ import attrs
 import numpy as np
 
 from mmcsplat.datasets.dnerf import GL_TO_CV
-from mmcsplat.datasets.posed_images import MISSING_FRAMES_PARAMETER, PosedImage, PosedImageRecording, missing_files, rigid_pose
+from mmcsplat.datasets.posed_images import MISSING_FRAMES_PARAMETER, PosedImage, PosedImageRecording, finite_matrix, missing_files, rigid_pose
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.interfaces import Reader
 from mmcsplat.plugin_api.parameters import finite_positive, parameter
@@ -160,13 +160,7 @@ def _applied_transform(path: Path, value: Any) -> np.ndarray | None:
     """The top-level ``applied_transform`` as a finite 3×4 matrix (4×4 accepted), or None when absent."""
     if value is None:
         return None
-    try:
-        matrix = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InputError(f"{path}: 'applied_transform' must be a 3×4 matrix of numbers") from None
-    if matrix.shape not in ((3, 4), (4, 4)) or not np.all(np.isfinite(matrix)):
-        raise InputError(f"{path}: 'applied_transform' must be a finite 3×4 matrix, got shape {matrix.shape}")
-    return matrix[:3]
+    return finite_matrix(str(path), "applied_transform", value, "3×4")[:3]
 
 
 def _file(source: Path, where: str, key: str, value: Any) -> Path:

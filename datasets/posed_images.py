@@ -47,15 +47,22 @@ def missing_files(paths: Sequence[Path], what: str, policy: str) -> set[Path]:
     return set(missing)
 
 
-def rigid_pose(where: str, value: Any) -> np.ndarray:
-    """A rigid 4×4 camera-to-world ``transform_matrix`` (a 3×4 one is completed), as D-NeRF's and nerfstudio's
-    transforms.json give it; ``where`` names the frame in errors."""
+def finite_matrix(where: str, key: str, value: Any, described: str) -> np.ndarray:
+    """``value`` (the entry ``key``) as a finite float64 3×4 or 4×4 matrix, or an error naming ``where`` and
+    ``key`` and calling the matrix ``described`` (its usual shape, "4×4" or "3×4")."""
     try:
         matrix = np.array(value, dtype=np.float64)
     except (TypeError, ValueError):
-        raise InputError(f"{where}: 'transform_matrix' must be a 4×4 matrix of numbers") from None
+        raise InputError(f"{where}: {key!r} must be a {described} matrix of numbers") from None
     if matrix.shape not in ((4, 4), (3, 4)) or not np.all(np.isfinite(matrix)):
-        raise InputError(f"{where}: 'transform_matrix' must be a finite 4×4 matrix, got shape {matrix.shape}")
+        raise InputError(f"{where}: {key!r} must be a finite {described} matrix, got shape {matrix.shape}")
+    return matrix
+
+
+def rigid_pose(where: str, value: Any) -> np.ndarray:
+    """A rigid 4×4 camera-to-world ``transform_matrix`` (a 3×4 one is completed), as D-NeRF's and nerfstudio's
+    transforms.json give it; ``where`` names the frame in errors."""
+    matrix = finite_matrix(where, "transform_matrix", value, "4×4")
     rotation = matrix[:3, :3]
     if not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-5) or np.linalg.det(rotation) < 0:
         raise InputError(f"{where}: 'transform_matrix' is not a rigid transform (its 3×3 part is not a rotation)")
