@@ -112,10 +112,11 @@ def torso_mask(pixels: np.ndarray, seen: np.ndarray, names: tuple[str, ...], sha
     return canvas.astype(bool)
 
 
-def skeleton_mask(pixels: np.ndarray, seen: np.ndarray, names: tuple[str, ...], shape: tuple[int, int], scale: float) -> np.ndarray:
-    """[H, W] bool: the filled skeleton of one frame's keypoints ``pixels`` [K, 2] (``seen`` [K] bool)."""
+def skeleton_mask(pixels: np.ndarray, seen: np.ndarray, names: tuple[str, ...], torso: np.ndarray, scale: float) -> np.ndarray:
+    """[H, W] bool: the filled skeleton of one frame's keypoints ``pixels`` [K, 2] (``seen`` [K] bool): its
+    limbs and head drawn over ``torso``, the same keypoints' :func:`torso_mask`."""
     index = {name: j for j, name in enumerate(names)}
-    canvas = torso_mask(pixels, seen, names, shape).astype(np.uint8)
+    canvas = torso.astype(np.uint8)
     fixed = _fixed(pixels)
 
     def usable(name: str) -> bool:
@@ -181,11 +182,12 @@ class KeypointSegmenter(PostProcessedSegmenter):
                 continue
             k = where[0]
             seen, shape = observed.confidence[k] > 0, (stored.height, stored.width)
-            mask = skeleton_mask(observed.pixels[k], seen, observed.names, shape, scale) if human else \
+            torso = torso_mask(observed.pixels[k], seen, observed.names, shape) if human else None
+            mask = skeleton_mask(observed.pixels[k], seen, observed.names, torso, scale) if torso is not None else \
                 outline_mask(observed.pixels[k], seen, observed.names, observed.edges, shape, scale)
             if plate is not None:
                 difference = np.abs(session.frame(int(t), camera).rgb.astype(np.int16) - plate.astype(np.int16)).max(axis=-1)
                 mask = open_close(difference > self.threshold, 1, 2) & dilate(mask, round(self.margin * scale))
-                if self.torso and human:
-                    mask |= torso_mask(observed.pixels[k], seen, observed.names, shape)
+                if self.torso and torso is not None:
+                    mask |= torso
             yield int(t), mask, None
