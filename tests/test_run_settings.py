@@ -7,7 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from mmcsplat.jobs.capture import CaptureSettings, run_capture
+from mmcsplat.configuration.config import load_config
+from mmcsplat.jobs.capture import DEFAULT_CONFIG, CaptureSettings, guidance_overrides, run_capture
+from mmcsplat.pipeline.track import dynamics_choice
 from mmcsplat.plugin_api.errors import InputError
 
 
@@ -15,6 +17,7 @@ from mmcsplat.plugin_api.errors import InputError
     (CaptureSettings(track_flow_gain=0), "flow_gain must be > 0, got 0"),
     (CaptureSettings(track_iterations=-1), "iterations must be ≥ 0, got -1"),
     (CaptureSettings(overrides=("dynamics.lambda_rigid=-1",)), "lambda_rigid must be ≥ 0"),
+    (CaptureSettings(track_keypoints=1), "--track-keypoints: .*capture has no 2D keypoints to guide the tracking with"),
 ])
 def test_bad_tracking_values_fail_before_the_first_step(tmp_path, settings, message):
     capture, out = tmp_path / "capture", tmp_path / "out"
@@ -22,6 +25,17 @@ def test_bad_tracking_values_fail_before_the_first_step(tmp_path, settings, mess
     with pytest.raises(InputError, match=message):
         run_capture(capture, out, settings, progress=False, log=lambda line: None)
     assert not out.exists()
+
+
+@pytest.mark.parametrize("source", [
+    {"name": "openpose", "folder": 'C:\\rig "2"\\pose_2d'},
+    {"name": "sleap", "files": ["/data/a b.slp", "/data/c.analysis.h5"]},
+])
+def test_keypoint_guidance_reaches_the_tracking_with_the_capture_keypoints(tmp_path, source):
+    overrides = guidance_overrides(0.5, source, tmp_path)
+    dynamics = dynamics_choice(load_config(DEFAULT_CONFIG, overrides), "iterative").build()
+    assert dynamics.lambda_keypoints == 0.5
+    assert dynamics.keypoints == source
 
 
 def test_reader_options_reach_the_ingest(tmp_path, monkeypatch):

@@ -44,6 +44,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--track-flow-gain", type=float, default=TRACK_FLOW_GAIN, metavar="GAIN",
                         help=f"the optical flow's lifted displacement times this starts each tracked frame (default {TRACK_FLOW_GAIN:g}: "
                         "the flow reports about three quarters of a real limb's motion, and the fit does not close the gap; 1: as measured)")
+    parser.add_argument("--track-keypoints", type=float, default=0.0, metavar="WEIGHT",
+                        help="weight of keypoint guidance: the Gaussians carrying each keypoint pulled towards the training cameras' 2D "
+                        "keypoints while tracking (default 0: off, since infants are where detectors fail; 1 for an adult with "
+                        "good detections: docs/real-data.md). Their 2D errors then no longer test the tracks; a held-out camera's do")
     add_progress(parser)
 
 
@@ -56,6 +60,7 @@ def run(args: argparse.Namespace) -> int:
                                keypoints=args.keypoints, joints=args.joints, config=args.config, overrides=args.overrides,
                                reader_options=args.reader_options,
                                track_iterations=args.track_iterations, track_means_lr=args.track_means_lr,
-                               track_lambda_parts=args.track_parts, track_flow_gain=args.track_flow_gain)
+                               track_lambda_parts=args.track_parts, track_flow_gain=args.track_flow_gain,
+                               track_keypoints=args.track_keypoints)
     print(summary(run_capture(args.capture, args.out, settings, progress=not args.no_progress)))
     return 0

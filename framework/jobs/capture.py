@@ -15,7 +15,8 @@ flow → flow-guided track → landmarks → evaluate → renders → report.
   rig centre plus 10 cm, never below the configuration's), so an adult or a mouse fits like an infant.
 - Track: ``iterative`` at :data:`TRACK_MEANS_LR`, each frame started from the optical flow's lifted motion
   times :data:`TRACK_FLOW_GAIN`, and with joints the body's parts held at their lengths
-  (:data:`TRACK_LAMBDA_PARTS`).
+  (:data:`TRACK_LAMBDA_PARTS`). Keypoint guidance (``--track-keypoints WEIGHT``) pulls the tracks towards the
+  training cameras' keypoints; it is off by default, since infants are where detectors fail.
 - Landmarks: a TRC of joints (``--joints FILE``, default the single ``CAPTURE/*.trc``) bound at the
   fitted frame, scored against its later frames and against the keypoints in every camera.
 
@@ -76,6 +77,17 @@ class CaptureSettings:
     track_means_lr: float = TRACK_MEANS_LR
     track_lambda_parts: float = TRACK_LAMBDA_PARTS
     track_flow_gain: float = attrs.field(default=TRACK_FLOW_GAIN, metadata={BEFORE_FIELD: 1.0})
+    track_keypoints: float = attrs.field(default=0.0, metadata={BEFORE_FIELD: 0.0})
+
+
+def guidance_overrides(weight: float, source: dict[str, Any] | None, capture: Path) -> list[str]:
+    """The tracking overrides that turn keypoint guidance on at ``weight`` from the keypoints ``source`` reads
+    (:func:`~mmcsplat.pipeline.capture_session.keypoint_source`); an error when the capture has none."""
+    if source is None:
+        raise InputError(f"--track-keypoints: {capture} has no 2D keypoints to guide the tracking with (no pose_2d/ folder): give "
+                         "--keypoints PATH, or leave --track-keypoints at 0")
+    # Each value quoted as TOML takes it, whatever a path holds.
+    return [f"dynamics.lambda_keypoints={weight}", *(f"dynamics.keypoints.{key}={json.dumps(value)}" for key, value in source.items())]
 
 
 @attrs.frozen
@@ -118,9 +130,14 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     if joints is not None and settings.track_lambda_parts > 0:
         tracking += [f"dynamics.lambda_parts={settings.track_lambda_parts}", "dynamics.skeleton.name=trc",
                      f"dynamics.skeleton.path={json.dumps(str(joints))}"]  # quoted: a TOML string whatever the path holds
+    if settings.track_keypoints:  # a negative weight is refused by the dynamics' own check below
+        tracking += guidance_overrides(settings.track_keypoints, source, capture)
     # A bad reader option, configuration or tracking value fails before anything runs.
     reader_options = apply_overrides({}, settings.reader_options, "--reader-set")
     dynamics_choice(load_config(settings.config, [*settings.overrides, *tracking]), "iterative").build()
+    if settings.track_keypoints:
+        log(f"run: keypoint guidance from the training cameras' {source['name']} keypoints, weight {settings.track_keypoints:g}: their 2D "
+            "errors are no longer a test of the tracks (a held-out camera's still is)")
     session, run = out / "session.zarr", out / "run"
     if not session.exists():
         capture_reader(capture, reader_options=reader_options)
