@@ -80,14 +80,19 @@ class CaptureSettings:
     track_keypoints: float = attrs.field(default=0.0, metadata={BEFORE_FIELD: 0.0})
 
 
+def quoted_override(key: str, value: Any) -> str:
+    """``KEY=VALUE`` for ``--set``, the value written as a TOML literal (a JSON string or list is one), so that
+    a path with quotes, backslashes or spaces arrives as it is."""
+    return f"{key}={json.dumps(value)}"
+
+
 def guidance_overrides(weight: float, source: dict[str, Any] | None, capture: Path) -> list[str]:
     """The tracking overrides that turn keypoint guidance on at ``weight`` from the keypoints ``source`` reads
     (:func:`~mmcsplat.pipeline.capture_session.keypoint_source`); an error when the capture has none."""
     if source is None:
         raise InputError(f"--track-keypoints: {capture} has no 2D keypoints to guide the tracking with (no pose_2d/ folder): give "
                          "--keypoints PATH, or leave --track-keypoints at 0")
-    # Each value quoted as TOML takes it, whatever a path holds.
-    return [f"dynamics.lambda_keypoints={weight}", *(f"dynamics.keypoints.{key}={json.dumps(value)}" for key, value in source.items())]
+    return [f"dynamics.lambda_keypoints={weight}", *(quoted_override(f"dynamics.keypoints.{key}", value) for key, value in source.items())]
 
 
 @attrs.frozen
@@ -129,7 +134,7 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
                 f"dynamics.flow_gain={settings.track_flow_gain}"]
     if joints is not None and settings.track_lambda_parts > 0:
         tracking += [f"dynamics.lambda_parts={settings.track_lambda_parts}", "dynamics.skeleton.name=trc",
-                     f"dynamics.skeleton.path={json.dumps(str(joints))}"]  # quoted: a TOML string whatever the path holds
+                     quoted_override("dynamics.skeleton.path", str(joints))]
     if settings.track_keypoints:  # a negative weight is refused by the dynamics' own check below
         tracking += guidance_overrides(settings.track_keypoints, source, capture)
     # A bad reader option, configuration or tracking value fails before anything runs.
