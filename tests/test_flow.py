@@ -160,6 +160,21 @@ def test_the_default_flow_follows_a_thin_limb_moving_its_own_width():
     assert np.median(DisFlow("medium").calc(first, second)[on_bar][..., 0]) < 3.0
 
 
+def test_a_pairs_backward_flow_on_a_second_thread_is_the_same_flow():
+    # compute_flow runs the backward flow beside the forward one when a core is free: it must not change it.
+    from concurrent.futures import ThreadPoolExecutor
+
+    background = texture(96, 72)[:72, :96]
+    second = np.roll(background, (2, 3), axis=(0, 1))
+    dis = DisFlow(DEFAULT_PRESET)
+    serial = dis.both(background, second)
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        threaded = dis.both(background, second, pool)
+    assert np.median(serial[0][10:60, 10:80], axis=(0, 1)) == pytest.approx([3.0, 2.0], abs=0.2)
+    for alone, beside in zip(serial, threaded, strict=True):
+        np.testing.assert_array_equal(alone, beside)
+
+
 def compute_pair_of(session, t):
     from mmcsplat.pipeline.flow import flow_pair, grey
 

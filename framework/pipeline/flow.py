@@ -14,7 +14,10 @@ masks, widened by :data:`CROP_MARGIN` and aligned to :data:`CROP_ALIGN` pixels):
 at the subject, and outside the box it is absent (zero, confidence 0); without masks, or with both empty,
 on the whole image. The preset was chosen by measurement (docs/dynamics.md, "Preset `fine`"). Frames stream through
 the session reader two at a time, so memory does not grow with the sequence; the result is stored in the
-session (:mod:`mmcsplat.storage.session.flow`), resumably.
+session (:mod:`mmcsplat.storage.session.flow`), resumably. Each DIS flow runs on one thread; a pair's
+backward flow runs beside its forward one while the other processes leave a core free (the training's
+thread policy, :mod:`mmcsplat.training.threads`, decides), which halves the flow's time on an idle
+2-core machine.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Mapping, Sequence
+from concurrent.futures import Executor, ThreadPoolExecutor
 
 import attrs
 import numpy as np
@@ -29,6 +33,7 @@ import numpy as np
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.storage.session.flow import FlowPair, FlowWriter, SessionFlow, pair_present
+from mmcsplat.training.threads import thread_policy
 
 
 @attrs.frozen
@@ -136,8 +141,8 @@ def consistency(forward: np.ndarray, backward: np.ndarray) -> np.ndarray:
 
 
 class DisFlow:
-    """OpenCV's DIS flow run as ``preset`` (one of :data:`PRESETS`), single-threaded: the machine is shared
-    and flow is computed once per session."""
+    """OpenCV's DIS flow run as ``preset`` (one of :data:`PRESETS`), each flow on one thread: the machine may
+    be shared, so a pair's backward flow takes a second thread only when :meth:`both` is given one."""
 
     def __init__(self, preset: str) -> None:
         import cv2
@@ -146,6 +151,7 @@ class DisFlow:
             raise InputError(f"unknown DIS preset {preset!r}: use one of {', '.join(PRESETS)}")
         settings = SETTINGS[preset]
         cv2.setNumThreads(1)
+        self.preset = preset
         self.dis: cv2.DISOpticalFlow = cv2.DISOpticalFlow.create(getattr(cv2, f"DISOPTICAL_FLOW_PRESET_{settings.base.upper()}"))
         if settings.finest_scale is not None:
             self.dis.setFinestScale(settings.finest_scale)
@@ -154,6 +160,7 @@ class DisFlow:
         if settings.refinement_iterations is not None:
             self.dis.setVariationalRefinementIterations(settings.refinement_iterations)
         self.upsample = settings.upsample
+        self._twin: DisFlow | None = None
 
     def calc(self, first: np.ndarray, second: np.ndarray) -> np.ndarray:
         """[H, W, 2] float32 flow in pixels from grey image ``first`` to ``second`` [H, W] uint8."""
@@ -167,13 +174,26 @@ class DisFlow:
         height, width = first.shape
         return cv2.resize(flow, (width, height), interpolation=cv2.INTER_AREA) / np.float32(factor)
 
+    def both(self, first: np.ndarray, second: np.ndarray, pool: Executor | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The forward and backward flow between ``first`` and ``second``; with ``pool`` the backward one on its
+        thread, by a second DIS instance (an instance holds its pyramids, so two threads cannot share one; OpenCV
+        releases the GIL while it computes). The flows are the same either way."""
+        if pool is None:
+            return self.calc(first, second), self.calc(second, first)
+        if self._twin is None:
+            self._twin = DisFlow(self.preset)
+        backward = pool.submit(self._twin.calc, second, first)
+        return self.calc(first, second), backward.result()
 
-def flow_pair(first: np.ndarray, second: np.ndarray, dis: DisFlow, box: tuple[slice, slice] | None = None) -> FlowPair:
+
+def flow_pair(first: np.ndarray, second: np.ndarray, dis: DisFlow, box: tuple[slice, slice] | None = None,
+              pool: Executor | None = None) -> FlowPair:
     """The forward and backward flow between two grey images, with their confidences; with ``box`` (from
-    :func:`subject_box`) computed inside it only, zero with confidence 0 outside."""
+    :func:`subject_box`) computed inside it only, zero with confidence 0 outside; with ``pool`` the backward
+    flow on its thread (:meth:`DisFlow.both`)."""
     inside = box or (slice(None), slice(None))
     first_part, second_part = np.ascontiguousarray(first[inside]), np.ascontiguousarray(second[inside])
-    forward, backward = dis.calc(first_part, second_part), dis.calc(second_part, first_part)
+    forward, backward = dis.both(first_part, second_part, pool)
     parts = (forward, backward, consistency(forward, backward), consistency(backward, forward))
     if box is None:
         return FlowPair(*parts)
@@ -207,7 +227,9 @@ def compute_flow(url: str | os.PathLike, cameras: Sequence[str] | None = None, p
     if flow_complete(url, names, preset):
         return [FlowSummary(name, 0, int(pair_present(session.present(name)).sum()), None, None) for name in names]
     summaries = []
-    with FlowWriter(url, method=method_record(preset, mask_arrays(session, names)), cameras=names) as writer:
+    threads = thread_policy()  # a pair's two flows on two threads while the other processes leave a core free
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="dis") as pool, \
+            FlowWriter(url, method=method_record(preset, mask_arrays(session, names)), cameras=names) as writer:
         for name in names:
             pairs = writer.missing(name)
             kept = int(pair_present(session.present(name)).sum()) - len(pairs)
@@ -215,7 +237,8 @@ def compute_flow(url: str | os.PathLike, cameras: Sequence[str] | None = None, p
             for t in tqdm(pairs, desc=f"flow {name}", unit="pair", disable=not progress):
                 first = previous[1] if previous is not None and previous[0] == t else session.frame(int(t), name)
                 second = session.frame(int(t) + 1, name)
-                pair = flow_pair(grey(first.rgb), grey(second.rgb), dis, subject_box(first.mask, second.mask))
+                pair = flow_pair(grey(first.rgb), grey(second.rgb), dis, subject_box(first.mask, second.mask),
+                                 pool if threads.update() > 1 else None)
                 writer.write(name, int(t), pair)
                 confident.append(float((pair.forward_confidence > 0.5).mean()))
                 previous = (t + 1, second)
