@@ -55,6 +55,19 @@ def test_pairs_join_members_of_one_part_only_and_never_a_gaussian_to_itself():
     assert pairs.loss(means).item() == pytest.approx(0.0, abs=1e-6)
 
 
+def test_the_numba_loss_matches_its_torch_reference():
+    pairs, means, _ = pairs_on_the_arm()
+    moved = (means + 0.01 * torch.randn(means.shape, generator=torch.Generator().manual_seed(0))).requires_grad_(True)
+    fast = pairs.loss(moved)
+    fast.backward()
+    grad, moved.grad = moved.grad.clone(), None
+    oracle = pairs.reference_loss(moved)
+    oracle.backward()
+    assert fast.item() > 1e-3
+    torch.testing.assert_close(fast, oracle, rtol=2e-5, atol=1e-7)
+    torch.testing.assert_close(grad, moved.grad, rtol=2e-4, atol=1e-7)
+
+
 def test_bending_at_the_elbow_is_free_and_shortening_the_forearm_is_not():
     pairs, means, points = pairs_on_the_arm()
     elbow = JOINTS["LElbow"]

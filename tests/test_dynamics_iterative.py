@@ -89,6 +89,32 @@ def test_a_first_frame_reference_keeps_a_slide_costly():
     assert first.losses(slid, turned)[0] > 1e-4  # still measured against the first frame
 
 
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+@pytest.mark.parametrize("reference", ["previous", "first"])
+def test_the_numba_priors_match_their_torch_reference(dtype, reference):
+    """Each loss and its gradients in means and rotations, through the numba passes and through torch: each
+    loss weighted differently, so a gradient given to the wrong loss shows."""
+    g = torch.Generator().manual_seed(3)
+    means = (torch.randn(80, 3, generator=g, dtype=torch.float64) * 0.05).to(dtype)
+    quats = torch.randn(80, 4, generator=g, dtype=torch.float64).to(dtype)
+    foreground = torch.rand(80, generator=g) > 0.2
+    prior = RigidityPrior(NeighbourGraph.build(means, foreground, k=7, lambda_w=500.0), reference)
+    prior.remember(means, quats)
+    means = (means + 0.004 * torch.randn(80, 3, generator=g, dtype=torch.float64).to(dtype)).requires_grad_(True)
+    quats = (quats + 0.05 * torch.randn(80, 4, generator=g, dtype=torch.float64).to(dtype)).requires_grad_(True)
+    weights = torch.tensor([1.0, 3.0, 7.0], dtype=dtype)
+    results = []
+    for losses in (prior.losses, prior.reference_losses):
+        means.grad = quats.grad = None
+        values = torch.stack(losses(means, quats))
+        (weights * values).sum().backward()
+        results.append((values.detach(), means.grad.clone(), quats.grad.clone()))
+    tolerance = {"rtol": 1e-9, "atol": 1e-12} if dtype == torch.float64 else {"rtol": 2e-4, "atol": 1e-6}
+    assert results[0][0].dtype == dtype and (results[0][0] > 1e-4).all()
+    for fast, oracle in zip(results[0], results[1], strict=True):
+        torch.testing.assert_close(fast, oracle, **tolerance)
+
+
 def test_a_strided_graph_reaches_further_at_the_same_size():
     means = torch.randn(200, 3, generator=torch.Generator().manual_seed(2), dtype=torch.float64) * 0.05
     foreground = torch.ones(200, dtype=torch.bool)

@@ -28,6 +28,7 @@ from mmcsplat.scene.human_skeleton import FEET, HEAD, LIMB_BONES, TORSO
 from mmcsplat.scene.human_skeleton import torso_length as human_torso_length
 
 from .rigidity import EPSILON, gather_rows
+from .rigidity_kernel import Stretch
 
 #: The synthetic infant's names of the torso's corners, in human_skeleton.TORSO's order.
 SYNTHETIC_TORSO = ("shoulder_left", "shoulder_right", "hip_right", "hip_left")
@@ -114,7 +115,14 @@ class PartPairs:
         return {"parts": ["–".join(part) for part in self.parts], "gaussians": list(self.members), "pairs": len(self.first)}
 
     def loss(self, means: torch.Tensor) -> torch.Tensor:
-        """Mean over the pairs of |‖μ_i − μ_j‖ − first-frame length| (0 without pairs)."""
+        """Mean over the pairs of |‖μ_i − μ_j‖ − first-frame length| (0 without pairs), in one numba pass
+        (:class:`.rigidity_kernel.Stretch`); the value and gradient are :meth:`reference_loss`'."""
+        if not len(self.first):
+            return means.sum() * 0
+        return Stretch.apply(means, self.first, self.second, self.lengths, torch.ones_like(self.lengths), EPSILON)
+
+    def reference_loss(self, means: torch.Tensor) -> torch.Tensor:
+        """:meth:`loss` in torch operations: the oracle of the numba pass."""
         if not len(self.first):
             return means.sum() * 0
         lengths = (gather_rows(means, self.first) - gather_rows(means, self.second)).norm(dim=-1)

@@ -18,6 +18,8 @@ from scipy.spatial import cKDTree
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.scene.quaternions import quat_conjugate, quat_multiply, quat_to_rotmat
 
+from .rigidity_kernel import RigidRotation, Stretch
+
 EPSILON = 1e-20
 
 
@@ -79,13 +81,24 @@ class RigidityPrior:
         self.reference = reference
         self._offsets: torch.Tensor | None = None
         self._inverse: torch.Tensor | None = None
+        count, k = graph.neighbours.shape
+        self._pairs = (torch.arange(count).repeat_interleave(k), graph.neighbours.reshape(-1))  # (Gaussian, neighbour) positions
 
-    def _offsets_and_rotations(self, means: torch.Tensor, quats: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        index = self.graph.foreground
-        centres = gather_rows(means, index)
-        offsets = gather_rows(centres, self.graph.neighbours) - centres[:, None]  # [F, k, 3]
-        rotations = gather_rows(quats, index)
-        return offsets, rotations / rotations.norm(dim=-1, keepdim=True)
+    def _neighbour_offsets(self, means: torch.Tensor) -> torch.Tensor:
+        """[F, k, 3] each foreground Gaussian's offsets to its neighbours."""
+        centres = gather_rows(means, self.graph.foreground)
+        return gather_rows(centres, self.graph.neighbours) - centres[:, None]
+
+    def _rotations(self, quats: torch.Tensor) -> torch.Tensor:
+        """[F, 4] the foreground Gaussians' unit rotations."""
+        rotations = gather_rows(quats, self.graph.foreground)
+        return rotations / rotations.norm(dim=-1, keepdim=True)
+
+    def _since_reference(self, quats: torch.Tensor) -> torch.Tensor:
+        """[F, 4] each foreground Gaussian's rotation since the reference frame."""
+        if self._offsets is None or self._inverse is None:
+            raise RuntimeError("RigidityPrior.remember() must record a previous frame first")
+        return quat_multiply(self._rotations(quats), self._inverse)
 
     def remember(self, means: torch.Tensor, quats: torch.Tensor) -> None:
         """Make ``means``/``quats`` the frame the next losses compare against (with ``reference="first"``,
@@ -93,19 +106,27 @@ class RigidityPrior:
         if self.reference == "first" and self._offsets is not None:
             return
         with torch.no_grad():
-            offsets, rotations = self._offsets_and_rotations(means, quats)
-        self._offsets = offsets
-        self._inverse = quat_conjugate(rotations)
+            self._offsets = self._neighbour_offsets(means)
+            self._inverse = quat_conjugate(self._rotations(quats))
 
     def losses(self, means: torch.Tensor, quats: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """(rigid, rot, iso): neighbour offsets rotated back into the reference frame's local axes versus
         the reference offsets; rotations since the reference versus the neighbours'; neighbour distances
-        versus the first frame's."""
-        if self._offsets is None or self._inverse is None:
-            raise RuntimeError("RigidityPrior.remember() must record a previous frame first")
+        versus the first frame's. The pairs are numba passes (:mod:`.rigidity_kernel`); the values and
+        gradients are :meth:`reference_losses`'."""
         graph = self.graph
-        offsets, rotations = self._offsets_and_rotations(means, quats)
-        relative = quat_multiply(rotations, self._inverse)  # [F, 4]: rotation since the reference frame
+        relative = self._since_reference(quats)
+        centres = gather_rows(means, graph.foreground)
+        rigid, rot = RigidRotation.apply(centres, quat_to_rotmat(relative), relative, graph.neighbours, self._offsets, graph.weights,
+                                         EPSILON).unbind()
+        iso = Stretch.apply(centres, *self._pairs, graph.distances.reshape(-1), graph.weights.reshape(-1), EPSILON)
+        return rigid, rot, iso
+
+    def reference_losses(self, means: torch.Tensor, quats: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """:meth:`losses` in torch operations: the oracle of the numba pass."""
+        graph = self.graph
+        relative = self._since_reference(quats)
+        offsets = self._neighbour_offsets(means)
         back = torch.einsum("fji,fkj->fki", quat_to_rotmat(relative), offsets)  # Rᵀ·offset
         rigid = weighted_distance(back, self._offsets, graph.weights)
         rot = weighted_distance(gather_rows(relative, graph.neighbours), relative[:, None], graph.weights)
