@@ -68,6 +68,15 @@ def test_the_numba_loss_matches_its_torch_reference():
     torch.testing.assert_close(grad, moved.grad, rtol=2e-4, atol=1e-7)
 
 
+def test_no_pairs_cost_nothing():
+    empty = torch.zeros(0, dtype=torch.int64)
+    pairs = PartPairs(empty, empty, torch.zeros(0), (), ())
+    means = torch.rand(5, 3, requires_grad=True)
+    loss = pairs.loss(means)
+    loss.backward()
+    assert loss.item() == 0.0 and not means.grad.any()
+
+
 def test_bending_at_the_elbow_is_free_and_shortening_the_forearm_is_not():
     pairs, means, points = pairs_on_the_arm()
     elbow = JOINTS["LElbow"]

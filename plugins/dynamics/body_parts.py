@@ -117,8 +117,6 @@ class PartPairs:
     def loss(self, means: torch.Tensor) -> torch.Tensor:
         """Mean over the pairs of |‖μ_i − μ_j‖ − first-frame length| (0 without pairs), in one numba pass
         (:class:`.rigidity_kernel.Stretch`); the value and gradient are :meth:`reference_loss`'."""
-        if not len(self.first):
-            return means.sum() * 0
         return Stretch.apply(means, self.first, self.second, self.lengths, torch.ones_like(self.lengths), EPSILON)
 
     def reference_loss(self, means: torch.Tensor) -> torch.Tensor:

@@ -151,8 +151,9 @@ class Stretch(torch.autograd.Function):
     def forward(ctx, points, first, second, lengths, weights, epsilon: float):  # noqa: D102 (torch API)
         total, grad = stretch_sum(_numpy(points), first.cpu().contiguous().numpy(), second.cpu().contiguous().numpy(), _numpy(lengths),
                                   _numpy(weights), float(epsilon))
-        ctx.grad = torch.from_numpy(grad / len(first)).to(points)
-        return points.new_tensor(total / len(first))
+        count = max(len(first), 1)  # no pairs: a mean of 0 with no gradient
+        ctx.grad = torch.from_numpy(grad / count).to(points)
+        return points.new_tensor(total / count)
 
     @staticmethod
     @once_differentiable
