@@ -15,7 +15,9 @@ import tomli_w
 
 from mmcsplat.cli import main
 from mmcsplat.datasets.videos import VideoReader
+from mmcsplat.pipeline.image_scale import AUTO_SCALE, resolve_scale
 from mmcsplat.pipeline.ingest import Undistorter, detect_format, ingest, parse_frames
+from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.storage.calibration import read_calibration, write_calibration
 from mmcsplat.storage.session import SessionReader
 
@@ -72,6 +74,30 @@ def test_frames_scale_subset_and_holdout(tmp_path: Path) -> None:
         rgb = session.frame(index, "c3").rgb
         assert rgb.shape == (48, 64, 3)
         assert abs(float(np.median(rgb)) - rig.background_level(t)) < 10
+
+
+def test_resolve_scale_sizes_the_longer_side_and_never_enlarges() -> None:
+    def camera(width: int, height: int) -> object:
+        return type("Sized", (), {"width": width, "height": height})()
+
+    assert resolve_scale(AUTO_SCALE, [camera(1088, 1920), camera(1080, 1920)]) == 0.25  # the Pose2Sim demo
+    assert resolve_scale(AUTO_SCALE, [camera(1280, 720)]) == 0.375
+    assert resolve_scale(AUTO_SCALE, [camera(3840, 2160), camera(1920, 1080)]) == 0.125  # the largest camera decides
+    assert resolve_scale(AUTO_SCALE, [camera(256, 192)]) == 1.0
+    assert resolve_scale(0.5, []) == 0.5
+    for bad in (0, -1.0, "half"):
+        with pytest.raises(InputError, match="scale must be a positive number or 'auto'"):
+            resolve_scale(bad, [])
+
+
+def test_an_auto_scale_is_recorded_as_the_number_it_became(tmp_path: Path) -> None:
+    rig.make_capture(tmp_path / "capture", frames=2)
+    with_auto = _ingest(tmp_path / "capture", tmp_path / "auto.zarr", scale=AUTO_SCALE)
+    assert with_auto.provenance["scale"] == 1.0  # 128 × 96 is under 480 px: never enlarged
+    assert with_auto.camera("cam_a").width == 128
+    assert main(["ingest", str(tmp_path / "capture"), str(tmp_path / "cli.zarr"), "--scale", "auto", "--no-progress"]) == 0
+    with pytest.raises(SystemExit):
+        main(["ingest", str(tmp_path / "capture"), str(tmp_path / "bad.zarr"), "--scale", "half"])
 
 
 def test_fuzzy_names_videos_folder_and_truncation(tmp_path: Path) -> None:

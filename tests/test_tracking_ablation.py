@@ -102,7 +102,7 @@ def test_a_capture_session_fills_in_what_run_would_and_refuses_what_does_not_app
     variants = iterative("flow", 'predict = "flow"')
     study = load_study(write_study(tmp_path, variants, 'capture = { path = "capture", frames = [0, 4], holdout = ["cam_04"] }'))
     settings = study.sessions[0].capture
-    assert settings["scale"] == 0.25 and settings["frames"] == [0, 4] and settings["holdout"] == ["cam_04"]  # run's scale
+    assert settings["scale"] == "auto" and settings["frames"] == [0, 4] and settings["holdout"] == ["cam_04"]  # run's scale
     assert settings["keypoints"] == str(capture / "pose_2d") and settings["joints"] == str(capture / "joints.trc")
     cell = expand(study, tmp_path / "out")[0]
     assert cell.spec.joints == str(capture / "joints.trc") and "joints" not in cell.plan.identity["capture"]

@@ -9,8 +9,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from mmcsplat.cli.options import add_frames, add_names, add_progress, add_settings, settings_table
+from mmcsplat.cli.options import add_frames, add_names, add_progress, add_settings, scale_value, settings_table
 from mmcsplat.configuration.registry import default_registry
+from mmcsplat.pipeline.image_scale import AUTO_LONGEST_SIDE
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -20,7 +21,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--calibration", type=Path, help="calibration.toml to use instead of the one in SOURCE")
     parser.add_argument("--units", choices=("m", "mm"), default="m", help="length unit of the calibration's translations (default: m)")
     add_frames(parser, "the frame indices to ingest (default: all)")
-    parser.add_argument("--scale", type=float, default=1.0, help="resize factor for the stored images; K is scaled to match (default: 1)")
+    parser.add_argument("--scale", type=scale_value, default=1.0, help="resize factor for the stored images, or auto: their longer side "
+                        f"at most {AUTO_LONGEST_SIDE} px, never enlarged; K is scaled to match (default: 1)")
     add_names(parser, "--cameras", "ingest only these cameras, in this order")
     add_names(parser, "--holdout", "cameras kept for evaluation, not training", default=[])
     parser.add_argument("--plates", type=Path, metavar="DIR",

@@ -26,6 +26,21 @@ def frame_range(text: str) -> slice:
         raise argparse.ArgumentTypeError(str(error)) from None
 
 
+def scale_value(text: str) -> float | str:
+    """A positive resize factor, or ``auto`` (an argparse type; :func:`mmcsplat.pipeline.image_scale.resolve_scale`)."""
+    from mmcsplat.pipeline.image_scale import AUTO_SCALE
+
+    if text.strip().lower() == AUTO_SCALE:
+        return AUTO_SCALE
+    try:
+        value = float(text)
+    except ValueError:
+        value = 0.0
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"expected a positive number or {AUTO_SCALE!r}, got {text!r}")
+    return value
+
+
 def add_progress(parser: argparse.ArgumentParser) -> None:
     """``--no-progress``."""
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")

@@ -14,17 +14,19 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from mmcsplat.cli.options import add_frames, add_names, add_progress, add_settings
+from mmcsplat.cli.options import add_frames, add_names, add_progress, add_settings, scale_value
+from mmcsplat.pipeline.image_scale import AUTO_LONGEST_SIDE
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from mmcsplat.jobs.capture import DEFAULT_CONFIG, TRACK_FLOW_GAIN, TRACK_LAMBDA_PARTS, TRACK_MEANS_LR
+    from mmcsplat.jobs.capture import DEFAULT_CONFIG, DEFAULT_SCALE, TRACK_FLOW_GAIN, TRACK_LAMBDA_PARTS, TRACK_MEANS_LR
 
     parser.add_argument("capture", type=Path, help="the capture folder (videos or images and a calibration)")
     parser.add_argument("--out", required=True, type=Path, help="output directory (created; reused steps are skipped)")
     parser.add_argument("--calibration", help="calibration .toml (default: the capture's own, see docs/ingest.md)")
     parser.add_argument("--units", choices=("m", "mm"), default="m", help="length unit of the calibration's translations (default m)")
-    parser.add_argument("--scale", type=float, default=0.25, help="resize factor of the stored images (default 0.25)")
+    parser.add_argument("--scale", type=scale_value, default=DEFAULT_SCALE, help="resize factor of the stored images, or auto (the "
+                        f"default): their longer side at most {AUTO_LONGEST_SIDE} px, never enlarged (0.25 for 1080 × 1920 video)")
     add_frames(parser, "the frame indices to use (default: all)")
     add_names(parser, "--cameras", "use only these cameras (default: all): leaves out a broken one, which is then never read or checked")
     add_names(parser, "--holdout", "cameras kept for evaluation (default: the capture format's, else none)")

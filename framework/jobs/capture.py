@@ -64,7 +64,7 @@ class CaptureSettings:
 
     calibration: str | None = None
     units: str = "m"
-    scale: float = DEFAULT_SCALE
+    scale: float | str = DEFAULT_SCALE
     frames: tuple[int | None, int | None, int | None] = (None, None, None)
     cameras: tuple[str, ...] = attrs.field(default=(), converter=tuple)
     holdout: tuple[str, ...] = attrs.field(default=(), converter=tuple)

@@ -11,10 +11,11 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from mmcsplat.pipeline.image_scale import AUTO_SCALE
 from mmcsplat.plugin_api.errors import InputError
 
 #: The scale ``mmcsplat run`` ingests a capture at (a real rig's full-size frames fit too slowly on a CPU).
-DEFAULT_SCALE = 0.25
+DEFAULT_SCALE = AUTO_SCALE
 
 if TYPE_CHECKING:  # the session store's format is imported to make one, not for every command's start
     from mmcsplat.storage.session import SessionReader
@@ -57,7 +58,7 @@ def keypoint_source(path: Path) -> dict[str, Any]:
 
 
 def prepare_capture_session(capture: Path, partial: Path, *, calibration: Path | None = None, units: str = "m", frames: slice | None = None,
-                            scale: float = 1.0, cameras: Sequence[str] | None = None, holdout: Sequence[str] = (), source: dict[str, Any] | None = None,
+                            scale: float | str = 1.0, cameras: Sequence[str] | None = None, holdout: Sequence[str] = (), source: dict[str, Any] | None = None,
                             reader_options: dict[str, Any] | None = None, progress: bool = True) -> dict[str, Any]:
     """Ingest ``capture`` into ``partial`` (its calibration, units, frames, scale, cameras, held-out cameras and
     reader options as :func:`~mmcsplat.pipeline.ingest.ingest` takes them) and give it masks and plates (module docstring), the

@@ -25,6 +25,7 @@ import attrs
 import numpy as np
 
 from mmcsplat.configuration.registry import Registry, default_registry
+from mmcsplat.pipeline.image_scale import AUTO_SCALE, resolve_scale
 from mmcsplat.plugin_api.errors import InputError, MissingFileError
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.capture_files import PLATES_FOLDER
@@ -191,7 +192,7 @@ def ingest(
     calibration: Path | None = None,
     units: str = "m",
     frames: slice | None = None,
-    scale: float = 1.0,
+    scale: float | str = 1.0,
     cameras: Sequence[str] | None = None,
     holdout: Sequence[str] = (),
     overwrite: bool = False,
@@ -203,7 +204,8 @@ def ingest(
     """Read ``source`` (``format`` or auto-detected), undistort and rescale its frames, and write the
     session at ``out``; returns it opened for reading.
 
-    ``frames`` selects frame indices, ``cameras`` a subset of cameras (in that order), ``holdout`` cameras
+    ``frames`` selects frame indices, ``scale`` resizes the images (or :data:`AUTO_SCALE`: :func:`resolve_scale`),
+    ``cameras`` a subset of cameras (in that order), ``holdout`` cameras
     kept for evaluation (added to those the format itself holds out), ``reader_options`` parameters of
     the reader (e.g. ``{"size_mismatch": "crop"}`` for ``videos``), ``plates`` a folder of clean plates
     (default: the capture's ``plates/`` folder when it has one; every selected camera needs a plate),
@@ -221,8 +223,8 @@ def ingest(
     source = source.resolve()
     check_output(source, out)
     calibration = None if calibration is None else Path(calibration).resolve()
-    if not scale > 0:
-        raise InputError(f"scale must be positive, got {scale}")
+    if scale != AUTO_SCALE:
+        resolve_scale(scale, ())  # a bad number is refused before anything is read
     name, reader = capture_reader(source, format, reader_options)
     if skip_missing:
         if not (attrs.has(type(reader)) and "missing_frames" in attrs.fields_dict(type(reader))):
@@ -249,6 +251,7 @@ def ingest(
         if plates is not None and not plates_folder.is_dir():
             raise MissingFileError(f"plates folder {plates_folder} does not exist")
         plate_images = read_plates(plates_folder, [by_name[camera] for camera in selected]) if plates_folder.is_dir() else {}
+        scale = resolve_scale(scale, [by_name[camera] for camera in selected])
         undistorters = {camera: Undistorter.for_camera(by_name[camera], scale) for camera in selected}
         expected = {camera: int(recording.present(camera)[indices.start : indices.stop : indices.step].sum()) for camera in selected}
         provenance = {

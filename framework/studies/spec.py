@@ -325,6 +325,7 @@ def capture_settings(table: Mapping[str, Any], where: str, folder: Path | None) 
     filled in as ``mmcsplat run`` fills it — the scale it ingests at, the capture's ``pose_2d`` folder of 2D
     keypoints and its single ``*.trc`` of joints when it has them — so equal captures get equal identities."""
     from mmcsplat.pipeline.capture_session import DEFAULT_SCALE, found
+    from mmcsplat.pipeline.image_scale import AUTO_SCALE
 
     _check_keys(table, CAPTURE_KEYS, where, "capture")
     if "path" not in table:
@@ -338,14 +339,14 @@ def capture_settings(table: Mapping[str, Any], where: str, folder: Path | None) 
     if not isinstance(frames, list) or len(frames) > 3 or not all(isinstance(value, int) and not isinstance(value, bool) for value in frames):
         raise StudyError(f"{where} capture frames must be [start, stop] or [start, stop, step] (integers), got {frames!r}")
     scale = table.get("scale", DEFAULT_SCALE)
-    if not isinstance(scale, (int, float)) or isinstance(scale, bool) or not 0 < scale <= 1:
-        raise StudyError(f"{where} capture scale must be a number in (0, 1], got {scale!r}")
+    if scale != AUTO_SCALE and (not isinstance(scale, (int, float)) or isinstance(scale, bool) or not 0 < scale <= 1):
+        raise StudyError(f"{where} capture scale must be a number in (0, 1] or {AUTO_SCALE!r}, got {scale!r}")
     try:
         keypoints = found(capture, paths["keypoints"], "pose_2d", "keypoint folder")
         joints = found(capture, paths["joints"], "*.trc", "joints TRC file")
     except InputError as error:
         raise StudyError(f"{where} capture: {error}") from error
-    return {"path": str(capture), "calibration": paths["calibration"], "units": str(table.get("units", "m")), "scale": float(scale),
+    return {"path": str(capture), "calibration": paths["calibration"], "units": str(table.get("units", "m")), "scale": scale if scale == AUTO_SCALE else float(scale),
             "frames": list(frames), "cameras": list(_strings(table.get("cameras", []), f"{where} capture cameras")),
             "holdout": list(_strings(table.get("holdout", []), f"{where} capture holdout")),
             "keypoints": str(keypoints) if keypoints else None, "joints": str(joints) if joints else None}

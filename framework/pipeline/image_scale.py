@@ -1,0 +1,27 @@
+"""The scale a capture's images are stored at: a number, or ``auto`` — sized for a CPU whatever the cameras'
+resolution."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
+from mmcsplat.plugin_api.errors import InputError
+
+if TYPE_CHECKING:
+    from mmcsplat.scene.camera import Camera
+
+#: ``scale = "auto"``: the stored images' longer side at most this many pixels — 270 × 480 for 1080 × 1920
+#: video, where a 2-core CPU fits and tracks a capture in minutes (docs/performance.md) — and never enlarged.
+AUTO_SCALE = "auto"
+AUTO_LONGEST_SIDE = 480
+
+
+def resolve_scale(scale: float | str, cameras: Sequence[Camera]) -> float:
+    """``scale`` as a number: itself, or for :data:`AUTO_SCALE` the largest ≤ 1 that brings every camera's
+    longer side to at most :data:`AUTO_LONGEST_SIDE` pixels."""
+    if scale == AUTO_SCALE:
+        return min(1.0, AUTO_LONGEST_SIDE / max(max(camera.width, camera.height) for camera in cameras))
+    if isinstance(scale, str) or not scale > 0:
+        raise InputError(f"scale must be a positive number or {AUTO_SCALE!r}, got {scale!r}")
+    return float(scale)
