@@ -28,17 +28,14 @@ def frame_range(text: str) -> slice:
 
 def scale_value(text: str) -> float | str:
     """A positive resize factor, or ``auto`` (an argparse type; :func:`mmcsplat.pipeline.image_scale.resolve_scale`)."""
-    from mmcsplat.pipeline.image_scale import AUTO_SCALE
+    from mmcsplat.pipeline.image_scale import AUTO_SCALE, checked_scale
+    from mmcsplat.plugin_api.errors import InputError
 
-    if text.strip().lower() == AUTO_SCALE:
-        return AUTO_SCALE
+    word = text.strip().lower()
     try:
-        value = float(text)
-    except ValueError:
-        value = 0.0
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"expected a positive number or {AUTO_SCALE!r}, got {text!r}")
-    return value
+        return checked_scale(word if word == AUTO_SCALE else float(word))
+    except (ValueError, InputError):
+        raise argparse.ArgumentTypeError(f"expected a positive number or {AUTO_SCALE!r}, got {text!r}") from None
 
 
 def add_progress(parser: argparse.ArgumentParser) -> None:

@@ -17,11 +17,16 @@ AUTO_SCALE = "auto"
 AUTO_LONGEST_SIDE = 480
 
 
+def checked_scale(scale: float | str) -> float | str:
+    """``scale`` when it is a positive number or :data:`AUTO_SCALE`, else an error."""
+    if scale != AUTO_SCALE and (isinstance(scale, str) or not scale > 0):
+        raise InputError(f"scale must be a positive number or {AUTO_SCALE!r}, got {scale!r}")
+    return scale
+
+
 def resolve_scale(scale: float | str, cameras: Sequence[Camera]) -> float:
     """``scale`` as a number: itself, or for :data:`AUTO_SCALE` the largest ≤ 1 that brings every camera's
     longer side to at most :data:`AUTO_LONGEST_SIDE` pixels."""
-    if scale == AUTO_SCALE:
+    if checked_scale(scale) == AUTO_SCALE:
         return min(1.0, AUTO_LONGEST_SIDE / max(max(camera.width, camera.height) for camera in cameras))
-    if isinstance(scale, str) or not scale > 0:
-        raise InputError(f"scale must be a positive number or {AUTO_SCALE!r}, got {scale!r}")
     return float(scale)

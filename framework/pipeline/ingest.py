@@ -25,7 +25,7 @@ import attrs
 import numpy as np
 
 from mmcsplat.configuration.registry import Registry, default_registry
-from mmcsplat.pipeline.image_scale import AUTO_SCALE, resolve_scale
+from mmcsplat.pipeline.image_scale import checked_scale, resolve_scale
 from mmcsplat.plugin_api.errors import InputError, MissingFileError
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.capture_files import PLATES_FOLDER
@@ -204,7 +204,7 @@ def ingest(
     """Read ``source`` (``format`` or auto-detected), undistort and rescale its frames, and write the
     session at ``out``; returns it opened for reading.
 
-    ``frames`` selects frame indices, ``scale`` resizes the images (or :data:`AUTO_SCALE`: :func:`resolve_scale`),
+    ``frames`` selects frame indices, ``scale`` resizes the images (or ``"auto"``: :func:`~mmcsplat.pipeline.image_scale.resolve_scale`),
     ``cameras`` a subset of cameras (in that order), ``holdout`` cameras
     kept for evaluation (added to those the format itself holds out), ``reader_options`` parameters of
     the reader (e.g. ``{"size_mismatch": "crop"}`` for ``videos``), ``plates`` a folder of clean plates
@@ -223,8 +223,7 @@ def ingest(
     source = source.resolve()
     check_output(source, out)
     calibration = None if calibration is None else Path(calibration).resolve()
-    if scale != AUTO_SCALE:
-        resolve_scale(scale, ())  # a bad number is refused before anything is read
+    checked_scale(scale)  # refused before anything is read
     name, reader = capture_reader(source, format, reader_options)
     if skip_missing:
         if not (attrs.has(type(reader)) and "missing_frames" in attrs.fields_dict(type(reader))):
