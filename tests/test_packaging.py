@@ -15,6 +15,8 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 SOURCES = ("pyproject.toml", "README.md", "framework", "plugins", "backends", "datasets")
+# Where each source folder's modules land in the wheel (pyproject.toml's package-dir).
+INSTALLED_AS = {"framework": "mmcsplat", "plugins": "mmcsplat/plugins", "backends": "mmcsplat/backends", "datasets": "mmcsplat/datasets"}
 
 CHECK = """
 import importlib, importlib.metadata, json, sys
@@ -81,6 +83,10 @@ def test_install_imports_under_mmcsplat_only(tmp_path, pure_deps, hook):
     if hook == "build_wheel":
         tops = {name.split("/")[0] for name in names if not name.split("/")[0].endswith(".dist-info")}
         assert tops == {"mmcsplat"}, tops
+        # A subpackage left out of pyproject.toml's explicit package list installs without its modules.
+        sources = {f"{INSTALLED_AS[top]}/{path.relative_to(REPO / top).as_posix()}"
+                   for top in INSTALLED_AS for path in (REPO / top).rglob("*.py") if "__pycache__" not in path.parts}
+        assert not sources - set(names), sorted(sources - set(names))
     report = _check_installed(site, pure_deps)
     assert report["shadowing"] == []
     assert report["entry_points"] == ["builtin-plugins", "builtin-readers", "builtin-renderers"]
