@@ -8,9 +8,10 @@ from pathlib import Path
 import pytest
 
 from mmcsplat.configuration.config import load_config
+from mmcsplat.configuration.registry import default_registry
 from mmcsplat.jobs.capture import DEFAULT_CONFIG, CaptureSettings, guidance_overrides, run_capture
 from mmcsplat.pipeline.track import dynamics_choice
-from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.plugin_api.errors import InputError, MmcsplatError
 
 
 @pytest.mark.parametrize(("settings", "message"), [
@@ -72,3 +73,37 @@ def test_bad_reader_options_fail_before_anything_is_written(tmp_path, options, m
     with pytest.raises(InputError, match=message):
         run_capture(DEMO, out, CaptureSettings(reader_options=options), progress=False, log=lambda line: None)
     assert not out.exists()
+
+
+@pytest.mark.parametrize(("backend", "message"), [
+    ("no-such-renderer", "no-such-renderer"),
+    ("torch-cuda", "torch-cuda.*not usable here"),
+])
+def test_a_backend_that_cannot_run_here_fails_before_the_first_step(tmp_path, backend, message):
+    if backend == "torch-cuda" and default_registry().get("renderer", backend).unavailable_reason() is None:
+        pytest.skip("torch-cuda runs here (gsplat and a CUDA device)")
+    capture, out = tmp_path / "capture", tmp_path / "out"
+    capture.mkdir()
+    with pytest.raises(MmcsplatError, match=message):
+        run_capture(capture, out, CaptureSettings(backend=backend), progress=False, log=lambda line: None)
+    assert not out.exists()
+
+
+def test_the_backend_reaches_the_fit(tmp_path, monkeypatch):
+    class Stop(Exception):
+        """Ends the run at its fit."""
+
+    seen = {}
+
+    def fit(*args, backend=None, **kwargs):
+        seen["backend"] = backend
+        raise Stop
+
+    monkeypatch.setattr("mmcsplat.pipeline.fit.FirstFrameFit", fit)
+    monkeypatch.setattr("mmcsplat.storage.session.SessionReader", lambda path: None)
+    capture, out = tmp_path / "capture", tmp_path / "out"
+    capture.mkdir()
+    (out / "session.zarr").mkdir(parents=True)  # ingested already: the run goes straight to the fit
+    with pytest.raises(Stop):
+        run_capture(capture, out, CaptureSettings(backend="torch-reference"), progress=False, log=lambda line: None)
+    assert seen["backend"] == "torch-reference"

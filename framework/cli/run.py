@@ -37,6 +37,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_settings(parser, "override a configuration value (repeatable)")
     add_settings(parser, "a parameter of the capture's reader (`mmcsplat plugins --show reader:NAME`), as `mmcsplat ingest --set` takes "
                  "it: size_mismatch=crop for videos coded larger than calibrated, camera_map=order", dest="reader_options", flag="--reader-set")
+    parser.add_argument("--backend", help="renderer backend by name, e.g. torch-cuda on a GPU (default: the configuration's [renderer]); "
+                        "the later steps render with it too")
     parser.add_argument("--track-iterations", type=int, default=50, metavar="N", help="iterations per frame of the iterative method (default 50)")
     parser.add_argument("--track-means-lr", type=float, default=TRACK_MEANS_LR, metavar="RATE",
                         help=f"learning rate of the means while tracking, times the scene scale (default {TRACK_MEANS_LR:g}: ten times the fit's)")
@@ -63,6 +65,6 @@ def run(args: argparse.Namespace) -> int:
                                reader_options=args.reader_options,
                                track_iterations=args.track_iterations, track_means_lr=args.track_means_lr,
                                track_lambda_parts=args.track_parts, track_flow_gain=args.track_flow_gain,
-                               track_keypoints=args.track_keypoints)
+                               track_keypoints=args.track_keypoints, backend=args.backend)
     print(summary(run_capture(args.capture, args.out, settings, progress=not args.no_progress)))
     return 0

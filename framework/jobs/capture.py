@@ -78,6 +78,8 @@ class CaptureSettings:
     track_lambda_parts: float = TRACK_LAMBDA_PARTS
     track_flow_gain: float = attrs.field(default=TRACK_FLOW_GAIN, metadata={BEFORE_FIELD: 1.0})
     track_keypoints: float = attrs.field(default=0.0, metadata={BEFORE_FIELD: 0.0})
+    #: The renderer backend to fit with, instead of the configuration's; the later steps render with the fit's.
+    backend: str | None = attrs.field(default=None, metadata={BEFORE_FIELD: None})
 
 
 def quoted_override(key: str, value: Any) -> str:
@@ -110,6 +112,7 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
                 log: Callable[[str], None] = print) -> CaptureResult:
     """Run every step into ``out`` (module docstring); ``log`` gets one line per step."""
     from mmcsplat.configuration.config import apply_overrides, load_config
+    from mmcsplat.configuration.registry import default_registry
     from mmcsplat.outputs.landmark_video import render_landmarks
     from mmcsplat.outputs.renders import RunRenderer, render_trajectories
     from mmcsplat.outputs.report import write_report
@@ -140,6 +143,8 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     # A bad reader option, configuration or tracking value fails before anything runs.
     reader_options = apply_overrides({}, settings.reader_options, "--reader-set")
     dynamics_choice(load_config(settings.config, [*settings.overrides, *tracking]), "iterative").build()
+    if settings.backend:  # a renderer that cannot run here (no GPU, no gsplat) is named before minutes of ingest
+        default_registry().create("renderer", settings.backend)
     if settings.track_keypoints:
         log(f"run: keypoint guidance from the training cameras' {source['name']} keypoints, weight {settings.track_keypoints:g}: their 2D "
             "errors are no longer a test of the tracks (a held-out camera's still is)")
@@ -158,7 +163,8 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
 
     def fit() -> None:
         try:
-            first = FirstFrameFit(SessionReader(session), load_config(settings.config, settings.overrides), run, progress=progress)
+            first = FirstFrameFit(SessionReader(session), load_config(settings.config, settings.overrides), run, backend=settings.backend,
+                                  progress=progress)
             for grown in first.grown_regions:
                 log(f"run: {grown}")
             first.run()
