@@ -9,7 +9,7 @@ import pytest
 
 from mmcsplat.configuration.config import load_config
 from mmcsplat.configuration.registry import default_registry
-from mmcsplat.jobs.capture import DEFAULT_CONFIG, CaptureSettings, guidance_overrides, run_capture
+from mmcsplat.jobs.capture import DEFAULT_CONFIG, TRACK_MEANS_LR, CaptureSettings, guidance_overrides, run_capture
 from mmcsplat.pipeline.track import dynamics_choice
 from mmcsplat.plugin_api.errors import InputError, MmcsplatError
 
@@ -89,14 +89,14 @@ def test_a_backend_that_cannot_run_here_fails_before_the_first_step(tmp_path, ba
     assert not out.exists()
 
 
-def test_the_backend_reaches_the_fit(tmp_path, monkeypatch):
+def test_the_fit_gets_the_backend_and_the_tracking_settings(tmp_path, monkeypatch):
     class Stop(Exception):
         """Ends the run at its fit."""
 
     seen = {}
 
-    def fit(*args, backend=None, **kwargs):
-        seen["backend"] = backend
+    def fit(session, config, run, backend=None, **kwargs):
+        seen.update(backend=backend, dynamics=config.values["dynamics"])
         raise Stop
 
     monkeypatch.setattr("mmcsplat.pipeline.fit.FirstFrameFit", fit)
@@ -105,5 +105,8 @@ def test_the_backend_reaches_the_fit(tmp_path, monkeypatch):
     capture.mkdir()
     (out / "session.zarr").mkdir(parents=True)  # ingested already: the run goes straight to the fit
     with pytest.raises(Stop):
-        run_capture(capture, out, CaptureSettings(backend="torch-reference"), progress=False, log=lambda line: None)
+        run_capture(capture, out, CaptureSettings(backend="torch-reference", track_iterations=7, track_flow_gain=1.5), progress=False,
+                    log=lambda line: None)
     assert seen["backend"] == "torch-reference"
+    # recorded in run.json with the fit, so that `mmcsplat track RUN` tracks as the run does
+    assert seen["dynamics"] == {"name": "iterative", "iterations": 7, "means_lr": TRACK_MEANS_LR, "flow_gain": 1.5}

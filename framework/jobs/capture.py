@@ -16,7 +16,9 @@ flow → flow-guided track → landmarks → evaluate → renders → report.
 - Track: ``iterative`` at :data:`TRACK_MEANS_LR`, each frame started from the optical flow's lifted motion
   times :data:`TRACK_FLOW_GAIN`, and with joints the body's parts held at their lengths
   (:data:`TRACK_LAMBDA_PARTS`). Keypoint guidance (``--track-keypoints WEIGHT``) pulls the tracks towards the
-  training cameras' keypoints; it is off by default, since infants are where detectors fail.
+  training cameras' keypoints; it is off by default, since infants are where detectors fail. The fit's
+  configuration carries these settings as its ``[dynamics]`` table, so RUN/run.json holds them and
+  ``mmcsplat track DIR/run`` re-tracks as ``run`` did.
 - Landmarks: a TRC of joints (``--joints FILE``, default the single ``CAPTURE/*.trc``) bound at the
   fitted frame, scored against its later frames and against the keypoints in every camera.
 
@@ -133,7 +135,7 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     if source:
         log(f"run: keypoints: {source['name']} from {keypoints}")
     joints = found(capture, settings.joints, "*.trc", "joints TRC file")
-    tracking = [f"dynamics.iterations={settings.track_iterations}", f"dynamics.means_lr={settings.track_means_lr}",
+    tracking = ["dynamics.name=iterative", f"dynamics.iterations={settings.track_iterations}", f"dynamics.means_lr={settings.track_means_lr}",
                 f"dynamics.flow_gain={settings.track_flow_gain}"]
     if joints is not None and settings.track_lambda_parts > 0:
         tracking += [f"dynamics.lambda_parts={settings.track_lambda_parts}", "dynamics.skeleton.name=trc",
@@ -142,7 +144,9 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
         tracking += guidance_overrides(settings.track_keypoints, source, capture)
     # A bad reader option, configuration or tracking value fails before anything runs.
     reader_options = apply_overrides({}, settings.reader_options, "--reader-set")
-    dynamics_choice(load_config(settings.config, [*settings.overrides, *tracking]), "iterative").build()
+    # The fit's configuration names the tracking too, so RUN/run.json holds it and `mmcsplat track RUN` re-tracks as this run did.
+    fit_config = load_config(settings.config, [*settings.overrides, *tracking])
+    dynamics_choice(fit_config, "iterative").build()
     if settings.backend:  # a renderer that cannot run here (no GPU, no gsplat) is named before minutes of ingest
         default_registry().create("renderer", settings.backend)
     if settings.track_keypoints:
@@ -163,7 +167,7 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
 
     def fit() -> None:
         try:
-            first = FirstFrameFit(SessionReader(session), load_config(settings.config, settings.overrides), run, backend=settings.backend,
+            first = FirstFrameFit(SessionReader(session), fit_config, run, backend=settings.backend,
                                   progress=progress)
             for grown in first.grown_regions:
                 log(f"run: {grown}")
