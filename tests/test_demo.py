@@ -56,6 +56,7 @@ def test_demo_writes_every_output_and_names_it(demo):
     for name in STEPS:
         assert f"    {name} " in summary
     assert json.loads(paths.track_info.read_text())["params"]["iterations"] == 2
+    assert json.loads((paths.run / "run.json").read_text())["config_values"]["dynamics"] == {"iterations": 2}  # `track RUN` re-tracks alike
     landmarks = json.loads(paths.landmarks_info.read_text())
     assert landmarks["source"] == "synthetic" and len(landmarks["names"]) == 14
     assert landmarks["bind_frames"] == 1  # exact joints: bound at the fitted frame alone
