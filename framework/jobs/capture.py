@@ -114,12 +114,11 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
                 log: Callable[[str], None] = print) -> CaptureResult:
     """Run every step into ``out`` (module docstring); ``log`` gets one line per step."""
     from mmcsplat.configuration.config import apply_overrides, load_config
-    from mmcsplat.configuration.registry import default_registry
     from mmcsplat.outputs.landmark_video import render_landmarks
     from mmcsplat.outputs.renders import RunRenderer, render_trajectories
     from mmcsplat.outputs.report import write_report
     from mmcsplat.pipeline.evaluate import evaluate
-    from mmcsplat.pipeline.fit import FirstFrameFit
+    from mmcsplat.pipeline.fit import FirstFrameFit, renderer_choice
     from mmcsplat.pipeline.flow import compute_flow, flow_complete
     from mmcsplat.pipeline.ingest import capture_reader
     from mmcsplat.pipeline.landmarks import track_landmarks
@@ -147,8 +146,7 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     # The fit's configuration names the tracking too, so RUN/run.json holds it and `mmcsplat track RUN` re-tracks as this run did.
     fit_config = load_config(settings.config, [*settings.overrides, *tracking])
     dynamics_choice(fit_config, "iterative").build()
-    if settings.backend:  # a renderer that cannot run here (no GPU, no gsplat) is named before minutes of ingest
-        default_registry().create("renderer", settings.backend)
+    renderer_choice(fit_config, settings.backend).build()  # one that cannot run here (no GPU, no gsplat): named before minutes of ingest
     if settings.track_keypoints:
         log(f"run: keypoint guidance from the training cameras' {source['name']} keypoints, weight {settings.track_keypoints:g}: their 2D "
             "errors are no longer a test of the tracks (a held-out camera's still is)")

@@ -20,7 +20,7 @@ import attrs
 import numpy as np
 import torch
 
-from mmcsplat.configuration.config import Config
+from mmcsplat.configuration.config import Config, PluginChoice
 from mmcsplat.configuration.registry import Registry, default_registry
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.interfaces import Densifier, Initializer, Renderer, SceneContext, TrainingView
@@ -88,6 +88,11 @@ def select_cameras(session: SessionReader, holdout: Sequence[str] | None) -> tup
     return train, [session.camera(name) for name in held]
 
 
+def renderer_choice(config: Config, backend: str | None = None) -> PluginChoice:
+    """The renderer a fit of ``config`` uses: ``backend`` at its defaults when named, else the configuration's ``[renderer]``."""
+    return PluginChoice("renderer", backend) if backend else config.plugin("renderer")
+
+
 class FirstFrameFit:
     """One first-frame fit, configured by a :class:`Config`; ``run()`` trains (resuming if possible).
 
@@ -118,9 +123,9 @@ class FirstFrameFit:
         self.registry = registry or default_registry()
         self.progress = progress
         self.resumed_from: int | None = None
-        self.renderer_name = backend or config.plugin("renderer").name
-        renderer_params = dict(config.plugin("renderer").params) if not backend else {}
-        plugin = CheckedRenderer(self.registry.create("renderer", self.renderer_name, **renderer_params), self.renderer_name)
+        renderer = renderer_choice(config, backend)
+        self.renderer_name = renderer.name
+        plugin = CheckedRenderer(renderer.build(self.registry), self.renderer_name)
         self.renderer: Renderer = supersampled(plugin, self.settings.supersample)
         self.initializers: list[Initializer] = [choice.build(self.registry) for choice in config.plugins("initializer")]
         densifiers = config.plugins("densifier")
