@@ -5,6 +5,7 @@ from __future__ import annotations
 import shutil
 import subprocess
 import sys
+import tomllib
 import zipfile
 from pathlib import Path
 
@@ -15,8 +16,9 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 SOURCES = ("pyproject.toml", "README.md", "framework", "plugins", "backends", "datasets")
-# Where each source folder's modules land in the wheel (pyproject.toml's package-dir).
-INSTALLED_AS = {"framework": "mmcsplat", "plugins": "mmcsplat/plugins", "backends": "mmcsplat/backends", "datasets": "mmcsplat/datasets"}
+# Where each source folder's modules land in the wheel, from pyproject.toml's package-dir.
+INSTALLED_AS = {folder: package.replace(".", "/")
+                for package, folder in tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["package-dir"].items()}
 
 CHECK = """
 import importlib, importlib.metadata, json, sys
