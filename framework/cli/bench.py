@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 
 from mmcsplat.cli.main import CommandError
-from mmcsplat.cli.options import add_progress, comma_list
+from mmcsplat.cli.options import comma_list
 from mmcsplat.configuration.registry import default_registry
 from mmcsplat.outputs.markdown_sections import replace_section
 
@@ -37,7 +37,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--repeats", type=int, default=7, help="timed runs per backend and scene (default 7)")
     parser.add_argument("--json", action="store_true", help="print the results as JSON")
     parser.add_argument("--write", type=Path, metavar="PATH", help="put the markdown report into its section of this page")
-    add_progress(parser)
 
 
 def _renderers(names: list[str] | None) -> dict:

@@ -11,8 +11,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from mmcsplat.cli.options import add_progress
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("study", help="a study TOML file, or the name of a built-in study (paper-ablation, dynamics)")
@@ -27,7 +25,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--dry-run", action="store_true", help="list the cells and whether each is done, run nothing")
     parser.add_argument("--publish", type=Path, metavar="FILE.md",
                         help="also put the results into FILE.md between this study's markers, charts in FILE_FOLDER/results/NAME/")
-    add_progress(parser)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from mmcsplat.cli.options import add_progress, add_settings
+from mmcsplat.cli.options import add_settings
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -26,7 +26,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--track-iterations", type=int, metavar="N",
                         help="iterations per frame of the iterative method (default: the configuration's [dynamics] "
                              "table, else the method's own)")
-    add_progress(parser)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -19,7 +19,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from mmcsplat.cli.options import add_allow_incomplete, add_progress
+from mmcsplat.cli.options import add_allow_incomplete
 
 #: The console table's rows; those with a ``tracked_`` counterpart show the tracked frames' mean beside
 #: the fitted frame's.
@@ -36,7 +36,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "ground_truth.zarr beside the session's source capture, as `mmcsplat synth` writes)")
     parser.add_argument("--json", action="store_true", help="print the metrics as JSON")
     add_allow_incomplete(parser)
-    add_progress(parser)
 
 
 def _cell(value: Any) -> str:

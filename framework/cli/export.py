@@ -31,7 +31,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from mmcsplat.cli.options import add_allow_incomplete, add_progress
+from mmcsplat.cli.options import add_allow_incomplete
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -49,7 +49,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frame", type=int, metavar="K",
                         help="the run frame --inria writes (0 to frames − 1; default 0, the first)")
     add_allow_incomplete(parser)
-    add_progress(parser)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -13,7 +13,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from mmcsplat.cli.options import add_names, add_progress, add_settings
+from mmcsplat.cli.options import add_names, add_settings
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -27,7 +27,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fixed-regions", action="store_true",
                         help="keep the configuration's start and pruning regions even when the subject's visual hull does not fit "
                              "in them (the fit is then refused), instead of growing them")
-    add_progress(parser)
 
 
 def run(args: argparse.Namespace) -> int:

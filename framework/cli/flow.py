@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import argparse
 
-from mmcsplat.cli.options import add_names, add_progress
+from mmcsplat.cli.options import add_names
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -24,7 +24,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         f"medium at full resolution on images upsampled ×2, which follows fast thin limbs (default: {DEFAULT_PRESET})")
     parser.add_argument("--joints", metavar="TRC|GROUND_TRUTH", help="joints: triangulated (a TRC file, Pose2Sim's axes) or a synthetic capture's "
                         "(its folder or ground_truth.zarr): print how well the lifted flow predicts their next positions, beside constant velocity")
-    add_progress(parser)
 
 
 def run(args: argparse.Namespace) -> int:

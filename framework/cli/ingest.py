@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from mmcsplat.cli.options import add_frames, add_names, add_progress, add_settings, scale_value, settings_table
+from mmcsplat.cli.options import add_frames, add_names, add_settings, scale_value, settings_table
 from mmcsplat.configuration.registry import default_registry
 from mmcsplat.pipeline.image_scale import AUTO_LONGEST_SIDE
 
@@ -32,7 +32,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--skip-missing", action="store_true",
                         help="ingest without the images the capture lists but lacks, saying how many (the reader option missing_frames=absent)")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing session at OUT (never anything but a session)")
-    add_progress(parser)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -13,7 +13,7 @@ import warnings
 from collections.abc import Callable
 
 from mmcsplat import __version__
-from mmcsplat.cli.options import add_logging
+from mmcsplat.cli.options import add_output_options
 from mmcsplat.plugin_api.errors import MmcsplatError
 
 #: Sub-command name → module in mmcsplat.cli defining ``add_arguments(parser)`` and ``run(args) -> int``.
@@ -60,7 +60,7 @@ def build_parser() -> argparse.ArgumentParser:
         summary = (module.__doc__ or "").strip().split("\n")[0]
         sub = commands.add_parser(name, help=summary, description=(module.__doc__ or "").strip())
         module.add_arguments(sub)
-        add_logging(sub)
+        add_output_options(sub)
         sub.set_defaults(_run=module.run)
     return parser
 

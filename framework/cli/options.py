@@ -38,11 +38,6 @@ def scale_value(text: str) -> float | str:
         raise argparse.ArgumentTypeError(f"expected a positive number or {AUTO_SCALE!r}, got {text!r}") from None
 
 
-def add_progress(parser: argparse.ArgumentParser) -> None:
-    """``--no-progress``."""
-    parser.add_argument("--no-progress", action="store_true", help="no progress bars")
-
-
 def add_names(parser: argparse.ArgumentParser, flag: str, help: str, **kwargs) -> None:
     """A comma-separated list of names (``--cameras a,b``); repeating the option adds to the list."""
     parser.add_argument(flag, type=comma_list, action="extend", metavar="A,B,…", help=help, **kwargs)
@@ -68,8 +63,10 @@ def add_allow_incomplete(parser: argparse.ArgumentParser) -> None:
                         help="use a run whose fit or tracking is not finished, labelling every output incomplete (refused without it)")
 
 
-def add_logging(parser: argparse.ArgumentParser) -> None:
-    """``--verbose`` and ``--log-file``, on every command."""
+def add_output_options(parser: argparse.ArgumentParser) -> None:
+    """``--no-progress``, ``--verbose`` and ``--log-file``, on every command, so that a script can pass the
+    same flags to each (a command with no long step shows no progress bars either way)."""
+    parser.add_argument("--no-progress", action="store_true", help="no progress bars (shown by the commands with long steps)")
     parser.add_argument("--verbose", action="store_true", help="also print what the command does (its log) on the console")
     parser.add_argument("--log-file", metavar="PATH", help="append the command's full log to this file (fits and tracks also log to RUN/log.txt)")
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import argparse
 
-from mmcsplat.cli.options import add_names, add_progress
+from mmcsplat.cli.options import add_names
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -18,7 +18,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_names(parser, "--cameras", "estimate only these cameras' plates (default: all)")
     parser.add_argument("--num-samples", type=int, default=25, metavar="N", help="frames sampled per camera for the median (default: 25)")
     parser.add_argument("--replace", action="store_true", help="also replace plates the session already has (recorded ones included)")
-    add_progress(parser)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from mmcsplat.cli.options import add_progress
 from mmcsplat.storage.run import RENDERS_DIR
 
 
@@ -30,7 +29,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scale", type=float, default=1.0, help="output image scale, e.g. 0.5 for half size (default 1)")
     parser.add_argument("--backend", help="renderer backend by name (default: the one that fitted)")
     parser.add_argument("--out", type=Path, help="output directory (default: RUN/renders)")
-    add_progress(parser)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from mmcsplat.cli.options import add_frames, add_names, add_progress, add_settings, scale_value
+from mmcsplat.cli.options import add_frames, add_names, add_settings, scale_value
 from mmcsplat.pipeline.image_scale import AUTO_LONGEST_SIDE
 
 
@@ -52,7 +52,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="weight of keypoint guidance: the Gaussians carrying each keypoint pulled towards the training cameras' 2D "
                         "keypoints while tracking (default 0: off, since infants are where detectors fail; 1 for an adult with "
                         "good detections: docs/real-data.md). Their 2D errors then no longer test the tracks; a held-out camera's do")
-    add_progress(parser)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from mmcsplat.cli.options import add_names, add_progress, add_settings, settings_table
+from mmcsplat.cli.options import add_names, add_settings, settings_table
 from mmcsplat.pipeline.segment import segment_session
 
 #: Mean mask coverage outside which a camera's masks are suspect (nothing found, or the whole image).
@@ -24,7 +24,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_names(parser, "--cameras", "segment only these cameras (default: all)")
     parser.add_argument("--consistent", action="store_true",
                         help="then keep only the mask pixels most other cameras' masks agree on (drops what one view alone sees)")
-    add_progress(parser)
 
 
 def run(args: argparse.Namespace) -> int:

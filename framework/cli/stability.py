@@ -15,8 +15,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from mmcsplat.cli.options import add_progress
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from mmcsplat.studies.stability import DEFAULT_SEEDS
@@ -30,7 +28,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="local: worker processes (default 1; 0 runs the cells in this process); ray: tasks in flight (default: all)")
     parser.add_argument("--ray-address", metavar="ADDRESS", help="the Ray cluster to join (default: RAY_ADDRESS, else a local instance)")
     parser.add_argument("--retry-failed", action="store_true", help="run the cells that failed or diverged in an earlier pass again")
-    add_progress(parser)
 
 
 def run(args: argparse.Namespace) -> int:

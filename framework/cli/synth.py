@@ -12,8 +12,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from mmcsplat.cli.options import add_progress
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("out_dir", type=Path, metavar="OUT_DIR", help="the capture folder to write (must not exist or be empty)")
@@ -36,7 +34,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "transforms_test.json: --num-cameras fixed held-out cameras every 5th frame); no adult's leg")  # fmt: skip
     parser.add_argument("--turns", type=float, default=1.0, help="with --monocular, orbits over the sequence (default: 1)")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing OUT_DIR")
-    add_progress(parser)
 
 
 def run(args: argparse.Namespace) -> int:

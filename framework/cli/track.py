@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from mmcsplat.cli.options import add_frames, add_progress, add_settings
+from mmcsplat.cli.options import add_frames, add_settings
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -22,7 +22,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--backend", help="renderer backend by name (default: the one that fitted)")
     add_frames(parser, "session frames to track, from the fitted one: :STOP tracks up to frame STOP − 1 (default: all)")
     parser.add_argument("--overwrite", action="store_true", help="replace existing RUN/tracks.zarr")
-    add_progress(parser)
 
 
 def run(args: argparse.Namespace) -> int:
