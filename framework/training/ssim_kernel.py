@@ -5,9 +5,8 @@ image-sized operations with their autograd: on the Pose2Sim demo's tracking crop
 14 ms of a step's convolutions on one thread, the largest item after the compositor. Here the separable
 blur runs along each image row over all of its pixels' channels at once, which vectorises, and the map's
 derivative is written out, so that the backward is one more blur, of three maps (five when the target
-needs a gradient too). The torch
-version (:func:`mmcsplat.training.losses.ssim_map_reference`) stays the oracle the tests hold this to, and
-the path for other devices.
+needs a gradient too). The torch version (:func:`mmcsplat.training.losses.ssim_map_reference`) stays the
+oracle the tests hold this to, and the path for other devices.
 
 The window is the study's (Gaussian, 11 taps, σ 1.5, zero padding), and the blur of a zero-padded image by
 a symmetric kernel is its own adjoint: the backward blurs the map's partial derivatives by the same loops.
@@ -122,14 +121,14 @@ class SSIMMap(torch.autograd.Function):
         x, y = x.reshape(height, width * channels), y.reshape(height, width * channels)
         c1, c2 = weights.dtype.type(c1), weights.dtype.type(c2)
         similarity, blurred = ssim_forward(x, y, weights, channels, c1, c2)
-        ctx.saved = (x, y, blurred, weights, channels, c1, c2)
+        ctx.saved = (x, y, blurred, weights, channels, c1, c2, dtype)
         return torch.from_numpy(similarity.reshape(height, width, channels)).to(image.dtype)
 
     @staticmethod
     @once_differentiable
     def backward(ctx, grad_output):  # noqa: D102 (torch API)
-        x, y, blurred, weights, channels, c1, c2 = ctx.saved
-        grad = grad_output.to(torch.from_numpy(x).dtype).contiguous().numpy().reshape(x.shape)
+        x, y, blurred, weights, channels, c1, c2, dtype = ctx.saved
+        grad = grad_output.to(dtype).contiguous().numpy().reshape(x.shape)
         grad_x, grad_y = ssim_backward(grad, x, y, blurred, weights, channels, c1, c2, bool(ctx.needs_input_grad[1]))
         shape = grad_output.shape
         return (torch.from_numpy(grad_x.reshape(shape)).to(grad_output.dtype) if ctx.needs_input_grad[0] else None,
