@@ -93,7 +93,7 @@ class RigidityPrior:
         count, k = graph.neighbours.shape
         self._neighbours = kernel_indices(graph.neighbours)
         self._weights = kernel_floats(graph.weights)
-        self._reference = np.zeros(0)  # self._offsets as the rigid pass reads it
+        self._reference: np.ndarray | None = None  # self._offsets as the rigid pass reads it
         self._pairs = StretchPairs.of(torch.arange(count).repeat_interleave(k), graph.neighbours.reshape(-1), graph.distances.reshape(-1),
                                       graph.weights.reshape(-1))  # (Gaussian, neighbour) positions
 
