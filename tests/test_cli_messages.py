@@ -53,3 +53,20 @@ def test_a_plate_fit_without_plates_names_mmcsplat_plates(tmp_path, capsys):
     err = capsys.readouterr().err
     assert f"estimate the plates from the sequence with `mmcsplat plates {session}`" in err and "--plates DIR" in err
     assert err.count("\n") == 1
+
+
+def test_a_closed_pipe_on_stdout_ends_the_command_quietly():
+    # `mmcsplat plugins | head`: the reader goes away; the command stops as a SIGPIPE would, with no error line.
+    entry = ("import os, sys; from mmcsplat.cli import main; read, write = os.pipe(); os.close(read); "
+             "os.dup2(write, sys.stdout.fileno()); sys.exit(main())")
+    done = subprocess.run([sys.executable, "-c", entry, "plugins"], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 141
+    assert done.stderr == ""
+
+
+def test_a_broken_pipe_elsewhere_is_still_an_error(monkeypatch, capsys):
+    def broken(args):
+        raise BrokenPipeError(32, "Broken pipe: ffmpeg")
+    monkeypatch.setattr("mmcsplat.cli.configs.run", broken)
+    assert main(["configs"]) == 2
+    assert "mmcsplat configs: error: [Errno 32] Broken pipe: ffmpeg" in capsys.readouterr().err

@@ -6,6 +6,7 @@ import argparse
 import importlib
 import logging
 import os
+import select
 import signal
 import sys
 import threading
@@ -153,6 +154,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"mmcsplat {args.command}: error: {error}", file=sys.stderr)
         return 2
     except OSError as error:  # the machine's side: a permission, a full disk, a path below a file
+        if isinstance(error, BrokenPipeError) and _reader_gone(sys.stdout):
+            return _stdout_closed()
         print(f"mmcsplat {args.command}: error: {error}", file=sys.stderr)
         return 2
     except Exception as error:
@@ -171,6 +174,27 @@ def main(argv: list[str] | None = None) -> int:
         for handler in handlers:
             logging.getLogger("mmcsplat").removeHandler(handler)
             handler.close()
+
+
+def _reader_gone(stream: object) -> bool:
+    """Whether ``stream`` is a pipe whose reader has closed it (``mmcsplat plugins | head``): Linux reports
+    an error condition on a pipe's write end once no reader is left."""
+    try:
+        fd = stream.fileno()  # type: ignore[attr-defined]
+        poller = select.poll()
+        poller.register(fd, select.POLLOUT)
+        return any(events & select.POLLERR for _, events in poller.poll(0))
+    except (AttributeError, OSError, ValueError):
+        return False
+
+
+def _stdout_closed() -> int:
+    """Exit quietly when the reader of stdout went away, as a command killed by SIGPIPE would (status 141):
+    stdout goes to /dev/null, so that the interpreter's flush at exit does not report it a second time."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    os.close(devnull)
+    return 128 + signal.SIGPIPE
 
 
 def _interrupted(interrupt: KeyboardInterrupt) -> int:
