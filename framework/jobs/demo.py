@@ -146,8 +146,8 @@ def run_demo(out: Path, settings: DemoSettings = DemoSettings(), progress: bool 
     config = load_config(settings.config, settings.overrides)  # fail early on a bad configuration
     synth = SynthConfig(frames=settings.frames, width=settings.width, height=settings.height)
     method, track_overrides = tracking_choice(config, settings.track_iterations)
-    # The fit records the tracking's steps in run.json too, so `mmcsplat track DEMO/run` re-tracks as the demo did.
-    config = load_config(settings.config, [*settings.overrides, *track_overrides])
+    if track_overrides:  # the fit records the tracking's steps in run.json too, so `mmcsplat track DEMO/run` re-tracks as the demo did
+        config = load_config(settings.config, [*settings.overrides, *track_overrides])
     paths.out.mkdir(parents=True, exist_ok=True)
     run, fitted = paths.run, paths.run / RUN_INFO
 
