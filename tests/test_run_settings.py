@@ -19,6 +19,8 @@ from mmcsplat.plugin_api.errors import InputError, MmcsplatError
     (CaptureSettings(track_iterations=-1), "iterations must be ≥ 0, got -1"),
     (CaptureSettings(overrides=("dynamics.lambda_rigid=-1",)), "lambda_rigid must be ≥ 0"),
     (CaptureSettings(track_keypoints=1), "--track-keypoints: .*capture has no 2D keypoints to guide the tracking with"),
+    (CaptureSettings(cameras=("cam_01",)), r"--cameras cam_01 with --holdout \(none\) leaves 1 camera\(s\) .*a fit needs two"),
+    (CaptureSettings(cameras=("a", "b"), holdout=("b",)), r"--cameras a,b with --holdout b leaves 1 camera\(s\) to train on \(a\)"),
 ])
 def test_bad_tracking_values_fail_before_the_first_step(tmp_path, settings, message):
     capture, out = tmp_path / "capture", tmp_path / "out"
@@ -73,6 +75,27 @@ def test_bad_reader_options_fail_before_anything_is_written(tmp_path, options, m
     with pytest.raises(InputError, match=message):
         run_capture(DEMO, out, CaptureSettings(reader_options=options), progress=False, log=lambda line: None)
     assert not out.exists()
+
+
+@pytest.mark.skipif(not DEMO.is_dir(), reason="needs ../shared/data/pose2sim_demo")
+@pytest.mark.parametrize(("settings", "message"), [
+    (CaptureSettings(), "several calibration files"),
+    (CaptureSettings(calibration=str(DEMO / "Calib_qualisys.toml"), frames=(5, 3, None)), "select none of the 100 frames"),
+])
+def test_a_capture_refused_at_its_ingest_leaves_no_folder(tmp_path, settings, message):
+    out = tmp_path / "out"
+    with pytest.raises(InputError, match=message):
+        run_capture(DEMO, out, settings, progress=False, log=lambda line: None)
+    assert not out.exists()
+
+
+@pytest.mark.skipif(not DEMO.is_dir(), reason="needs ../shared/data/pose2sim_demo")
+def test_a_session_that_fails_half_made_leaves_no_partial_and_names_the_session(tmp_path):
+    out = tmp_path / "out"
+    settings = CaptureSettings(calibration=str(DEMO / "Calib_qualisys.toml"), frames=(0, 1, None), scale=0.125)
+    with pytest.raises(InputError, match=rf"session {out / 'session.zarr'}: camera 'cam_01' has 1 frame\(s\)"):
+        run_capture(DEMO, out, settings, progress=False, log=lambda line: None)
+    assert not out.exists()  # nor a hidden .session.zarr.partial in it
 
 
 @pytest.mark.parametrize(("backend", "message"), [

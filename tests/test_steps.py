@@ -78,7 +78,8 @@ def test_a_store_appears_whole_or_not_at_all(tmp_path):
 
     with pytest.raises(KeyboardInterrupt):
         made_in_place(target, interrupted)
-    assert not target.exists()
+    assert list(tmp_path.iterdir()) == []  # neither the target nor its partial sibling
+    (tmp_path / ".store.partial").mkdir()  # a leftover from a killed process
     made_in_place(target, lambda partial: (partial.mkdir(), (partial / "data").write_text("x")))  # the leftover is replaced
     assert (target / "data").read_text() == "x" and sorted(path.name for path in tmp_path.iterdir()) == ["store"]
     assert not fit_complete(tmp_path)

@@ -141,6 +141,10 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
                      quoted_override("dynamics.skeleton.path", str(joints))]
     if settings.track_keypoints:  # a negative weight is refused by the dynamics' own check below
         tracking += guidance_overrides(settings.track_keypoints, source, capture)
+    training = [name for name in settings.cameras if name not in settings.holdout]
+    if settings.cameras and len(training) < 2:
+        raise InputError(f"--cameras {','.join(settings.cameras)} with --holdout {','.join(settings.holdout) or '(none)'} leaves "
+                         f"{len(training)} camera(s) to train on ({','.join(training) or 'none'}): a fit needs two at least")
     # A bad reader option, configuration or tracking value fails before anything runs.
     reader_options = apply_overrides({}, settings.reader_options, "--reader-set")
     # The fit's configuration names the tracking too, so RUN/run.json holds it and `mmcsplat track RUN` re-tracks as this run did.
@@ -153,13 +157,17 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     session, run = out / "session.zarr", out / "run"
     if not session.exists():
         capture_reader(capture, reader_options=reader_options)
+    created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
 
     def prepare(partial: Path) -> None:
-        choice = prepare_capture_session(capture, partial, calibration=Path(settings.calibration) if settings.calibration else None,
-                                         units=settings.units, frames=slice(*settings.frames), scale=settings.scale,
-                                         cameras=list(settings.cameras) or None, holdout=list(settings.holdout), source=source,
-                                         reader_options=reader_options, progress=progress)
+        try:
+            choice = prepare_capture_session(capture, partial, calibration=Path(settings.calibration) if settings.calibration else None,
+                                             units=settings.units, frames=slice(*settings.frames), scale=settings.scale,
+                                             cameras=list(settings.cameras) or None, holdout=list(settings.holdout), source=source,
+                                             reader_options=reader_options, progress=progress)
+        except InputError as error:  # named by the session it was making: the hidden partial one is removed
+            raise InputError(str(error).replace(str(partial), str(session))) from error
         write_json_atomic(out / MASKS_FILE, choice)
         log(f"run: masks: {choice['detail']}")
 
@@ -210,7 +218,12 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
              lambda: render_trajectories(RunRenderer(RunStates(run), progress=progress), _made(renders))),
         Step("report", lambda: fresh([run / REPORT_FILE], [run / METRICS_FILE]), lambda: write_report(run)),
     ]
-    times = run_steps("run", steps, log, SettingsRecord.of(out / SETTINGS_FILE, settings))
+    try:
+        times = run_steps("run", steps, log, SettingsRecord.of(out / SETTINGS_FILE, settings))
+    except BaseException:
+        if created and not any(out.iterdir()):  # refused before any step made something: no empty folder left behind
+            out.rmdir()
+        raise
     info = json.loads((run / LANDMARKS_INFO).read_text()) if (run / LANDMARKS_INFO).exists() else {}
     return CaptureResult(out, run, json.loads((run / METRICS_FILE).read_text()), info, times)
 

@@ -119,8 +119,13 @@ def fit_complete(run: Path) -> bool:
 
 def made_in_place(target: Path, make: Callable[[Path], None]) -> None:
     """``make(partial)`` builds ``target`` in the hidden sibling ``.NAME.partial`` (a leftover of an
-    interrupted one removed first), which is then renamed into place."""
+    interrupted one removed first), which is then renamed into place; a ``make`` that fails or is
+    interrupted leaves nothing (the next one starts afresh anyway)."""
     partial = target.with_name(f".{target.name}.partial")
     shutil.rmtree(partial, ignore_errors=True)
-    make(partial)
+    try:
+        make(partial)
+    except BaseException:
+        shutil.rmtree(partial, ignore_errors=True)
+        raise
     os.replace(partial, target)
