@@ -223,6 +223,11 @@ def test_drift_detector_fires_on_a_broken_run_only(tracked, scene):
 def test_track_refuses_to_overwrite_and_defaults_to_iterative(tracked, scene, tmp_path, capsys):
     assert main(["track", str(tracked), "--dynamics", "iterative", "--no-progress"]) == 2
     assert "already exists" in capsys.readouterr().err
+    # A bad value is named before the existing tracks: fixing it is the first thing to do.
+    assert main(["track", str(tracked), "--set", "dynamics.iterations=abc", "--no-progress"]) == 2
+    assert "parameter 'iterations' must be an integer, got 'abc'" in capsys.readouterr().err
+    assert main(["track", str(tracked), "--frames", "1:3", "--no-progress"]) == 2
+    assert "tracking runs on from the fitted frame 0" in capsys.readouterr().err
     _, session, _ = scene
     run = write_fitted_run(tmp_path / "run", session, TRUTH)  # its configuration names no dynamics method
     assert main(["track", str(run), "--set", "dynamics.iterations=1", "--frames", ":2", "--no-progress"]) == 0

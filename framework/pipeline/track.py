@@ -95,8 +95,6 @@ def track_run(
     fitted = FittedRun.load(run)
     fitted.require_complete()
     info = fitted.info
-    if (run / TRACKS_DIR).exists() and not overwrite:
-        raise OutputExistsError(f"{run / TRACKS_DIR} already exists (use --overwrite to replace it)")
     loaded, choice = tracking_config(run, info, config, overrides, dynamics)
     method: Dynamics = choice.build(registry)
     session = fitted.session
@@ -110,6 +108,8 @@ def track_run(
     if stop - first < 2:
         raise InputError(f"{run}: frames {first}–{stop - 1} of session {session.url!r} leave nothing to track after the fitted frame")
     require_cameras_per_frame(run, session, info.train_cameras, range(first, stop), choice.name, method.cameras_per_frame)
+    if (run / TRACKS_DIR).exists() and not overwrite:  # after the settings' checks: a bad value is named first
+        raise OutputExistsError(f"{run / TRACKS_DIR} already exists (use --overwrite to replace it)")
     renderer_name = backend or info.renderer
     cameras = tuple(session.camera(name) for name in info.train_cameras)
     initializers = tuple(c.build(registry) for c in loaded.plugins("initializer"))
