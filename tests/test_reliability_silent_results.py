@@ -437,6 +437,25 @@ def test_a_fold_plan_only_grows_and_a_garbled_one_is_named(tmp_path):
         planned_folds(run)
 
 
+def test_a_run_folder_is_not_taken_for_a_one_fold_leave_one_out_run(tmp_path):
+    # `mmcsplat run`'s OUT holds OUT/run: evaluating OUT must not average it as the only fold of an unplanned
+    # leave-one-camera-out run (folds before plans were written are folders named by the camera they hold out).
+    from mmcsplat.pipeline.evaluate import fold_runs
+    from mmcsplat.plugin_api.errors import MissingFileError
+
+    session = write_session(tmp_path / "s.zarr", frames=1)
+    out = tmp_path / "out"
+    write_fitted_run(out / "run", session)
+    with pytest.raises(MissingFileError, match=rf"holds no fit run .* nor fold runs: it holds the run {out / 'run'}, evaluate that"):
+        fold_runs(out)
+    legacy = tmp_path / "legacy"
+    for camera in ("cam_0", "cam_1"):
+        info_path = write_fitted_run(legacy / camera, session) / "run.json"
+        info = json.loads(info_path.read_text())
+        info_path.write_text(json.dumps({**info, "heldout_cameras": [camera]}))
+    assert fold_runs(legacy) == [legacy / "cam_0", legacy / "cam_1"]
+
+
 # ------------------------------------------------------------ what would desynchronise or warp a capture
 
 

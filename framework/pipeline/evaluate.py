@@ -23,6 +23,7 @@ from mmcsplat.storage.completeness import ALLOW_INCOMPLETE, UnfinishedRunError, 
 from mmcsplat.storage.folds import planned_folds
 from mmcsplat.storage.locking import run_lock
 from mmcsplat.storage.run import METRICS_FILE, RUN_INFO, TRACKS_DIR
+from mmcsplat.storage.run_info import RunInfo
 from mmcsplat.storage.tracks import TrackReader
 from mmcsplat.training.fitted_run import FittedRun
 from mmcsplat.training.supersampling import run_renderer
@@ -204,11 +205,19 @@ def fold_runs(run: Path) -> list[Path]:
     planned = planned_folds(run)
     if planned is not None:
         folds = [run / name for name in planned if (run / name / RUN_INFO).exists()]
-    else:
-        folds = sorted(path for path in run.iterdir() if (path / RUN_INFO).exists()) if run.is_dir() else []
+    else:  # folds fitted before plans were written: each fold is named by the camera it holds out
+        folds = sorted(path for path in run.iterdir() if _holds_out_itself(path)) if run.is_dir() else []
     if not folds:
-        raise MissingFileError(f"{run} holds no fit run ({RUN_INFO}) nor fold runs")
+        inside = [path.name for path in sorted(run.iterdir()) if (path / RUN_INFO).exists()] if run.is_dir() else []
+        hint = f": it holds the run {run / inside[0]}, evaluate that" if len(inside) == 1 else ""
+        raise MissingFileError(f"{run} holds no fit run ({RUN_INFO}) nor fold runs{hint}")
     return folds
+
+
+def _holds_out_itself(path: Path) -> bool:
+    """Whether ``path`` is a fit holding out the one camera it is named after: a fold of a leave-one-camera-out run
+    (a `mmcsplat run` folder's ``run/`` is not one)."""
+    return (path / RUN_INFO).exists() and RunInfo.read(path).heldout_cameras == (path.name,)
 
 
 def missing_folds(run: Path) -> list[str]:
