@@ -202,22 +202,16 @@ def fold_runs(run: Path) -> list[Path]:
     run = Path(run)
     if (run / RUN_INFO).exists():
         return [run]
+    fits = sorted(path for path in run.iterdir() if (path / RUN_INFO).exists()) if run.is_dir() else []
     planned = planned_folds(run)
     if planned is not None:
         folds = [run / name for name in planned if (run / name / RUN_INFO).exists()]
-    else:  # folds fitted before plans were written: each fold is named by the camera it holds out
-        folds = sorted(path for path in run.iterdir() if _holds_out_itself(path)) if run.is_dir() else []
+    else:  # folds fitted before plans were written: each holds out the camera it is named after (a `run` folder's run/ does not)
+        folds = [path for path in fits if RunInfo.read(path).heldout_cameras == (path.name,)]
     if not folds:
-        inside = [path.name for path in sorted(run.iterdir()) if (path / RUN_INFO).exists()] if run.is_dir() else []
-        hint = f": it holds the run {run / inside[0]}, evaluate that" if len(inside) == 1 else ""
+        hint = f": it holds the run {fits[0]}, evaluate that" if len(fits) == 1 else ""
         raise MissingFileError(f"{run} holds no fit run ({RUN_INFO}) nor fold runs{hint}")
     return folds
-
-
-def _holds_out_itself(path: Path) -> bool:
-    """Whether ``path`` is a fit holding out the one camera it is named after: a fold of a leave-one-camera-out run
-    (a `mmcsplat run` folder's ``run/`` is not one)."""
-    return (path / RUN_INFO).exists() and RunInfo.read(path).heldout_cameras == (path.name,)
 
 
 def missing_folds(run: Path) -> list[str]:
