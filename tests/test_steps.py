@@ -8,6 +8,7 @@ import json
 import attrs
 import pytest
 
+from mmcsplat.configuration.config import ConfigError
 from mmcsplat.jobs.capture import SETTINGS_FILE, CaptureSettings, run_capture
 from mmcsplat.pipeline.steps import SettingsRecord, Step, fit_complete, made_in_place, run_steps
 from mmcsplat.plugin_api.errors import InputError
@@ -83,3 +84,22 @@ def test_a_store_appears_whole_or_not_at_all(tmp_path):
     made_in_place(target, lambda partial: (partial.mkdir(), (partial / "data").write_text("x")))  # the leftover is replaced
     assert (target / "data").read_text() == "x" and sorted(path.name for path in tmp_path.iterdir()) == ["store"]
     assert not fit_complete(tmp_path)
+
+
+def test_an_error_of_a_store_made_in_place_names_the_store_not_its_hidden_partial(tmp_path):
+    target = tmp_path / "store"
+
+    def refused(partial):
+        raise ConfigError(f"{partial / 'images'}: damaged")
+
+    with pytest.raises(ConfigError, match=rf"^{target / 'images'}: damaged$") as raised:  # the same type, for callers catching it
+        made_in_place(target, refused)
+    assert ".store.partial" not in str(raised.value) and isinstance(raised.value.__cause__, ConfigError)
+    elsewhere = InputError("another file: damaged")
+
+    def failed(partial):
+        raise elsewhere
+
+    with pytest.raises(InputError) as raised:
+        made_in_place(target, failed)
+    assert raised.value is elsewhere and list(tmp_path.iterdir()) == []

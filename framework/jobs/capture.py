@@ -161,13 +161,10 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     out.mkdir(parents=True, exist_ok=True)
 
     def prepare(partial: Path) -> None:
-        try:
-            choice = prepare_capture_session(capture, partial, calibration=Path(settings.calibration) if settings.calibration else None,
-                                             units=settings.units, frames=slice(*settings.frames), scale=settings.scale,
-                                             cameras=list(settings.cameras) or None, holdout=list(settings.holdout), source=source,
-                                             reader_options=reader_options, progress=progress)
-        except InputError as error:  # named by the session it was making: the hidden partial one is removed
-            raise InputError(str(error).replace(str(partial), str(session))) from error
+        choice = prepare_capture_session(capture, partial, calibration=Path(settings.calibration) if settings.calibration else None,
+                                         units=settings.units, frames=slice(*settings.frames), scale=settings.scale,
+                                         cameras=list(settings.cameras) or None, holdout=list(settings.holdout), source=source,
+                                         reader_options=reader_options, progress=progress)
         write_json_atomic(out / MASKS_FILE, choice)
         log(f"run: masks: {choice['detail']}")
 

@@ -17,7 +17,7 @@ from typing import Any
 
 import attrs
 
-from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.plugin_api.errors import InputError, MmcsplatError
 from mmcsplat.storage.atomic import write_json_atomic
 from mmcsplat.storage.run import RUN_INFO
 
@@ -120,12 +120,16 @@ def fit_complete(run: Path) -> bool:
 def made_in_place(target: Path, make: Callable[[Path], None]) -> None:
     """``make(partial)`` builds ``target`` in the hidden sibling ``.NAME.partial`` (a leftover of an
     interrupted one removed first), which is then renamed into place; a ``make`` that fails or is
-    interrupted leaves nothing (the next one starts afresh anyway)."""
+    interrupted leaves nothing (the next one starts afresh anyway). A user-facing error that names the
+    partial folder is raised again, of the same type, naming ``target``: the user never asked for the
+    hidden folder, and it is gone."""
     partial = target.with_name(f".{target.name}.partial")
     shutil.rmtree(partial, ignore_errors=True)
     try:
         make(partial)
-    except BaseException:
+    except BaseException as error:
         shutil.rmtree(partial, ignore_errors=True)
+        if isinstance(error, MmcsplatError) and str(partial) in str(error):  # its message is its one argument (errors.py)
+            raise type(error)(str(error).replace(str(partial), str(target))) from error
         raise
     os.replace(partial, target)

@@ -1,5 +1,6 @@
-"""mmcsplat's user-facing errors: every one derives from :class:`MmcsplatError`, whose message the CLI
-prints on one line before exiting with status 2. A leaf module."""
+"""mmcsplat's user-facing errors: every one derives from :class:`MmcsplatError`, whose message (its one
+argument, so that a step can name what it was making in it) the CLI prints on one line before exiting with
+status 2. A leaf module."""
 
 
 class MmcsplatError(Exception):
