@@ -1,17 +1,26 @@
-"""``mmcsplat run``'s settings: bad tracking values and reader options fail before the first step, naming
-the value, and leave nothing behind; the reader's options reach the ingest."""
+"""``mmcsplat run``'s settings: bad tracking values, reader options and segmenters fail before the first
+step, naming the value, and leave nothing behind; the reader's options reach the ingest, and a named
+segmenter (a third party's) makes the masks."""
 
 from __future__ import annotations
 
+import json
+import sys
+import types
 from pathlib import Path
 
+import attrs
+import numpy as np
 import pytest
 
+from mmcsplat import Registration, hookimpl
 from mmcsplat.configuration.config import load_config
-from mmcsplat.configuration.registry import default_registry
+from mmcsplat.configuration.registry import Registry, default_registry
 from mmcsplat.jobs.capture import DEFAULT_CONFIG, TRACK_MEANS_LR, CaptureSettings, guidance_overrides, run_capture
 from mmcsplat.pipeline.track import dynamics_choice
 from mmcsplat.plugin_api.errors import InputError, MmcsplatError
+from mmcsplat.plugin_api.interfaces import Segmenter
+from mmcsplat.storage.session import SessionReader
 
 
 @pytest.mark.parametrize(("settings", "message"), [
@@ -21,6 +30,8 @@ from mmcsplat.plugin_api.errors import InputError, MmcsplatError
     (CaptureSettings(track_keypoints=1), "--track-keypoints: .*capture has no 2D keypoints to guide the tracking with"),
     (CaptureSettings(cameras=("cam_01",)), r"--cameras cam_01 with --holdout \(none\) leaves 1 camera\(s\) .*a fit needs two"),
     (CaptureSettings(cameras=("a", "b"), holdout=("b",)), r"--cameras a,b with --holdout b leaves 1 camera\(s\) to train on \(a\)"),
+    (CaptureSettings(segmenter_options=("model=person.onnx",)), "--segmenter-set model=person.onnx without --segmenter"),
+    (CaptureSettings(segmenter="background", segmenter_options=("method=guess",)), "method must be one of"),
 ])
 def test_bad_tracking_values_fail_before_the_first_step(tmp_path, settings, message):
     capture, out = tmp_path / "capture", tmp_path / "out"
@@ -133,3 +144,51 @@ def test_the_fit_gets_the_backend_and_the_tracking_settings(tmp_path, monkeypatc
     assert seen["backend"] == "torch-reference"
     # recorded in run.json with the fit, so that `mmcsplat track RUN` tracks as the run does
     assert seen["dynamics"] == {"name": "iterative", "iterations": 7, "means_lr": TRACK_MEANS_LR, "flow_gain": 1.5}
+
+
+def test_an_unknown_segmenter_fails_before_the_first_step(tmp_path):
+    capture, out = tmp_path / "capture", tmp_path / "out"
+    capture.mkdir()
+    with pytest.raises(MmcsplatError, match="no-such-segmenter"):
+        run_capture(capture, out, CaptureSettings(segmenter="no-such-segmenter"), progress=False, log=lambda line: None)
+    assert not out.exists()
+
+
+@attrs.frozen
+class BoxSegmenter(Segmenter):
+    """A third party's segmenter: the middle ``share`` of each image's width and height is the subject."""
+
+    share: float = 0.5
+
+    def segment(self, session, camera):
+        for t in np.flatnonzero(session.present(camera)):
+            mask = np.zeros((session.camera(camera).height, session.camera(camera).width), bool)
+            rows, cols = (round(size * (1 - self.share) / 2) for size in mask.shape)
+            mask[rows:mask.shape[0] - rows, cols:mask.shape[1] - cols] = True
+            yield int(t), mask, None
+
+
+@pytest.mark.skipif(not DEMO.is_dir(), reason="needs ../shared/data/pose2sim_demo")
+def test_a_named_segmenter_makes_the_masks_instead_of_the_capture_keypoints(tmp_path, monkeypatch):
+    class Stop(Exception):
+        """Ends the run at its fit."""
+
+    plugin = types.ModuleType("box_plugin")
+    plugin.BoxSegmenter = BoxSegmenter
+    plugin.mmcsplat_segmenters = hookimpl(lambda: [Registration("box", "box_plugin:BoxSegmenter")])
+    monkeypatch.setitem(sys.modules, "box_plugin", plugin)
+    monkeypatch.setattr("mmcsplat.pipeline.segment.default_registry",
+                        lambda: Registry(plugin_modules=[("box", "box-plugin", plugin)]))
+    monkeypatch.setattr("mmcsplat.pipeline.fit.FirstFrameFit", lambda *args, **kwargs: (_ for _ in ()).throw(Stop()))
+    out = tmp_path / "out"
+    settings = CaptureSettings(calibration=str(DEMO / "Calib_qualisys.toml"), frames=(0, 3, None), scale=0.125, segmenter="box",
+                               segmenter_options=("share=0.4",))
+    with pytest.raises(Stop):
+        run_capture(DEMO, out, settings, progress=False, log=lambda line: None)
+    choice = json.loads((out / "masks.json").read_text())
+    assert choice["masks"] == "box" and "(--segmenter)" in choice["detail"]  # the capture's pose_2d would have made keypoint masks
+    session = SessionReader(out / "session.zarr")
+    for camera in session.camera_names:
+        expected = next(BoxSegmenter(share=0.4).segment(session, camera))[1]
+        assert all(np.array_equal(np.asarray(session.frame(t, camera).mask, bool), expected) for t in range(session.num_frames))
+        assert session.plate(camera) is not None  # estimated around the box

@@ -1,8 +1,9 @@
 """Run your own capture end to end: ingest, masks, plates, fit, track, evaluate, landmarks, renders, report.
 
 For a rig's own folder (a Pose2Sim project, an anipose session, videos beside a calibration): ingests it at
---scale, makes subject masks from its 2D keypoints (pose_2d/ or --keypoints: OpenPose, SLEAP or DeepLabCut; else a background median),
-estimates clean plates with the subject masked out and refines the masks against them, fits the first
+--scale, makes subject masks from its 2D keypoints (pose_2d/ or --keypoints: OpenPose, SLEAP or DeepLabCut; else against its
+recorded plates; else from the subject's motion; or with the segmenter --segmenter names), estimates clean plates with the
+subject masked out and refines the masks against them (not --segmenter's), fits the first
 frame with the start region sized from the masks' visual hull, tracks the sequence, evaluates on the
 held-out cameras, carries the joints of a TRC file (the capture's single *.trc, or --joints) and scores
 them against it and the keypoints, renders the tracking figure and the landmark overlay, and writes the
@@ -33,6 +34,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--keypoints", help="2D keypoints: a folder of OpenPose JSON folders per camera, or of SLEAP (.slp, .analysis.h5) or "
                         "DeepLabCut (.csv, .h5) files per camera, or one such file (default: CAPTURE/pose_2d when it exists)")
     parser.add_argument("--joints", help="TRC file of joints to carry as landmarks (default: the capture's single *.trc)")
+    parser.add_argument("--segmenter", metavar="NAME", help="make every camera's masks with this segmenter plugin, e.g. onnx-semantic with "
+                        "a person-segmentation model (`mmcsplat plugins --show segmenter:NAME`), instead of from keypoints, plates or motion")
+    add_settings(parser, "a parameter of the --segmenter, e.g. model=person.onnx", dest="segmenter_options", flag="--segmenter-set")
     parser.add_argument("--config", default=DEFAULT_CONFIG, help=f"configuration to fit with (default: {DEFAULT_CONFIG})")
     add_settings(parser, "override a configuration value (repeatable)")
     add_settings(parser, "a parameter of the capture's reader (`mmcsplat plugins --show reader:NAME`), as `mmcsplat ingest --set` takes "
@@ -64,6 +68,7 @@ def run(args: argparse.Namespace) -> int:
                                reader_options=args.reader_options,
                                track_iterations=args.track_iterations, track_means_lr=args.track_means_lr,
                                track_lambda_parts=args.track_parts, track_flow_gain=args.track_flow_gain,
-                               track_keypoints=args.track_keypoints, backend=args.backend)
+                               track_keypoints=args.track_keypoints, backend=args.backend, segmenter=args.segmenter,
+                               segmenter_options=args.segmenter_options)
     print(summary(run_capture(args.capture, args.out, settings, progress=not args.no_progress)))
     return 0

@@ -9,8 +9,10 @@ flow → flow-guided track → landmarks → evaluate → renders → report.
   path of the ``keypoints`` segmenter; without, against the capture's recorded plates (``background``, method
   ``plate``) or, with nothing but videos and a calibration, the ``parallax`` segmenter (what the cameras
   agree stands off the floor: a still trunk too), refined against plates estimated with its masks held
-  out. Which masks were used is printed and recorded in ``DIR/masks.json``. A capture ingested with
-  recorded plates keeps them.
+  out. A segmenter named by the user (``--segmenter NAME``, its parameters ``--segmenter-set``: a
+  person-segmentation model through ``onnx-semantic``, or a third party's plugin) makes every camera's masks
+  instead, and plates are estimated around them. Which masks were used is printed and recorded in
+  ``DIR/masks.json``. A capture ingested with recorded plates keeps them.
 - Fit: ``visual-hull-plate`` with the start cube sized from the masks' visual hull (its reach from the
   rig centre plus 10 cm, never below the configuration's), so an adult or a mouse fits like an infant.
 - Track: ``iterative`` at :data:`TRACK_MEANS_LR`, each frame started from the optical flow's lifted motion
@@ -82,6 +84,9 @@ class CaptureSettings:
     track_keypoints: float = attrs.field(default=0.0, metadata={BEFORE_FIELD: 0.0})
     #: The renderer backend to fit with, instead of the configuration's; the later steps render with the fit's.
     backend: str | None = attrs.field(default=None, metadata={BEFORE_FIELD: None})
+    #: A segmenter plugin that makes the masks instead of the keypoints, the plates or the subject's motion.
+    segmenter: str | None = attrs.field(default=None, metadata={BEFORE_FIELD: None})
+    segmenter_options: tuple[str, ...] = attrs.field(default=(), converter=tuple, metadata={BEFORE_FIELD: ()})
 
 
 def quoted_override(key: str, value: Any) -> str:
@@ -123,6 +128,7 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     from mmcsplat.pipeline.ingest import capture_reader
     from mmcsplat.pipeline.landmarks import track_landmarks
     from mmcsplat.pipeline.run_frames import RunStates
+    from mmcsplat.pipeline.segment import segmenter_instance
     from mmcsplat.pipeline.track import dynamics_choice, track_run
     from mmcsplat.storage.session import SessionReader
 
@@ -145,8 +151,13 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     if settings.cameras and len(training) < 2:
         raise InputError(f"--cameras {','.join(settings.cameras)} with --holdout {','.join(settings.holdout) or '(none)'} leaves "
                          f"{len(training)} camera(s) to train on ({','.join(training) or 'none'}): a fit needs two at least")
-    # A bad reader option, configuration or tracking value fails before anything runs.
+    # A bad reader option, segmenter, configuration or tracking value fails before anything runs.
     reader_options = apply_overrides({}, settings.reader_options, "--reader-set")
+    if settings.segmenter_options and not settings.segmenter:
+        raise InputError(f"--segmenter-set {' '.join(settings.segmenter_options)} without --segmenter: name the segmenter it sets")
+    segmenter = (settings.segmenter, apply_overrides({}, settings.segmenter_options, "--segmenter-set")) if settings.segmenter else None
+    if segmenter:
+        segmenter_instance(*segmenter)
     # The fit's configuration names the tracking too, so RUN/run.json holds it and `mmcsplat track RUN` re-tracks as this run did.
     fit_config = load_config(settings.config, [*settings.overrides, *tracking])
     dynamics_choice(fit_config, "iterative").build()
@@ -164,7 +175,7 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
         choice = prepare_capture_session(capture, partial, calibration=Path(settings.calibration) if settings.calibration else None,
                                          units=settings.units, frames=slice(*settings.frames), scale=settings.scale,
                                          cameras=list(settings.cameras) or None, holdout=list(settings.holdout), source=source,
-                                         reader_options=reader_options, progress=progress)
+                                         reader_options=reader_options, segmenter=segmenter, progress=progress)
         write_json_atomic(out / MASKS_FILE, choice)
         log(f"run: masks: {choice['detail']}")
 

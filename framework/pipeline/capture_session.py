@@ -3,6 +3,8 @@ capture sessions alike: ingested, then masks (the capture's own when it brings t
 camera; else, with 2D keypoints, the ``keypoints`` segmenter's skeleton; else the difference to the
 capture's recorded plates, or with neither the ``parallax`` segmenter), plates estimated with those masks
 holding the subject out (unless recorded), and the masks refined against the plates (docs/real-data.md).
+A segmenter the user names (``run --segmenter``) makes the masks of every camera instead, as they stay:
+the plates are estimated around them.
 """
 
 from __future__ import annotations
@@ -59,10 +61,12 @@ def keypoint_source(path: Path) -> dict[str, Any]:
 
 def prepare_capture_session(capture: Path, partial: Path, *, calibration: Path | None = None, units: str = "m", frames: slice | None = None,
                             scale: float | str = 1.0, cameras: Sequence[str] | None = None, holdout: Sequence[str] = (), source: dict[str, Any] | None = None,
-                            reader_options: dict[str, Any] | None = None, progress: bool = True) -> dict[str, Any]:
+                            reader_options: dict[str, Any] | None = None, segmenter: tuple[str, dict[str, Any]] | None = None,
+                            progress: bool = True) -> dict[str, Any]:
     """Ingest ``capture`` into ``partial`` (its calibration, units, frames, scale, cameras, held-out cameras and
     reader options as :func:`~mmcsplat.pipeline.ingest.ingest` takes them) and give it masks and plates (module docstring), the
-    masks from the 2D keypoints that ``source`` reads when given (:func:`keypoint_source`); returns which masks it used (:func:`mask_choice`)."""
+    masks from the 2D keypoints that ``source`` reads when given (:func:`keypoint_source`), or from ``segmenter`` (a name and its
+    parameters) when given; returns which masks it used (:func:`mask_choice`)."""
     from mmcsplat.pipeline.ingest import ingest
     from mmcsplat.pipeline.plates import estimate_plates
     from mmcsplat.pipeline.segment import segment_session
@@ -71,37 +75,41 @@ def prepare_capture_session(capture: Path, partial: Path, *, calibration: Path |
     ingest(capture, partial, calibration=calibration, units=units, frames=frames, scale=scale, cameras=cameras, holdout=list(holdout),
            overwrite=True, progress=progress, reader_options=reader_options)
     recorded = any(SessionReader(partial).plate(name) is not None for name in SessionReader(partial).camera_names)
-    segmenter, first, refined = ("keypoints", {"source": source}, {"source": source, "refine": "plate"}) if source else \
+    # The first masks hold the subject out of estimated plates; the refined ones (None: the first are final) are made against the plates.
+    name, first, refined = (segmenter[0], segmenter[1], None) if segmenter else \
+        ("keypoints", {"source": source}, {"source": source, "refine": "plate"}) if source else \
         ("background", {"method": "median"}, {"method": "plate"}) if recorded else ("parallax", {}, {"refine": "plate"})
-    choice = mask_choice(SessionReader(partial), segmenter)
-    if choice["masks"] != "capture" and not recorded:
-        segment_session(partial, segmenter, first, progress=progress)
+    choice = mask_choice(SessionReader(partial), name, chosen=segmenter is not None)
+    made = choice["masks"] != "capture"
+    if made and (not recorded or refined is None):
+        segment_session(partial, name, first, progress=progress)
     if not recorded:
         estimate_plates(str(partial), None, progress=progress)
-    if choice["masks"] != "capture":
-        segment_session(partial, segmenter, refined, progress=progress)
+    if made and refined is not None:
+        segment_session(partial, name, refined, progress=progress)
     return choice
 
 
-def mask_choice(session: SessionReader, segmenter: str) -> dict[str, Any]:
+def mask_choice(session: SessionReader, segmenter: str, chosen: bool = False) -> dict[str, Any]:
     """Which masks ``run`` uses: ``{"masks": "capture", …}`` when every training camera of ``session`` has
     masks from its capture (held-out ones without are scored against the training masks' hull), else
     ``{"masks": segmenter, …}`` (the capture's masks of some cameras are then replaced, and said so). A
-    synthetic capture's ground-truth masks are never fitted on."""
+    synthetic capture's ground-truth masks are never fitted on; a ``chosen`` segmenter (the user's) replaces
+    the capture's masks in every camera."""
     reader = session.provenance.get("reader", {})
-    if reader.get("ground_truth") and not reader.get("masks"):  # a synthetic capture's truth scores the run; it does not fit it
-        return {"masks": segmenter, "cameras": list(session.camera_names),
-                "detail": f"made by the {segmenter} segmenter for every camera (the capture's masks are its ground truth, {reader['ground_truth']})"}
     shipped = [name for name in session.camera_names if session.has_source_mask(name)]
     training = [name for name in session.camera_names if name not in session.heldout]
-    if shipped and set(training) <= set(shipped):
+    if not chosen and reader.get("ground_truth") and not reader.get("masks"):  # a synthetic capture's truth scores the run; it does not fit it
+        return {"masks": segmenter, "cameras": list(session.camera_names),
+                "detail": f"made by the {segmenter} segmenter for every camera (the capture's masks are its ground truth, {reader['ground_truth']})"}
+    if not chosen and shipped and set(training) <= set(shipped):
         detail = f"the capture's own, of {', '.join(shipped)}"
         lacking = [name for name in session.camera_names if name not in shipped]
         if lacking:
             detail += f" (held out {', '.join(lacking)} has none: evaluated against the training masks' hull)"
         return {"masks": "capture", "cameras": shipped, "detail": detail}
-    detail = f"made by the {segmenter} segmenter for every camera"
+    detail = f"made by the {segmenter} segmenter{' (--segmenter)' if chosen else ''} for every camera"
     if shipped:
-        detail += (f"; the capture's own masks of {', '.join(shipped)} are not used, as training camera(s) "
-                   f"{', '.join(sorted(set(training) - set(shipped)))} have none")
+        detail += f"; the capture's own masks of {', '.join(shipped)} are not used" + ("" if chosen else (
+            f", as training camera(s) {', '.join(sorted(set(training) - set(shipped)))} have none"))
     return {"masks": segmenter, "cameras": list(session.camera_names), "detail": detail}
