@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from mmcsplat import Registration, hookimpl
+from mmcsplat.cli import main
 from mmcsplat.configuration.config import load_config
 from mmcsplat.configuration.registry import Registry, default_registry
 from mmcsplat.jobs.capture import DEFAULT_CONFIG, TRACK_MEANS_LR, CaptureSettings, guidance_overrides, run_capture
@@ -192,3 +193,10 @@ def test_a_named_segmenter_makes_the_masks_instead_of_the_capture_keypoints(tmp_
         expected = next(BoxSegmenter(share=0.4).segment(session, camera))[1]
         assert all(np.array_equal(np.asarray(session.frame(t, camera).mask, bool), expected) for t in range(session.num_frames))
         assert session.plate(camera) is not None  # estimated around the box
+
+
+def test_the_command_line_passes_the_segmenter_and_its_parameters(tmp_path, capsys):
+    capture, out = tmp_path / "capture", tmp_path / "out"
+    capture.mkdir()
+    assert main(["run", str(capture), "--out", str(out), "--segmenter", "background", "--segmenter-set", "method=guess", "--no-progress"]) == 2
+    assert "method must be one of" in capsys.readouterr().err and not out.exists()
