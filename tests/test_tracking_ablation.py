@@ -14,6 +14,7 @@ from fitting_scene import write_session
 import mmcsplat.pipeline.flow as flow_module
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.studies.runner import run_study
+from mmcsplat.studies.sessions import prepare_session
 from mmcsplat.studies.spec import StudyError, expand, load_study
 
 TINY = "frames = 3, cameras = 4, width = 32, height = 24, samples = 1, adult_leg = false"
@@ -95,7 +96,7 @@ def test_a_stored_session_read_in_place_gains_its_flow_and_nothing_else(tmp_path
     assert flow_module.flow_complete(tmp_path / "scene.zarr") and (SessionReader(tmp_path / "scene.zarr").frame(1, "cam_1").rgb == frame).all()
 
 
-def test_a_capture_session_fills_in_what_run_would_and_refuses_what_does_not_apply(tmp_path):
+def test_a_capture_session_fills_in_what_run_would_and_refuses_what_does_not_apply(tmp_path, monkeypatch):
     capture = tmp_path / "capture"
     (capture / "pose_2d").mkdir(parents=True)
     (capture / "joints.trc").write_text("")
@@ -107,8 +108,22 @@ def test_a_capture_session_fills_in_what_run_would_and_refuses_what_does_not_app
     cell = expand(study, tmp_path / "out")[0]
     assert cell.spec.joints == str(capture / "joints.trc") and "joints" not in cell.plan.identity["capture"]
     assert cell.plan.url.startswith(str(tmp_path / "out" / "sessions" / "capture" / "capture-")) and not cell.plan.in_place
-    with pytest.raises(StudyError, match=r"\['segmenter'\] do not apply to a capture session"):
-        load_study(write_study(tmp_path, variants, 'capture = { path = "capture" }\nsegmenter = "precomputed"'))
+    with pytest.raises(StudyError, match=r"\['cameras'\] do not apply to a capture session"):
+        load_study(write_study(tmp_path, variants, 'capture = { path = "capture" }\ncameras = ["cam_01"]'))
+    # A segmenter makes the capture's masks, as `run --segmenter` does: another session, made with it.
+    segmented = expand(load_study(write_study(tmp_path, variants, 'capture = { path = "capture", frames = [0, 4], holdout = ["cam_04"] }\n'
+                                              'segmenter = { name = "background", method = "median" }')), tmp_path / "out")[0]
+    assert segmented.plan.identity["segmenter"] == {"name": "background", "params": {"method": "median"}}
+    assert segmented.plan.url != cell.plan.url and segmented.plan.identity["capture"] == cell.plan.identity["capture"]
+    (capture / "pose_2d" / "cam_01").mkdir()
+    (capture / "pose_2d" / "cam_01" / "frame_0.json").write_text("{}")  # an OpenPose folder, read by the session's maker only
+    made = {}
+    monkeypatch.setattr("mmcsplat.pipeline.capture_session.prepare_capture_session",
+                        lambda capture, partial, **kwargs: (partial.mkdir(parents=True), made.update(kwargs)))
+    prepare_session(segmented.plan, progress=False)
+    assert made["segmenter"] == ("background", {"method": "median"})
+    prepare_session(cell.plan, progress=False)
+    assert made["segmenter"] is None
     with pytest.raises(StudyError, match="capture path .*elsewhere is not a folder"):
         load_study(write_study(tmp_path, variants, 'capture = { path = "elsewhere" }'))
     with pytest.raises(StudyError, match="unknown capture key"):

@@ -34,7 +34,7 @@ def prepare_session(plan: SessionPlan, progress: bool = True) -> None:
             raise StudyError(f"{target} was prepared from other settings ({identity_file}): use a new --out or delete it")
         return
     if plan.spec.capture is not None:
-        _captured(plan.spec.capture, target, progress)
+        _captured(plan.spec.capture, target, plan.segmenter, progress)
         write_json_atomic(identity_file, plan.identity)
         return
     source = _synthesized(plan, target.parent, progress) if plan.spec.synthetic is not None else plan.spec.path
@@ -59,9 +59,10 @@ def prepare_flow(plan: SessionPlan, preset: str, progress: bool = True) -> None:
     compute_flow(plan.url, preset=preset, progress=progress)
 
 
-def _captured(capture: dict, target: Path, progress: bool) -> None:
+def _captured(capture: dict, target: Path, segmenter: PluginChoice | None, progress: bool) -> None:
     """The capture folder made into the session ``target`` as ``mmcsplat run`` makes its own (ingested, masks
-    and plates), in a hidden sibling renamed into place."""
+    and plates; the masks ``segmenter``'s when given, as with ``run --segmenter``), in a hidden sibling renamed
+    into place."""
     from mmcsplat.pipeline.capture_session import keypoint_source, prepare_capture_session
     from mmcsplat.pipeline.steps import made_in_place
 
@@ -70,7 +71,7 @@ def _captured(capture: dict, target: Path, progress: bool) -> None:
                                 units=capture["units"], frames=slice(*capture["frames"]) if capture["frames"] else None, scale=capture["scale"],
                                 cameras=capture["cameras"] or None, holdout=capture["holdout"],
                                 source=keypoint_source(Path(capture["keypoints"])) if capture["keypoints"] else None,
-                                progress=progress)
+                                segmenter=(segmenter.name, dict(segmenter.params)) if segmenter else None, progress=progress)
 
     made_in_place(target, make)
 

@@ -37,8 +37,8 @@ HEADER_KEYS = {"name", "description", "folds", "seeds", "backends", "set"}
 SESSION_KEYS = {"path", "synthetic", "capture", "segmenter", "heldout", "folds", "ground_truth", "cameras", "perturb"}
 #: What a ``capture`` table may hold: the capture folder and what ``mmcsplat run`` takes to make a session of it.
 CAPTURE_KEYS = {"path", "calibration", "units", "scale", "frames", "cameras", "holdout", "keypoints", "joints"}
-#: Session keys a capture session leaves to its ``capture`` table (cameras, joints) or to ``mmcsplat run``'s masks.
-NOT_FOR_CAPTURES = ("segmenter", "ground_truth", "cameras", "perturb")
+#: Session keys a capture session leaves to its ``capture`` table (cameras, joints); its ``segmenter`` is ``run --segmenter``'s.
+NOT_FOR_CAPTURES = ("ground_truth", "cameras", "perturb")
 VARIANT_KEYS = {"name", "config", "set", "grid", "segmenter", *VARIANT_PLUGIN_TABLES}
 #: Synthesis settings added after studies were first keyed: left out of identities at these defaults,
 #: so that existing study directories keep their cells.
@@ -64,7 +64,8 @@ class SessionSpec:
     (``synthetic``: :class:`~mmcsplat.synthetic.synthesize.SynthConfig` fields, and the cameras
     held out at its ingest) or a capture folder to make one of as ``mmcsplat run`` does (``capture``: its
     settings, paths resolved and defaults filled, with ``joints``, the TRC its carried joints are scored
-    against, or ``None``), the segmenter to run on a copy of it, its folds when they differ from the
+    against, or ``None``), the segmenter to run on a copy of it (on a capture: to make its masks, as
+    ``run --segmenter`` does), its folds when they differ from the
     study's, and ground truth for tracking. ``cameras`` (the only cameras kept) and ``perturb`` (one
     camera's extrinsics rotated: :class:`Perturbation`) make the study read a modified copy of it —
     failure regimes for ``mmcsplat stability``."""
@@ -286,9 +287,10 @@ def _session(name: str, table: Mapping[str, Any], source: str, folder: Path | No
     if "capture" in table:
         misplaced = [key for key in NOT_FOR_CAPTURES if key in table]
         if misplaced:
-            raise StudyError(f"{where}: {misplaced} do not apply to a capture session (it is segmented as `mmcsplat run` does; "
+            raise StudyError(f"{where}: {misplaced} do not apply to a capture session (it is made as `mmcsplat run` makes it: "
                              "its cameras, holdout and joints go in its capture table)")
-        return SessionSpec(name, heldout=(), folds=folds, capture=capture_settings(_table(table["capture"], f"{where} capture"), where, folder))
+        return SessionSpec(name, heldout=(), segmenter=segmenter, folds=folds,
+                           capture=capture_settings(_table(table["capture"], f"{where} capture"), where, folder))
     if "synthetic" in table:
         settings = synthetic_settings(_table(table["synthetic"], f"{where} synthetic"), where)
         return SessionSpec(name, None, settings, _strings(table.get("heldout", list(SYNTHETIC_HELDOUT)), f"{where} heldout"),
@@ -456,13 +458,12 @@ def plan_sessions(study: Study, out: Path) -> dict[tuple[str, str], SessionPlan]
         for variant in study.variants:
             segmenter = variant.segmenter or spec.segmenter
             if spec.capture is not None:
-                if segmenter is not None:
-                    raise StudyError(f"{study.source}: variant {variant.name!r} asks for segmenter {segmenter.name!r}, but session {spec.name!r} "
-                                     "is a capture, segmented as `mmcsplat run` does: leave it out for this study")
                 identity: dict[str, Any] = {"capture": {key: value for key, value in spec.capture.items() if key != "joints"}}
-                digest = hashlib.sha256(json.dumps(identity, sort_keys=True).encode()).hexdigest()[:8]
+                if segmenter is not None:  # absent otherwise, so that studies made before keep their cells
+                    identity["segmenter"] = {"name": segmenter.name, "params": dict(segmenter.params)}
+                digest = hashlib.sha256(json.dumps(identity, sort_keys=True, default=str).encode()).hexdigest()[:8]
                 url = str(Path(out).resolve() / "sessions" / spec.name / f"capture-{digest}.zarr")
-                plans[spec.name, segmenter_key(variant.segmenter)] = SessionPlan(spec, None, url, identity)
+                plans[spec.name, segmenter_key(variant.segmenter)] = SessionPlan(spec, segmenter, url, identity)
                 continue
             identity = {"synthetic": dict(spec.synthetic), "heldout": list(spec.heldout)} if spec.synthetic else {"path": spec.path}
             identity.update(spec.modifications)
