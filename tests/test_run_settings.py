@@ -178,8 +178,9 @@ def test_a_named_segmenter_makes_the_masks_instead_of_the_capture_keypoints(tmp_
     plugin.BoxSegmenter = BoxSegmenter
     plugin.mmcsplat_segmenters = hookimpl(lambda: [Registration("box", "box_plugin:BoxSegmenter")])
     monkeypatch.setitem(sys.modules, "box_plugin", plugin)
-    monkeypatch.setattr("mmcsplat.pipeline.segment.default_registry",
-                        lambda: Registry(plugin_modules=[("box", "box-plugin", plugin)]))
+    with_box = Registry(plugin_modules=[("box", "box-plugin", plugin)])
+    for module in ("mmcsplat.configuration.config", "mmcsplat.pipeline.segment"):  # run's check before ingest, and the segmentation
+        monkeypatch.setattr(f"{module}.default_registry", lambda: with_box)
     monkeypatch.setattr("mmcsplat.pipeline.fit.FirstFrameFit", lambda *args, **kwargs: (_ for _ in ()).throw(Stop()))
     out = tmp_path / "out"
     settings = CaptureSettings(calibration=str(DEMO / "Calib_qualisys.toml"), frames=(0, 3, None), scale=0.125, segmenter="box",

@@ -118,7 +118,7 @@ class CaptureResult:
 def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings = CaptureSettings(), progress: bool = True,
                 log: Callable[[str], None] = print) -> CaptureResult:
     """Run every step into ``out`` (module docstring); ``log`` gets one line per step."""
-    from mmcsplat.configuration.config import apply_overrides, load_config
+    from mmcsplat.configuration.config import PluginChoice, apply_overrides, load_config
     from mmcsplat.outputs.landmark_video import render_landmarks
     from mmcsplat.outputs.renders import RunRenderer, render_trajectories
     from mmcsplat.outputs.report import write_report
@@ -128,7 +128,6 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     from mmcsplat.pipeline.ingest import capture_reader
     from mmcsplat.pipeline.landmarks import track_landmarks
     from mmcsplat.pipeline.run_frames import RunStates
-    from mmcsplat.pipeline.segment import segmenter_instance
     from mmcsplat.pipeline.track import dynamics_choice, track_run
     from mmcsplat.storage.session import SessionReader
 
@@ -155,9 +154,10 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     reader_options = apply_overrides({}, settings.reader_options, "--reader-set")
     if settings.segmenter_options and not settings.segmenter:
         raise InputError(f"--segmenter-set {' '.join(settings.segmenter_options)} without --segmenter: name the segmenter it sets")
-    segmenter = (settings.segmenter, apply_overrides({}, settings.segmenter_options, "--segmenter-set")) if settings.segmenter else None
+    segmenter = PluginChoice("segmenter", settings.segmenter, apply_overrides({}, settings.segmenter_options, "--segmenter-set")) \
+        if settings.segmenter else None
     if segmenter:
-        segmenter_instance(*segmenter)
+        segmenter.build()
     # The fit's configuration names the tracking too, so RUN/run.json holds it and `mmcsplat track RUN` re-tracks as this run did.
     fit_config = load_config(settings.config, [*settings.overrides, *tracking])
     dynamics_choice(fit_config, "iterative").build()

@@ -19,7 +19,8 @@ from mmcsplat.plugin_api.errors import InputError
 #: The scale ``mmcsplat run`` ingests a capture at (a real rig's full-size frames fit too slowly on a CPU).
 DEFAULT_SCALE = AUTO_SCALE
 
-if TYPE_CHECKING:  # the session store's format is imported to make one, not for every command's start
+if TYPE_CHECKING:  # for annotations: the session store's format is imported to make one, not for every command's start
+    from mmcsplat.configuration.config import PluginChoice
     from mmcsplat.storage.session import SessionReader
 
 
@@ -61,12 +62,12 @@ def keypoint_source(path: Path) -> dict[str, Any]:
 
 def prepare_capture_session(capture: Path, partial: Path, *, calibration: Path | None = None, units: str = "m", frames: slice | None = None,
                             scale: float | str = 1.0, cameras: Sequence[str] | None = None, holdout: Sequence[str] = (), source: dict[str, Any] | None = None,
-                            reader_options: dict[str, Any] | None = None, segmenter: tuple[str, dict[str, Any]] | None = None,
+                            reader_options: dict[str, Any] | None = None, segmenter: PluginChoice | None = None,
                             progress: bool = True) -> dict[str, Any]:
     """Ingest ``capture`` into ``partial`` (its calibration, units, frames, scale, cameras, held-out cameras and
     reader options as :func:`~mmcsplat.pipeline.ingest.ingest` takes them) and give it masks and plates (module docstring), the
-    masks from the 2D keypoints that ``source`` reads when given (:func:`keypoint_source`), or from ``segmenter`` (a name and its
-    parameters) when given; returns which masks it used (:func:`mask_choice`)."""
+    masks from the 2D keypoints that ``source`` reads when given (:func:`keypoint_source`), or from ``segmenter`` when given;
+    returns which masks it used (:func:`mask_choice`)."""
     from mmcsplat.pipeline.ingest import ingest
     from mmcsplat.pipeline.plates import estimate_plates
     from mmcsplat.pipeline.segment import segment_session
@@ -76,7 +77,7 @@ def prepare_capture_session(capture: Path, partial: Path, *, calibration: Path |
            overwrite=True, progress=progress, reader_options=reader_options)
     recorded = any(SessionReader(partial).plate(name) is not None for name in SessionReader(partial).camera_names)
     # The first masks hold the subject out of estimated plates; the refined ones (None: the first are final) are made against the plates.
-    name, first, refined = (segmenter[0], segmenter[1], None) if segmenter else \
+    name, first, refined = (segmenter.name, segmenter.params, None) if segmenter else \
         ("keypoints", {"source": source}, {"source": source, "refine": "plate"}) if source else \
         ("background", {"method": "median"}, {"method": "plate"}) if recorded else ("parallax", {}, {"refine": "plate"})
     choice = mask_choice(SessionReader(partial), name, chosen=segmenter is not None)

@@ -24,7 +24,6 @@ from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.training.plugin_hooks import plugin_hook
 
 if TYPE_CHECKING:  # imported on use: the CLI parser imports this module for every command
-    from mmcsplat.plugin_api.interfaces import Segmenter
     from mmcsplat.storage.session import SessionReader, SessionUpdater
 
 
@@ -64,12 +63,6 @@ def check_plausible(url: str | os.PathLike, segmenter: str, summaries: Sequence[
     )
 
 
-def segmenter_instance(segmenter: str, params: Mapping[str, Any] | None = None) -> Segmenter:
-    """The registered ``segmenter`` built with ``params``: an unknown name or a bad parameter fails here,
-    before a frame is read."""
-    return default_registry().create("segmenter", segmenter, **dict(params or {}))
-
-
 def segment_session(
     url: str | os.PathLike,
     segmenter: str,
@@ -91,7 +84,7 @@ def segment_session(
     selected = list(dict.fromkeys(cameras or session.camera_names))
     for camera in selected:
         session.camera(camera)  # an unknown camera is an error naming the session and camera
-    instance = segmenter_instance(segmenter, params)
+    instance = default_registry().create("segmenter", segmenter, **dict(params or {}))
     if consistent and len(selected) < 3:
         raise InputError(f"session {session.url}: multi-view consistency needs masks of at least 3 cameras, got {len(selected)}")
     total = sum(int(session.present(camera).sum()) for camera in selected)

@@ -71,7 +71,7 @@ def _captured(capture: dict, target: Path, segmenter: PluginChoice | None, progr
                                 units=capture["units"], frames=slice(*capture["frames"]) if capture["frames"] else None, scale=capture["scale"],
                                 cameras=capture["cameras"] or None, holdout=capture["holdout"],
                                 source=keypoint_source(Path(capture["keypoints"])) if capture["keypoints"] else None,
-                                segmenter=(segmenter.name, dict(segmenter.params)) if segmenter else None, progress=progress)
+                                segmenter=segmenter, progress=progress)
 
     made_in_place(target, make)
 

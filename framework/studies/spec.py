@@ -459,20 +459,16 @@ def plan_sessions(study: Study, out: Path) -> dict[tuple[str, str], SessionPlan]
             segmenter = variant.segmenter or spec.segmenter
             if spec.capture is not None:
                 identity: dict[str, Any] = {"capture": {key: value for key, value in spec.capture.items() if key != "joints"}}
-                if segmenter is not None:  # absent otherwise, so that studies made before keep their cells
-                    identity["segmenter"] = {"name": segmenter.name, "params": dict(segmenter.params)}
+            else:
+                identity = {"synthetic": dict(spec.synthetic), "heldout": list(spec.heldout)} if spec.synthetic else {"path": spec.path}
+                identity.update(spec.modifications)
+            if segmenter is not None:  # absent otherwise, so that studies made before keep their cells
+                identity["segmenter"] = {"name": segmenter.name, "params": dict(segmenter.params)}
+            url = spec.path  # a stored session as it is, read in place; every other one is made under OUT/sessions
+            if spec.capture is not None or segmenter is not None or spec.modifications:
                 digest = hashlib.sha256(json.dumps(identity, sort_keys=True, default=str).encode()).hexdigest()[:8]
-                url = str(Path(out).resolve() / "sessions" / spec.name / f"capture-{digest}.zarr")
-                plans[spec.name, segmenter_key(variant.segmenter)] = SessionPlan(spec, segmenter, url, identity)
-                continue
-            identity = {"synthetic": dict(spec.synthetic), "heldout": list(spec.heldout)} if spec.synthetic else {"path": spec.path}
-            identity.update(spec.modifications)
-            url = spec.path
-            if segmenter is not None or spec.modifications:
-                if segmenter is not None:
-                    identity["segmenter"] = {"name": segmenter.name, "params": dict(segmenter.params)}
-                digest = hashlib.sha256(json.dumps(identity, sort_keys=True, default=str).encode()).hexdigest()[:8]
-                url = str(Path(out).resolve() / "sessions" / spec.name / f"{segmenter.name if segmenter else 'copy'}-{digest}.zarr")
+                stem = "capture" if spec.capture is not None else segmenter.name if segmenter else "copy"
+                url = str(Path(out).resolve() / "sessions" / spec.name / f"{stem}-{digest}.zarr")
             plans[spec.name, segmenter_key(variant.segmenter)] = SessionPlan(spec, segmenter, str(url), identity)
     return plans
 
