@@ -129,7 +129,29 @@ def test_refinement_leaves_the_hull_where_no_camera_sees_the_floor_unrefined(mon
     parallax = type(default_registry().create("segmenter", "parallax"))
     monkeypatch.setattr(parallax, "_masks", lambda self, session, t: {"cam": block})
     for untrusted, kept in ((unjudged, block & unjudged), (np.zeros_like(block), np.zeros_like(block))):
-        region = {"cam": (np.zeros_like(block), image, hull, hull & untrusted)}
+        region = {"cam": (image, hull, hull & untrusted)}
         monkeypatch.setattr(parallax, "subject_region", lambda self, session, region=region: region)
         (t, mask, _), = default_registry().create("segmenter", "parallax", refine="plate").raw(session, "cam")
         assert t == 0 and np.array_equal(mask, kept)
+
+
+def test_a_change_where_no_camera_sees_the_floor_is_kept_only_near_its_frame(monkeypatch):
+    # Within the hull, a pixel whose floor point no other camera sees is kept where it changed within
+    # change_window frames of the mask's, not wherever the subject went at any time of the sequence.
+    median = np.full((40, 40, 3), 90, np.uint8)
+    moved = median.copy()
+    moved[15:25, 15:25] = 200
+    images = [moved] + [median] * 7
+    hull = np.ones((40, 40), bool)
+    session = SimpleNamespace(present=lambda camera: np.ones(len(images), bool),
+                              frame=lambda t, camera: SimpleNamespace(rgb=images[t]))
+    parallax = type(default_registry().create("segmenter", "parallax"))
+    monkeypatch.setattr(parallax, "_masks", lambda self, session, t: {"cam": np.zeros((40, 40), bool)})
+    monkeypatch.setattr(parallax, "subject_region", lambda self, session: {"cam": (median, hull, hull)})
+    masks = list(default_registry().create("segmenter", "parallax", change_window=2).raw(session, "cam"))
+    assert [t for t, _, _ in masks] == list(range(len(images)))
+    patch = moved.max(axis=-1) > 90
+    first = masks[0][1]
+    assert not (first & ~patch).any() and first.sum() >= 0.9 * patch.sum()  # the opening takes the corners
+    assert all(np.array_equal(mask, first) for _, mask, _ in masks[1:3])
+    assert not any(mask.any() for _, mask, _ in masks[3:])

@@ -20,9 +20,10 @@ elsewhere, so they disagree (plane plus parallax). Each step:
    ``margin``, of the voxels the cameras agree changed colour at some time over the sequence. Static
    equipment off the floor (a treadmill, a mat's fold) never changes and falls outside it; the still parts
    between the moving ones (an infant's trunk) fall inside. Within it, a camera's mask also takes the
-   pixels that change at that frame, and those whose floor point no other camera sees, which the floor
-   cannot judge (a standing subject's upper body, seen against the walls). A subject that never moves
-   leaves no region: the masks are then not restricted.
+   pixels that change at that frame, and those whose floor point no other camera sees (the floor cannot
+   judge them: a standing subject's upper body, seen against the walls) that changed within
+   ``change_window`` frames of it. Changed at any time would keep everywhere a moving subject went. A
+   subject that never moves leaves no region: the masks are then not restricted.
 5. **Refined against plates** (``refine = "plate"``, when the session has plates, e.g. estimated by
    ``mmcsplat plates`` with these masks held out): the geometric mask keeps only the pixels within
    ``refine_radius`` of one that differs from the plate. The plate trims the outline, where the
@@ -213,6 +214,8 @@ class ParallaxSegmenter(PostProcessedSegmenter):
     change_threshold: float = parameter(20.0, doc="change: grey levels by which a pixel must differ from its sequence's median to have "
                                                   "changed", validator=finite_positive)
     margin: float = parameter(0.1, doc="change: metres the hull of the changed voxels is grown by", validator=at_least(0))
+    change_window: int = parameter(5, doc="change: frames either side of a mask's within which a pixel of the hull whose floor point no "
+                                          "other camera sees must have changed to be kept", validator=at_least(0))
     refine: str = parameter("none", doc="none, or plate: keep only the mask's pixels near one that differs from the session's plate",
                             validator=one_of("none", "plate"))
     refine_threshold: float = parameter(30.0, doc="plate: grey levels a pixel must differ from the plate by", validator=finite_positive)
@@ -223,17 +226,35 @@ class ParallaxSegmenter(PostProcessedSegmenter):
     def raw(self, session: SessionReader, camera: str) -> Iterator[tuple[int, np.ndarray, np.ndarray | None]]:
         plate = self._plate(session, camera) if self.refine == "plate" else None
         region = self.subject_region(session).get(camera) if self.region == "change" else None
-        for t in present_frames(session, camera):
-            mask = self._masks(session, int(t))[camera]
+        for t, image, now, near in self._changes(session, camera, None if region is None else region[0]):
+            mask = self._masks(session, t)[camera]
             if region is not None:
-                unjudged, median, hull, _ = region
-                mask = hull & (mask | unjudged | changed(session.frame(int(t), camera).rgb, median, self.change_threshold))
+                _, hull, unjudged = region
+                mask = hull & (mask | now | (unjudged & near))
             if plate is not None:
-                differs = colour_difference(session.frame(int(t), camera).rgb, plate) > self.refine_threshold
+                differs = colour_difference(image, plate) > self.refine_threshold
                 if region is not None:
-                    differs |= region[3]  # a plate there may show the still subject itself: it cannot judge
+                    differs |= region[2]  # a plate there may show the still subject itself: it cannot judge
                 mask = mask & dilate(differs, self.refine_radius)
-            yield int(t), fill_holes(open_close(mask, 0, self.close_radius)), None
+            yield t, fill_holes(open_close(mask, 0, self.close_radius)), None
+
+    def _changes(self, session: SessionReader, camera: str, median: np.ndarray | None
+                 ) -> Iterator[tuple[int, np.ndarray, np.ndarray | None, np.ndarray | None]]:
+        """(t, image, changed, changed near) for each present frame of ``camera``: the [H, W] bool pixels that
+        differ from ``median`` at t, and at any of the present frames up to ``change_window`` either side
+        (None without a median). Each frame is read once, and only the window's are held."""
+        frames = [int(t) for t in present_frames(session, camera)]
+        window = self.change_window if median is not None else 0
+        held: dict[int, tuple[np.ndarray, np.ndarray | None]] = {}
+        for i, t in enumerate(frames):
+            near = frames[max(i - window, 0) : i + window + 1]
+            for s in near:
+                if s not in held:
+                    image = session.frame(s, camera).rgb
+                    held[s] = (image, None if median is None else changed(image, median, self.change_threshold))
+            held = {s: held[s] for s in near}
+            image, now = held[t]
+            yield t, image, now, None if median is None else np.any([held[s][1] for s in near], axis=0)
 
     def _plate(self, session: SessionReader, camera: str) -> np.ndarray:
         plate = session.plate(camera)
@@ -254,10 +275,9 @@ class ParallaxSegmenter(PostProcessedSegmenter):
             self._cache[key] = sweep_floor(cameras, medians, floor_normal(cameras))
         return self._cache[key]
 
-    def subject_region(self, session: SessionReader) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
-        """Per camera (none when nothing changed): (its pixels whose floor point no other camera sees and
-        which changed at some time, its sequence's median image, the projection of the hull of change, the
-        pixels of that projection whose floor point no other camera sees) — :mod:`.change_region`."""
+    def subject_region(self, session: SessionReader) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """Per camera (none when nothing changed): (its sequence's median image, the projection of the hull of
+        change, the pixels of that projection whose floor point no other camera sees) — :mod:`.change_region`."""
         key = ("region", str(session.url))
         if key not in self._cache:
             names = list(session.camera_names)
@@ -275,9 +295,9 @@ class ParallaxSegmenter(PostProcessedSegmenter):
             region = {}
             if len(moving):
                 moving = moving[main_pieces(moving, plane_basis(plane.normal), size)]
-                for camera, median, changes, hull in zip(cameras, medians, ever, hull_masks(moving, cameras, self.margin), strict=True):
+                for camera, median, hull in zip(cameras, medians, hull_masks(moving, cameras, self.margin), strict=True):
                     judged = np.any([self._warp(session, camera, other)[1] for other in cameras if other.name != camera.name], axis=0)
-                    region[camera.name] = (~judged & changes, median, hull, hull & ~judged)
+                    region[camera.name] = (median, hull, hull & ~judged)
             self._cache[key] = region
         return self._cache[key]
 
