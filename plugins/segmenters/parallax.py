@@ -226,15 +226,15 @@ class ParallaxSegmenter(PostProcessedSegmenter):
     def raw(self, session: SessionReader, camera: str) -> Iterator[tuple[int, np.ndarray, np.ndarray | None]]:
         plate = self._plate(session, camera) if self.refine == "plate" else None
         region = self.subject_region(session).get(camera) if self.region == "change" else None
-        for t, image, now, near in self._changes(session, camera, None if region is None else region[0]):
+        median, hull, unjudged = region if region is not None else (None, None, None)
+        for t, image, now, near in self._changes(session, camera, median):
             mask = self._masks(session, t)[camera]
             if region is not None:
-                _, hull, unjudged = region
                 mask = hull & (mask | now | (unjudged & near))
             if plate is not None:
                 differs = colour_difference(image, plate) > self.refine_threshold
                 if region is not None:
-                    differs |= region[2]  # a plate there may show the still subject itself: it cannot judge
+                    differs |= unjudged  # a plate there may show the still subject itself: it cannot judge
                 mask = mask & dilate(differs, self.refine_radius)
             yield t, fill_holes(open_close(mask, 0, self.close_radius)), None
 
