@@ -92,7 +92,7 @@ def test_bad_reader_options_fail_before_anything_is_written(tmp_path, options, m
 @pytest.mark.skipif(not DEMO.is_dir(), reason="needs ../shared/data/pose2sim_demo")
 @pytest.mark.parametrize(("settings", "message"), [
     (CaptureSettings(), "several calibration files"),
-    (CaptureSettings(calibration=str(DEMO / "Calib_qualisys.toml"), frames=(5, 3, None)), "select none of the 100 frames"),
+    (CaptureSettings(calibration=str(DEMO / "Calib_qualisys.toml"), frames=(200, 300, None)), "select none of the 100 frames"),
 ])
 def test_a_capture_refused_at_its_ingest_leaves_no_folder(tmp_path, settings, message):
     out = tmp_path / "out"
@@ -104,10 +104,20 @@ def test_a_capture_refused_at_its_ingest_leaves_no_folder(tmp_path, settings, me
 @pytest.mark.skipif(not DEMO.is_dir(), reason="needs ../shared/data/pose2sim_demo")
 def test_a_session_that_fails_half_made_leaves_no_partial_and_names_the_session(tmp_path):
     out = tmp_path / "out"
-    settings = CaptureSettings(calibration=str(DEMO / "Calib_qualisys.toml"), frames=(0, 1, None), scale=0.125)
-    with pytest.raises(InputError, match=rf"session {out / 'session.zarr'}: camera 'cam_01' has 1 frame\(s\)"):
+    settings = CaptureSettings(calibration=str(DEMO / "Calib_qualisys.toml"), frames=(0, 2, None), scale=0.125)
+    with pytest.raises(InputError, match=rf"session {out / 'session.zarr'}: camera 'cam_01' has 2 frame\(s\)"):
         run_capture(DEMO, out, settings, progress=False, log=lambda line: None)
     assert not out.exists()  # nor a hidden .session.zarr.partial in it
+
+
+@pytest.mark.parametrize(("frames", "message"), [((0, 1, None), "--frames 0:1 selects 1 frame"), ((4, 6, 2), "--frames 4:6:2 selects 1 frame"),
+                                               ((None, 0, None), "--frames :0 selects 0 frame")])
+def test_fewer_than_two_frames_are_refused_before_the_capture_is_read(tmp_path, frames, message):
+    capture, out = tmp_path / "capture", tmp_path / "out"
+    capture.mkdir()  # empty: no reader would recognise it, so the frames are judged before any is looked for
+    with pytest.raises(InputError, match=message):
+        run_capture(capture, out, CaptureSettings(frames=frames), progress=False, log=lambda line: None)
+    assert not out.exists()
 
 
 @pytest.mark.parametrize(("backend", "message"), [

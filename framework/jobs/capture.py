@@ -146,6 +146,11 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
                      quoted_override("dynamics.skeleton.path", str(joints))]
     if settings.track_keypoints:  # a negative weight is refused by the dynamics' own check below
         tracking += guidance_overrides(settings.track_keypoints, source, capture)
+    start, stop, step = settings.frames
+    if stop is not None and len(range(start or 0, stop, step or 1)) < 2:
+        count = len(range(start or 0, stop, step or 1))
+        raise InputError(f"--frames {start if start is not None else ''}:{stop}{f':{step}' if step else ''} selects {count} frame(s): "
+                         "run tracks a sequence, give two frames at least (three unless the capture records its plates)")
     training = [name for name in settings.cameras if name not in settings.holdout]
     if settings.cameras and len(training) < 2:
         raise InputError(f"--cameras {','.join(settings.cameras)} with --holdout {','.join(settings.holdout) or '(none)'} leaves "
