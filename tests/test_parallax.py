@@ -155,3 +155,24 @@ def test_a_change_where_no_camera_sees_the_floor_is_kept_only_near_its_frame(mon
     assert not (first & ~patch).any() and first.sum() >= 0.9 * patch.sum()  # the opening takes the corners
     assert all(np.array_equal(mask, first) for _, mask, _ in masks[1:3])
     assert not any(mask.any() for _, mask, _ in masks[3:])
+
+
+def test_a_still_limb_where_no_camera_sees_the_floor_is_kept_where_it_differs_from_the_plate(monkeypatch):
+    # An arm held still longer than the change window, seen against a wall: the sequence's median shows the
+    # arm (no change), so only the plate, which shows the wall, tells it from the background — and only where
+    # the floor cannot judge; elsewhere the cameras' geometry decides.
+    wall = np.full((40, 40, 3), 90, np.uint8)
+    image = wall.copy()
+    image[10:30, 15:25] = 200
+    block, hull, unjudged = (np.zeros((40, 40), bool) for _ in range(3))
+    block[10:30, 15:25] = True
+    hull[5:35, 5:35] = True
+    unjudged[5:20, 5:35] = True
+    session = SimpleNamespace(present=lambda camera: np.ones(3, bool), plate=lambda camera: wall,
+                              frame=lambda t, camera: SimpleNamespace(rgb=image))
+    parallax = type(default_registry().create("segmenter", "parallax"))
+    monkeypatch.setattr(parallax, "_masks", lambda self, session, t: {"cam": np.zeros((40, 40), bool)})
+    monkeypatch.setattr(parallax, "subject_region", lambda self, session: {"cam": (image, hull, unjudged)})
+    for refine, kept in (("plate", block & unjudged), ("none", np.zeros_like(block))):
+        masks = list(default_registry().create("segmenter", "parallax", refine=refine, close_radius=0).raw(session, "cam"))
+        assert len(masks) == 3 and all(np.array_equal(mask, kept) for _, mask, _ in masks)

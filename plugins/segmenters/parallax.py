@@ -30,7 +30,9 @@ elsewhere, so they disagree (plane plus parallax). Each step:
    geometric mask spills onto the floor beside the subject. Within the hull of change, the pixels whose
    floor point no other camera sees are left unrefined: the first masks are weakest there, so a plate
    estimated with them held out may show the still subject itself (a standing adult's torso facing the
-   camera, seen against the walls), and refining against it would drop the subject.
+   camera, seen against the walls), and refining against it would drop the subject. There the plate adds
+   instead: a pixel that differs from it joins the mask (an arm held still for longer than the window,
+   where the plate shows the wall behind it).
 """
 
 from __future__ import annotations
@@ -234,6 +236,7 @@ class ParallaxSegmenter(PostProcessedSegmenter):
             if plate is not None:
                 differs = colour_difference(image, plate) > self.refine_threshold
                 if region is not None:
+                    mask |= unjudged & differs  # a limb still for longer than the window, against walls the plate shows
                     differs |= unjudged  # a plate there may show the still subject itself: it cannot judge
                 mask = mask & dilate(differs, self.refine_radius)
             yield t, fill_holes(open_close(mask, 0, self.close_radius)), None
