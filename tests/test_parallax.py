@@ -176,3 +176,19 @@ def test_a_still_limb_where_no_camera_sees_the_floor_is_kept_where_it_differs_fr
     for refine, kept in (("plate", block & unjudged), ("none", np.zeros_like(block))):
         masks = list(default_registry().create("segmenter", "parallax", refine=refine, close_radius=0).raw(session, "cam"))
         assert len(masks) == 3 and all(np.array_equal(mask, kept) for _, mask, _ in masks)
+
+
+def test_a_body_split_in_an_image_keeps_both_pieces_but_not_the_specks(monkeypatch):
+    # Dark shorts before a dark floor cut a standing body at the belt in an image: the voxels and the hull of
+    # change already bound the masks, so both pieces are the subject; a speck a twentieth of the body is not.
+    pieces = np.zeros((40, 40), bool)
+    pieces[2:18, 10:20] = True  # upper body
+    pieces[22:38, 10:16] = True  # legs, nearer where the rig's centre projects
+    speck = np.zeros_like(pieces)
+    speck[30:32, 30:32] = True
+    session = SimpleNamespace(present=lambda camera: np.ones(1, bool), frame=lambda t, camera: SimpleNamespace(rgb=np.zeros((40, 40, 3), np.uint8)))
+    parallax = type(default_registry().create("segmenter", "parallax"))
+    monkeypatch.setattr(parallax, "_masks", lambda self, session, t: {"cam": pieces | speck})
+    monkeypatch.setattr(parallax, "subject_region", lambda self, session: {})
+    (t, mask, _), = default_registry().create("segmenter", "parallax", close_radius=0).segment(session, "cam")
+    assert t == 0 and np.array_equal(mask, pieces)

@@ -145,6 +145,24 @@ def test_pieces_a_pixel_or_two_apart_are_one_component() -> None:
     np.testing.assert_array_equal(PostProcess(bridge=0)(mask), mask & (np.arange(30) < 12))
 
 
+
+def test_large_components_keep_a_split_body_without_the_specks_beside_it() -> None:
+    """Legs and an upper body split at the belt both stay; a speck under ``share`` of the largest piece goes."""
+    from mmcsplat.plugins.segmenters.postprocess import large_components
+
+    mask = np.zeros((40, 40), bool)
+    mask[2:18, 10:20] = True  # upper body, 160 px
+    mask[22:38, 10:16] = True  # legs, 96 px, 4 background rows below
+    mask[30:32, 30:32] = True  # a speck of 4 px on the floor's edge
+    body, upper = mask.copy(), mask.copy()
+    body[30:32, 30:32] = False
+    upper[18:] = False
+    np.testing.assert_array_equal(large_components(mask, 0.05), body)
+    np.testing.assert_array_equal(large_components(mask, 0.0), mask)
+    np.testing.assert_array_equal(large_components(mask, 0.7), upper)  # the legs are 0.6 of the upper body
+    np.testing.assert_array_equal(large_components(np.zeros((5, 5), bool), 0.05), np.zeros((5, 5), bool))
+
+
 # -------------------------------------------------------------------------------------------- onnx-semantic
 
 

@@ -45,6 +45,18 @@ def largest_component(mask: np.ndarray, bridge: int = 0) -> np.ndarray:
     return mask & (labels == 1 + int(np.argmax(area[1:])))
 
 
+def large_components(mask: np.ndarray, share: float, bridge: int = 0) -> np.ndarray:
+    """The components of ``mask`` (connected as in :func:`largest_component`) at least ``share`` of the largest
+    one's size: the pieces of a body split in an image, without the specks beside it."""
+    mask = mask.astype(bool)
+    count, labels = _components(mask, bridge)
+    if count <= 2:
+        return mask.copy()
+    area = np.bincount(labels[mask], minlength=count)
+    area[0] = 0
+    return mask & (area[labels] >= share * area.max())
+
+
 def central_component(mask: np.ndarray, point: np.ndarray, bridge: int = 0) -> np.ndarray:
     """Only the component of ``mask`` (connected as in :func:`largest_component`) with a pixel nearest to
     ``point`` (u, v) — where the rig's centre projects, since a rig's cameras aim at their subject. A
