@@ -192,3 +192,26 @@ def test_a_body_split_in_an_image_keeps_both_pieces_but_not_the_specks(monkeypat
     monkeypatch.setattr(parallax, "subject_region", lambda self, session: {})
     (t, mask, _), = default_registry().create("segmenter", "parallax", close_radius=0).segment(session, "cam")
     assert t == 0 and np.array_equal(mask, pieces)
+
+
+def test_the_wall_a_limb_has_just_left_is_dropped_where_it_matches_the_plate(monkeypatch):
+    # Where no other camera sees the floor, a pixel that changed within the window is kept at the frames after,
+    # when the limb has gone and the wall shows again (the halo about a moving arm): refined against a plate
+    # that shows that wall, it stays only where the frame still differs from it by window_threshold.
+    wall = np.full((40, 40, 3), 90, np.uint8)
+    moved = wall.copy()
+    moved[15:25, 15:25] = 200
+    images = [moved] + [wall + 5] * 3  # the wall again, a little brighter
+    hull = np.ones((40, 40), bool)
+    session = SimpleNamespace(present=lambda camera: np.ones(len(images), bool), plate=lambda camera: wall,
+                              frame=lambda t, camera: SimpleNamespace(rgb=images[t]))
+    parallax = type(default_registry().create("segmenter", "parallax"))
+    monkeypatch.setattr(parallax, "_masks", lambda self, session, t: {"cam": np.zeros((40, 40), bool)})
+    monkeypatch.setattr(parallax, "subject_region", lambda self, session: {"cam": (wall, hull, hull)})
+    block = moved.max(axis=-1) > 90
+    for threshold, share in ((8.0, 0.0), (3.0, 0.9)):
+        masks = [mask for _, mask, _ in default_registry().create("segmenter", "parallax", refine="plate", change_window=2,
+                                                                   window_threshold=threshold, close_radius=0).raw(session, "cam")]
+        assert np.array_equal(masks[0], block) and not masks[3].any()  # the limb differs from the plate; frame 3 is past the window
+        for mask in masks[1:3]:  # kept whole but for the corners the change's opening takes, or not at all
+            assert not (mask & ~block).any() and (mask.sum() >= share * block.sum() if share else not mask.any())

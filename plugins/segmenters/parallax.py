@@ -32,7 +32,9 @@ elsewhere, so they disagree (plane plus parallax). Each step:
    estimated with them held out may show the still subject itself (a standing adult's torso facing the
    camera, seen against the walls), and refining against it would drop the subject. There the plate adds
    instead: a pixel that differs from it joins the mask (an arm held still for longer than the window,
-   where the plate shows the wall behind it).
+   where the plate shows the wall behind it). And a pixel kept there for its change within the window
+   stays only where it still differs from the plate by ``window_threshold``: the wall the subject has
+   just left matches the plate.
 
 Every piece of a mask is kept (``keep = "all"``) but the specks under ``min_piece`` of its largest: bounded in 3D
 as the masks are, a body the plate test cuts at the belt is still the subject in both pieces.
@@ -224,6 +226,8 @@ class ParallaxSegmenter(PostProcessedSegmenter):
     refine: str = parameter("none", doc="none, or plate: keep only the mask's pixels near one that differs from the session's plate",
                             validator=one_of("none", "plate"))
     refine_threshold: float = parameter(30.0, doc="plate: grey levels a pixel must differ from the plate by", validator=finite_positive)
+    window_threshold: float = parameter(8.0, doc="plate: grey levels by which a pixel kept for its change within the window, where no other "
+                                                "camera sees its floor point, must still differ from the plate", validator=at_least(0))
     refine_radius: int = parameter(0, doc="plate: pixels a kept pixel may lie from one that differs from the plate", validator=at_least(0))
     close_radius: int = parameter(2, doc="morphological closing of the mask, pixels (0 skips)", validator=at_least(0))
     min_piece: float = parameter(0.05, doc="share of a mask's largest piece that another piece must reach to stay (specks along the "
@@ -242,13 +246,18 @@ class ParallaxSegmenter(PostProcessedSegmenter):
         for t, image, now, near in self._changes(session, camera, median):
             mask = self._masks(session, t)[camera]
             if region is not None:
-                mask = hull & (mask | now | (unjudged & near))
+                mask, recent = hull & (mask | now), unjudged & near
             if plate is not None:
-                differs = colour_difference(image, plate) > self.refine_threshold
+                difference = colour_difference(image, plate)
+                differs = difference > self.refine_threshold
                 if region is not None:
-                    mask |= unjudged & differs  # a limb still for longer than the window, against walls the plate shows
-                    differs |= unjudged  # a plate there may show the still subject itself: it cannot judge
+                    # A plate there may show the still subject itself, so it never cuts; it adds a limb held still for longer
+                    # than the window, and takes from the window's change the wall the subject has just left.
+                    recent = (recent & (difference > self.window_threshold)) | (unjudged & differs)
+                    differs |= unjudged
                 mask = mask & dilate(differs, self.refine_radius)
+            if region is not None:
+                mask |= recent
             yield t, large_components(fill_holes(open_close(mask, 0, self.close_radius)), self.min_piece, self.bridge), None
 
     def _changes(self, session: SessionReader, camera: str, median: np.ndarray | None
