@@ -115,6 +115,17 @@ def test_a_subject_that_barely_changes_leaves_the_masks_unrestricted(sessions):
     assert with_region[0] == without[0] == 0 and np.array_equal(with_region[1], without[1]) and with_region[1].any()
 
 
+def scripted(monkeypatch, images, geometric, region, plate=None):
+    """A one-camera session ("cam") of ``images`` (one per frame) with ``plate``, for which the parallax segmenter's
+    geometry is scripted: every frame's geometric mask is ``geometric``, the subject region ``region`` ((median,
+    hull, pixels whose floor no other camera sees), or None: nothing changed)."""
+    parallax = type(default_registry().create("segmenter", "parallax"))
+    monkeypatch.setattr(parallax, "_masks", lambda self, session, t: {"cam": geometric})
+    monkeypatch.setattr(parallax, "subject_region", lambda self, session: {} if region is None else {"cam": region})
+    return SimpleNamespace(present=lambda camera: np.ones(len(images), bool), plate=lambda camera: plate,
+                           frame=lambda t, camera: SimpleNamespace(rgb=images[t]))
+
+
 def test_refinement_leaves_the_hull_where_no_camera_sees_the_floor_unrefined(monkeypatch):
     # A still block that a plate estimated from the sequence took for background: the frame equals the
     # plate, so the plate test drops all of it — except where, within the hull of change, no other camera
@@ -124,13 +135,8 @@ def test_refinement_leaves_the_hull_where_no_camera_sees_the_floor_unrefined(mon
     block[3:9, 3:9] = True
     hull[1:11, 1:11] = True
     unjudged[1:6, 1:11] = True
-    session = SimpleNamespace(present=lambda camera: np.ones(1, bool), plate=lambda camera: image,
-                              frame=lambda t, camera: SimpleNamespace(rgb=image))
-    parallax = type(default_registry().create("segmenter", "parallax"))
-    monkeypatch.setattr(parallax, "_masks", lambda self, session, t: {"cam": block})
     for untrusted, kept in ((unjudged, block & unjudged), (np.zeros_like(block), np.zeros_like(block))):
-        region = {"cam": (image, hull, hull & untrusted)}
-        monkeypatch.setattr(parallax, "subject_region", lambda self, session, region=region: region)
+        session = scripted(monkeypatch, [image], block, (image, hull, hull & untrusted), plate=image)
         (t, mask, _), = default_registry().create("segmenter", "parallax", refine="plate").raw(session, "cam")
         assert t == 0 and np.array_equal(mask, kept)
 
@@ -143,11 +149,7 @@ def test_a_change_where_no_camera_sees_the_floor_is_kept_only_near_its_frame(mon
     moved[15:25, 15:25] = 200
     images = [moved] + [median] * 7
     hull = np.ones((40, 40), bool)
-    session = SimpleNamespace(present=lambda camera: np.ones(len(images), bool),
-                              frame=lambda t, camera: SimpleNamespace(rgb=images[t]))
-    parallax = type(default_registry().create("segmenter", "parallax"))
-    monkeypatch.setattr(parallax, "_masks", lambda self, session, t: {"cam": np.zeros((40, 40), bool)})
-    monkeypatch.setattr(parallax, "subject_region", lambda self, session: {"cam": (median, hull, hull)})
+    session = scripted(monkeypatch, images, np.zeros((40, 40), bool), (median, hull, hull))
     masks = list(default_registry().create("segmenter", "parallax", change_window=2).raw(session, "cam"))
     assert [t for t, _, _ in masks] == list(range(len(images)))
     patch = moved.max(axis=-1) > 90
@@ -168,11 +170,7 @@ def test_a_still_limb_where_no_camera_sees_the_floor_is_kept_where_it_differs_fr
     block[10:30, 15:25] = True
     hull[5:35, 5:35] = True
     unjudged[5:20, 5:35] = True
-    session = SimpleNamespace(present=lambda camera: np.ones(3, bool), plate=lambda camera: wall,
-                              frame=lambda t, camera: SimpleNamespace(rgb=image))
-    parallax = type(default_registry().create("segmenter", "parallax"))
-    monkeypatch.setattr(parallax, "_masks", lambda self, session, t: {"cam": np.zeros((40, 40), bool)})
-    monkeypatch.setattr(parallax, "subject_region", lambda self, session: {"cam": (image, hull, unjudged)})
+    session = scripted(monkeypatch, [image] * 3, np.zeros((40, 40), bool), (image, hull, unjudged), plate=wall)
     for refine, kept in (("plate", block & unjudged), ("none", np.zeros_like(block))):
         masks = list(default_registry().create("segmenter", "parallax", refine=refine, close_radius=0).raw(session, "cam"))
         assert len(masks) == 3 and all(np.array_equal(mask, kept) for _, mask, _ in masks)
@@ -186,10 +184,7 @@ def test_a_body_split_in_an_image_keeps_both_pieces_but_not_the_specks(monkeypat
     pieces[22:38, 10:16] = True  # legs, nearer where the rig's centre projects
     speck = np.zeros_like(pieces)
     speck[30:32, 30:32] = True
-    session = SimpleNamespace(present=lambda camera: np.ones(1, bool), frame=lambda t, camera: SimpleNamespace(rgb=np.zeros((40, 40, 3), np.uint8)))
-    parallax = type(default_registry().create("segmenter", "parallax"))
-    monkeypatch.setattr(parallax, "_masks", lambda self, session, t: {"cam": pieces | speck})
-    monkeypatch.setattr(parallax, "subject_region", lambda self, session: {})
+    session = scripted(monkeypatch, [np.zeros((40, 40, 3), np.uint8)], pieces | speck, None)
     (t, mask, _), = default_registry().create("segmenter", "parallax", close_radius=0).segment(session, "cam")
     assert t == 0 and np.array_equal(mask, pieces)
 
@@ -201,13 +196,8 @@ def test_the_wall_a_limb_has_just_left_is_dropped_where_it_matches_the_plate(mon
     wall = np.full((40, 40, 3), 90, np.uint8)
     moved = wall.copy()
     moved[15:25, 15:25] = 200
-    images = [moved] + [wall + 5] * 3  # the wall again, a little brighter
     hull = np.ones((40, 40), bool)
-    session = SimpleNamespace(present=lambda camera: np.ones(len(images), bool), plate=lambda camera: wall,
-                              frame=lambda t, camera: SimpleNamespace(rgb=images[t]))
-    parallax = type(default_registry().create("segmenter", "parallax"))
-    monkeypatch.setattr(parallax, "_masks", lambda self, session, t: {"cam": np.zeros((40, 40), bool)})
-    monkeypatch.setattr(parallax, "subject_region", lambda self, session: {"cam": (wall, hull, hull)})
+    session = scripted(monkeypatch, [moved] + [wall + 5] * 3, np.zeros((40, 40), bool), (wall, hull, hull), plate=wall)  # then the wall, brighter
     block = moved.max(axis=-1) > 90
     for threshold, share in ((8.0, 0.0), (3.0, 0.9)):
         masks = [mask for _, mask, _ in default_registry().create("segmenter", "parallax", refine="plate", change_window=2,

@@ -147,8 +147,8 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     if settings.track_keypoints:  # a negative weight is refused by the dynamics' own check below
         tracking += guidance_overrides(settings.track_keypoints, source, capture)
     start, stop, step = settings.frames
-    if stop is not None and len(range(start or 0, stop, step or 1)) < 2:
-        count = len(range(start or 0, stop, step or 1))
+    count = None if stop is None else len(range(start or 0, stop, step or 1))  # without STOP it depends on the capture's length
+    if count is not None and count < 2:
         raise InputError(f"--frames {start if start is not None else ''}:{stop}{f':{step}' if step else ''} selects {count} frame(s): "
                          "run tracks a sequence, give two frames at least (three unless the capture records its plates)")
     training = [name for name in settings.cameras if name not in settings.holdout]
