@@ -148,7 +148,7 @@ def test_pieces_a_pixel_or_two_apart_are_one_component() -> None:
 
 def test_large_components_keep_a_split_body_without_the_specks_beside_it() -> None:
     """Legs and an upper body split at the belt both stay; a speck under ``share`` of the largest piece goes."""
-    from mmcsplat.plugins.segmenters.postprocess import large_components
+    from mmcsplat.plugins.segmenters.postprocess import PostProcess, large_components
 
     mask = np.zeros((40, 40), bool)
     mask[2:18, 10:20] = True  # upper body, 160 px
@@ -161,6 +161,8 @@ def test_large_components_keep_a_split_body_without_the_specks_beside_it() -> No
     np.testing.assert_array_equal(large_components(mask, 0.0), mask)
     np.testing.assert_array_equal(large_components(mask, 0.7), upper)  # the legs are 0.6 of the upper body
     np.testing.assert_array_equal(large_components(np.zeros((5, 5), bool), 0.05), np.zeros((5, 5), bool))
+    np.testing.assert_array_equal(PostProcess(keep="all", min_piece=0.05)(mask), body)  # the clean-up every segmenter shares
+    np.testing.assert_array_equal(PostProcess(keep="all")(mask), mask)
 
 
 # -------------------------------------------------------------------------------------------- onnx-semantic

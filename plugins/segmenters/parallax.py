@@ -51,7 +51,7 @@ import numpy as np
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.parameters import at_least, between, finite_positive, one_of, parameter
 from mmcsplat.plugins.segmenters.change_region import changed, hull_masks, main_pieces, moving_voxels
-from mmcsplat.plugins.segmenters.postprocess import KEEP, PostProcessedSegmenter, dilate, large_components, open_close, present_frames
+from mmcsplat.plugins.segmenters.postprocess import KEEP, PostProcessedSegmenter, dilate, open_close, present_frames
 from mmcsplat.scene.camera import Camera
 from mmcsplat.scene.rig import rig_center
 from mmcsplat.scene.visual_hull import image_hits, pixel_rays
@@ -230,13 +230,13 @@ class ParallaxSegmenter(PostProcessedSegmenter):
                                                 "camera sees its floor point, must still differ from the plate", validator=at_least(0))
     refine_radius: int = parameter(0, doc="plate: pixels a kept pixel may lie from one that differs from the plate", validator=at_least(0))
     close_radius: int = parameter(2, doc="morphological closing of the mask, pixels (0 skips)", validator=at_least(0))
-    min_piece: float = parameter(0.05, doc="share of a mask's largest piece that another piece must reach to stay (specks along the "
-                                           "floor's edges go)", validator=between(0, 1))
     # Every large piece is the subject: the voxels bound the masks to the rig and the hull of change to what moved,
     # while a body splits in an image where dark clothes pass before a dark floor (the Pose2Sim demo's cam_01 and
     # cam_02 kept only the legs as the central piece).
     keep: str = parameter("all", doc="the mask's component kept: all (the voxels and the hull of change bound the mask), central or "
                                      "largest", validator=one_of(*KEEP))
+    min_piece: float = parameter(0.05, doc="all: a piece under this share of the mask's largest goes (the specks along the floor's edges "
+                                           "that the plate test leaves)", validator=between(0, 1))
     _cache: dict = attrs.field(factory=dict, init=False, repr=False, eq=False)
 
     def raw(self, session: SessionReader, camera: str) -> Iterator[tuple[int, np.ndarray, np.ndarray | None]]:
@@ -258,7 +258,7 @@ class ParallaxSegmenter(PostProcessedSegmenter):
                 mask = mask & dilate(differs, self.refine_radius)
             if region is not None:
                 mask |= recent
-            yield t, large_components(fill_holes(open_close(mask, 0, self.close_radius)), self.min_piece, self.bridge), None
+            yield t, fill_holes(open_close(mask, 0, self.close_radius)), None
 
     def _changes(self, session: SessionReader, camera: str, median: np.ndarray | None
                  ) -> Iterator[tuple[int, np.ndarray, np.ndarray | None, np.ndarray | None]]:

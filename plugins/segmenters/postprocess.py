@@ -11,7 +11,7 @@ import numpy as np
 
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.interfaces import Segmenter
-from mmcsplat.plugin_api.parameters import at_least, one_of, parameter
+from mmcsplat.plugin_api.parameters import at_least, between, one_of, parameter
 from mmcsplat.scene.rig import rig_center
 from mmcsplat.storage.session import SessionReader
 
@@ -103,12 +103,13 @@ KEEP = ("central", "largest", "all")
 class PostProcess:
     """The clean-up applied to every raw mask: keep one connected component — the one nearest the rig's
     centre in the view (``central``) or the largest (``largest``; the reference study removed
-    experimenters' legs this way) — or ``all``, pieces at most 2 × ``bridge`` pixels apart counting as
-    connected; then dilate by ``dilation`` pixels."""
+    experimenters' legs this way) — or ``all`` but the pieces under ``min_piece`` of the largest, pieces at
+    most 2 × ``bridge`` pixels apart counting as connected; then dilate by ``dilation`` pixels."""
 
     keep: str = attrs.field(default="central", validator=attrs.validators.in_(KEEP))
     dilation: int = attrs.field(default=0, converter=int, validator=_non_negative)
     bridge: int = attrs.field(default=BRIDGE_PX, converter=int, validator=_non_negative)
+    min_piece: float = attrs.field(default=0.0, converter=float, validator=[attrs.validators.ge(0.0), attrs.validators.le(1.0)])
 
     def __call__(self, mask: np.ndarray, centre: np.ndarray | None = None) -> np.ndarray:
         """The cleaned-up copy of ``mask`` [H, W] bool; ``centre`` (u, v) is where the rig's centre projects
@@ -117,6 +118,8 @@ class PostProcess:
             mask = central_component(mask, centre, self.bridge)
         elif self.keep != "all":
             mask = largest_component(mask, self.bridge)
+        elif self.min_piece:
+            mask = large_components(mask, self.min_piece, self.bridge)
         return dilate(mask, self.dilation)
 
 
@@ -128,11 +131,13 @@ class PostProcessedSegmenter(Segmenter):
                                          "at the subject), largest, or all", validator=one_of(*KEEP))
     dilation: int = parameter(0, doc="grow the mask by this many pixels", validator=at_least(0))
     bridge: int = parameter(BRIDGE_PX, doc="pieces at most 2 × bridge pixels apart count as one component", validator=at_least(0))
+    min_piece: float = parameter(0.0, doc="all: a piece under this share of the mask's largest goes (specks beside the subject)",
+                                 validator=between(0, 1))
 
     @property
     def postprocess(self) -> PostProcess:
         """The clean-up of this segmenter's raw masks."""
-        return PostProcess(self.keep, self.dilation, self.bridge)
+        return PostProcess(self.keep, self.dilation, self.bridge, self.min_piece)
 
     @abstractmethod
     def raw(self, session: SessionReader, camera: str) -> Iterator[tuple[int, np.ndarray, np.ndarray | None]]:
