@@ -5,8 +5,8 @@ For a rig's own folder (a Pose2Sim project, an anipose session, videos beside a 
 recorded plates; else from the subject's motion; or with the segmenter --segmenter names), estimates clean plates with the
 subject masked out and refines the masks against them (not --segmenter's), fits the first
 frame with the start region sized from the masks' visual hull, tracks the sequence, evaluates on the
-held-out cameras, carries the joints of a TRC file (the capture's single *.trc, or --joints) and scores
-them against it and the keypoints, renders the tracking figure and the landmark overlay, and writes the
+held-out cameras, carries the joints of a TRC file (the capture's single *.trc, or --joints; a synthetic
+capture's true joints without one) and scores them against it and the keypoints, renders the tracking figure and the landmark overlay, and writes the
 report. Steps already done in OUT are reused, so a rerun resumes; docs/real-data.md walks through it.
 """
 
@@ -33,7 +33,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_names(parser, "--holdout", "cameras kept for evaluation (default: the capture format's, else none)")
     parser.add_argument("--keypoints", help="2D keypoints: a folder of OpenPose JSON folders per camera, or of SLEAP (.slp, .analysis.h5) or "
                         "DeepLabCut (.csv, .h5) files per camera, or one such file (default: CAPTURE/pose_2d when it exists)")
-    parser.add_argument("--joints", help="TRC file of joints to carry as landmarks (default: the capture's single *.trc)")
+    parser.add_argument("--joints", help="TRC file of joints to carry as landmarks (default: the capture's single *.trc, else a "
+                        "synthetic capture's true joints from its ground_truth.zarr)")
     parser.add_argument("--segmenter", metavar="NAME", help="make every camera's masks with this segmenter plugin, e.g. onnx-semantic with "
                         "a person-segmentation model (`mmcsplat plugins --show segmenter:NAME`), instead of from keypoints, plates or motion")
     add_settings(parser, "a parameter of the --segmenter, e.g. model=person.onnx", dest="segmenter_options", flag="--segmenter-set")

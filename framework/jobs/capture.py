@@ -21,8 +21,9 @@ flow → flow-guided track → landmarks → evaluate → renders → report.
   training cameras' keypoints; it is off by default, since infants are where detectors fail. The fit's
   configuration carries these settings as its ``[dynamics]`` table, so RUN/run.json holds them and
   ``mmcsplat track DIR/run`` re-tracks as ``run`` did.
-- Landmarks: a TRC of joints (``--joints FILE``, default the single ``CAPTURE/*.trc``) bound at the
-  fitted frame, scored against its later frames and against the keypoints in every camera.
+- Landmarks: a TRC of joints (``--joints FILE``, default the single ``CAPTURE/*.trc``), else a synthetic
+  capture's true joints (its ``ground_truth.zarr``), bound at the fitted frame, scored against their later
+  frames and against the keypoints in every camera.
 
 Every step writes atomically and is skipped on a rerun when its outputs are newer than its inputs, as in
 the demo; ``DIR/run.json`` is not this file — the settings are recorded in ``DIR/capture.json`` once a
@@ -39,7 +40,7 @@ from typing import Any
 
 import attrs
 
-from mmcsplat.pipeline.capture_session import DEFAULT_SCALE, found, keypoint_source, prepare_capture_session
+from mmcsplat.pipeline.capture_session import DEFAULT_SCALE, found, joints_source, keypoint_source, prepare_capture_session
 from mmcsplat.pipeline.steps import BEFORE_FIELD, SettingsRecord, Step, StepTime, fit_complete, fresh, made_in_place, run_steps
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.storage.atomic import write_json_atomic
@@ -138,12 +139,12 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     source = keypoint_source(keypoints) if keypoints else None
     if source:
         log(f"run: keypoints: {source['name']} from {keypoints}")
-    joints = found(capture, settings.joints, "*.trc", "joints TRC file")
+    joints = joints_source(capture, settings.joints)
     tracking = ["dynamics.name=iterative", f"dynamics.iterations={settings.track_iterations}", f"dynamics.means_lr={settings.track_means_lr}",
                 f"dynamics.flow_gain={settings.track_flow_gain}"]
     if joints is not None and settings.track_lambda_parts > 0:
-        tracking += [f"dynamics.lambda_parts={settings.track_lambda_parts}", "dynamics.skeleton.name=trc",
-                     quoted_override("dynamics.skeleton.path", str(joints))]
+        tracking += [f"dynamics.lambda_parts={settings.track_lambda_parts}", f"dynamics.skeleton.name={joints['name']}",
+                     quoted_override("dynamics.skeleton.path", joints["path"])]
     if settings.track_keypoints:  # a negative weight is refused by the dynamics' own check below
         tracking += guidance_overrides(settings.track_keypoints, source, capture)
     start, stop, step = settings.frames
@@ -200,7 +201,7 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
                              "in pose_2d/ or --keypoints)") from error
 
     def landmarks() -> None:
-        track_landmarks(run, "trc", {"path": str(joints)}, keypoints=source["name"] if source else None,
+        track_landmarks(run, joints["name"], {"path": joints["path"]}, keypoints=source["name"] if source else None,
                         keypoint_params={key: value for key, value in source.items() if key != "name"} if source else None)
 
     renders = run / RENDERS_DIR
@@ -257,7 +258,8 @@ def summary(result: CaptureResult) -> str:
              f"{metrics['num_gaussians']} Gaussians"]
     accuracy = result.landmarks.get("accuracy_3d") or {}
     if accuracy.get("median_mm") is not None:
-        lines.append(f"  joints: median 3D error {accuracy['median_mm']:.1f} mm against the TRC ({accuracy['still_median_mm']:.1f} mm if held still)")
+        lines.append(f"  joints: median 3D error {accuracy['median_mm']:.1f} mm against the {result.landmarks['described']} "
+                     f"({accuracy['still_median_mm']:.1f} mm if held still)")
     lines += [f"  warning: {warning}" for warning in metrics.get("warnings", [])]
     lines += [f"    {step.name:<24} {step.seconds:7.1f} s{'  (already done)' if step.reused else ''}" for step in result.steps]
     return "\n".join(lines)

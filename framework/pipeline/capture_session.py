@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 from mmcsplat.pipeline.image_scale import AUTO_SCALE
 from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.storage.ground_truth import GROUND_TRUTH, GroundTruthReader
 
 #: The scale ``mmcsplat run`` ingests a capture at (a real rig's full-size frames fit too slowly on a CPU).
 DEFAULT_SCALE = AUTO_SCALE
@@ -35,6 +36,17 @@ def found(capture: Path, given: str | None, pattern: str, what: str) -> Path | N
     if len(matches) > 1:
         raise InputError(f"{capture}: several {what} candidates ({', '.join(p.name for p in matches)}); choose one")
     return matches[0].resolve() if matches else None
+
+
+def joints_source(capture: Path, given: str | None) -> dict[str, str] | None:
+    """The landmarks plugin (``name``) and file (``path``) of the joints ``run`` carries and scores: a TRC
+    (``given``, else the capture's single ``*.trc``), else the true joints of a synthetic capture (its
+    ``ground_truth.zarr``, written by ``mmcsplat synth``); None when the capture has neither."""
+    trc = found(capture, given, "*.trc", "joints TRC file")
+    if trc is not None:
+        return {"name": "trc", "path": str(trc)}
+    truth = capture / GROUND_TRUTH
+    return {"name": "synthetic", "path": str(truth.resolve())} if truth.is_dir() and GroundTruthReader(truth).has("joints") else None
 
 
 def keypoint_source(path: Path) -> dict[str, Any]:
