@@ -8,6 +8,7 @@ import json
 import sys
 import types
 from pathlib import Path
+from typing import ClassVar
 
 import attrs
 import numpy as np
@@ -170,6 +171,10 @@ class BoxSegmenter(Segmenter):
     """A third party's segmenter: the middle ``share`` of each image's width and height is the subject."""
 
     share: float = 0.5
+    built: ClassVar[list[float]] = []  # the shares it was built with, once per build (a model would load each time)
+
+    def __attrs_post_init__(self):
+        BoxSegmenter.built.append(self.share)
 
     def segment(self, session, camera):
         for t in np.flatnonzero(session.present(camera)):
@@ -195,8 +200,10 @@ def test_a_named_segmenter_makes_the_masks_instead_of_the_capture_keypoints(tmp_
     out = tmp_path / "out"
     settings = CaptureSettings(calibration=str(DEMO / "Calib_qualisys.toml"), frames=(0, 3, None), scale=0.125, segmenter="box",
                                segmenter_options=("share=0.4",))
+    BoxSegmenter.built.clear()
     with pytest.raises(Stop):
         run_capture(DEMO, out, settings, progress=False, log=lambda line: None)
+    assert BoxSegmenter.built == [0.4]  # checked before ingest and used for the masks: one build
     choice = json.loads((out / "masks.json").read_text())
     assert choice["masks"] == "box" and "(--segmenter)" in choice["detail"]  # the capture's pose_2d would have made keypoint masks
     session = SessionReader(out / "session.zarr")

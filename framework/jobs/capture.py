@@ -129,6 +129,7 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     from mmcsplat.pipeline.ingest import capture_reader
     from mmcsplat.pipeline.landmarks import track_landmarks
     from mmcsplat.pipeline.run_frames import RunStates
+    from mmcsplat.pipeline.segment import BuiltSegmenter
     from mmcsplat.pipeline.track import dynamics_choice, track_run
     from mmcsplat.storage.session import SessionReader
 
@@ -160,10 +161,8 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     reader_options = apply_overrides({}, settings.reader_options, "--reader-set")
     if settings.segmenter_options and not settings.segmenter:
         raise InputError(f"--segmenter-set {' '.join(settings.segmenter_options)} without --segmenter: name the segmenter it sets")
-    segmenter = PluginChoice("segmenter", settings.segmenter, apply_overrides({}, settings.segmenter_options, "--segmenter-set")) \
+    segmenter = BuiltSegmenter.of(PluginChoice("segmenter", settings.segmenter, apply_overrides({}, settings.segmenter_options, "--segmenter-set"))) \
         if settings.segmenter else None
-    if segmenter:
-        segmenter.build()
     # The fit's configuration names the tracking too, so RUN/run.json holds it and `mmcsplat track RUN` re-tracks as this run did.
     fit_config = load_config(settings.config, [*settings.overrides, *tracking])
     dynamics_choice(fit_config, "iterative").build()

@@ -21,7 +21,7 @@ from mmcsplat.storage.ground_truth import GROUND_TRUTH, GroundTruthReader
 DEFAULT_SCALE = AUTO_SCALE
 
 if TYPE_CHECKING:  # for annotations: the session store's format is imported to make one, not for every command's start
-    from mmcsplat.configuration.config import PluginChoice
+    from mmcsplat.pipeline.segment import BuiltSegmenter
     from mmcsplat.storage.session import SessionReader
 
 
@@ -74,7 +74,7 @@ def keypoint_source(path: Path) -> dict[str, Any]:
 
 def prepare_capture_session(capture: Path, partial: Path, *, calibration: Path | None = None, units: str = "m", frames: slice | None = None,
                             scale: float | str = 1.0, cameras: Sequence[str] | None = None, holdout: Sequence[str] = (), source: dict[str, Any] | None = None,
-                            reader_options: dict[str, Any] | None = None, segmenter: PluginChoice | None = None,
+                            reader_options: dict[str, Any] | None = None, segmenter: BuiltSegmenter | None = None,
                             progress: bool = True) -> dict[str, Any]:
     """Ingest ``capture`` into ``partial`` (its calibration, units, frames, scale, cameras, held-out cameras and
     reader options as :func:`~mmcsplat.pipeline.ingest.ingest` takes them) and give it masks and plates (module docstring), the
@@ -89,13 +89,13 @@ def prepare_capture_session(capture: Path, partial: Path, *, calibration: Path |
            overwrite=True, progress=progress, reader_options=reader_options)
     recorded = any(SessionReader(partial).plate(name) is not None for name in SessionReader(partial).camera_names)
     # The first masks hold the subject out of estimated plates; the refined ones (None: the first are final) are made against the plates.
-    name, first, refined = (segmenter.name, segmenter.params, None) if segmenter else \
+    name, first, refined = (segmenter.name, None, None) if segmenter else \
         ("keypoints", {"source": source}, {"source": source, "refine": "plate"}) if source else \
         ("background", {"method": "median"}, {"method": "plate"}) if recorded else ("parallax", {}, {"refine": "plate"})
     choice = mask_choice(SessionReader(partial), name, chosen=segmenter is not None)
     made = choice["masks"] != "capture"
     if made and (not recorded or refined is None):
-        segment_session(partial, name, first, progress=progress)
+        segment_session(partial, segmenter or name, first, progress=progress)
     if not recorded:
         estimate_plates(str(partial), None, progress=progress)
     if made and refined is not None:

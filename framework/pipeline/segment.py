@@ -24,6 +24,8 @@ from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.training.plugin_hooks import plugin_hook
 
 if TYPE_CHECKING:  # imported on use: the CLI parser imports this module for every command
+    from mmcsplat.configuration.config import PluginChoice
+    from mmcsplat.plugin_api.interfaces import Segmenter
     from mmcsplat.storage.session import SessionReader, SessionUpdater
 
 
@@ -31,6 +33,20 @@ if TYPE_CHECKING:  # imported on use: the CLI parser imports this module for eve
 #: covers a few per cent of a view or more (the synthetic infant 3–4 % at 256 × 192, the Pose2Sim adult
 #: 3–6 %); the failures of issue 25 covered 0–0.8 %, or all of it.
 NEAR_EMPTY, NEAR_FULL = 0.01, 0.9
+
+
+@attrs.frozen
+class BuiltSegmenter:
+    """A segmenter plugin under its registered name, built once for every pass over a session (a model loaded
+    once: ``mmcsplat run`` builds the user's segmenter to check it before ingest, then segments twice)."""
+
+    name: str
+    plugin: Segmenter
+
+    @classmethod
+    def of(cls, choice: PluginChoice) -> BuiltSegmenter:
+        """The segmenter ``choice`` names, built."""
+        return cls(choice.name, choice.build())
 
 
 @attrs.frozen
@@ -65,14 +81,14 @@ def check_plausible(url: str | os.PathLike, segmenter: str, summaries: Sequence[
 
 def segment_session(
     url: str | os.PathLike,
-    segmenter: str,
+    segmenter: str | BuiltSegmenter,
     params: Mapping[str, Any] | None = None,
     cameras: Sequence[str] | None = None,
     progress: bool = True,
     consistent: bool = False,
     check: bool = True,
 ) -> list[CameraSummary]:
-    """Run the registered ``segmenter`` (built with ``params``) on ``cameras`` of the session at ``url``
+    """Run the registered ``segmenter`` (built with ``params``, or already built) on ``cameras`` of the session at ``url``
     (default: all, held-out ones included: evaluation needs their masks) and write its masks, and labels
     where it yields them, through one :class:`~mmcsplat.storage.session.SessionUpdater` commit; with
     ``check``, masks implausible in most cameras raise instead (:func:`check_plausible`)."""
@@ -84,7 +100,10 @@ def segment_session(
     selected = list(dict.fromkeys(cameras or session.camera_names))
     for camera in selected:
         session.camera(camera)  # an unknown camera is an error naming the session and camera
-    instance = default_registry().create("segmenter", segmenter, **dict(params or {}))
+    if isinstance(segmenter, BuiltSegmenter):
+        segmenter, instance = segmenter.name, segmenter.plugin
+    else:
+        instance = default_registry().create("segmenter", segmenter, **dict(params or {}))
     if consistent and len(selected) < 3:
         raise InputError(f"session {session.url}: multi-view consistency needs masks of at least 3 cameras, got {len(selected)}")
     total = sum(int(session.present(camera).sum()) for camera in selected)

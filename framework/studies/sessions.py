@@ -64,6 +64,7 @@ def _captured(capture: dict, target: Path, segmenter: PluginChoice | None, progr
     and plates; the masks ``segmenter``'s when given, as with ``run --segmenter``), in a hidden sibling renamed
     into place."""
     from mmcsplat.pipeline.capture_session import keypoint_source, prepare_capture_session
+    from mmcsplat.pipeline.segment import BuiltSegmenter
     from mmcsplat.pipeline.steps import made_in_place
 
     def make(partial: Path) -> None:
@@ -71,7 +72,7 @@ def _captured(capture: dict, target: Path, segmenter: PluginChoice | None, progr
                                 units=capture["units"], frames=slice(*capture["frames"]) if capture["frames"] else None, scale=capture["scale"],
                                 cameras=capture["cameras"] or None, holdout=capture["holdout"],
                                 source=keypoint_source(Path(capture["keypoints"])) if capture["keypoints"] else None,
-                                segmenter=segmenter, progress=progress)
+                                segmenter=BuiltSegmenter.of(segmenter) if segmenter else None, progress=progress)
 
     made_in_place(target, make)
 
