@@ -221,3 +221,20 @@ def test_pages_load_in_a_headless_browser(runs, study, tmp_path):
     broken.write_text(text.replace("data:video/mp4;base64,", "data:video/mp4;base64,AAAA", 1).replace("data:image/png;base64,", "data:image/png;base64,AAAA", 1))
     verdict, _ = browser_check(broken, tmp_path)
     assert "video" in verdict and "image" in verdict
+
+
+def test_a_speed_chart_with_hands_only_says_no_feet_were_carried():
+    """A run whose feet were not carried draws the hands and says so in the feet's panel, without matplotlib's
+    empty-legend warning."""
+    import warnings
+
+    import numpy as np
+
+    from mmcsplat.outputs.report_landmarks import speed_chart
+
+    times = np.arange(10) / 30.0
+    hands = {label: np.cumsum(np.full((10, 3), 0.01), axis=0) for label in ("left hand", "right hand")}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        png = speed_chart(times, hands)
+    assert png.startswith(b"\x89PNG")

@@ -64,13 +64,16 @@ def speed_chart(times: np.ndarray, limbs: dict[str, np.ndarray]) -> bytes:
     figure = _figure(7.5, 3.6)
     panels = figure.subplots(1, 2, sharey=True)
     for panel, side, title in zip(panels, ("hand", "foot"), ("hands", "feet"), strict=True):
-        for label, track in limbs.items():
-            if label.endswith(side):
-                panel.plot(times, speed(times, track[:, None])[:, 0] * 100, color=LIMB_COLOURS[label], label=label, linewidth=2)
+        sided = {label: track for label, track in limbs.items() if label.endswith(side)}
+        for label, track in sided.items():
+            panel.plot(times, speed(times, track[:, None])[:, 0] * 100, color=LIMB_COLOURS[label], label=label, linewidth=2)
         panel.set_title(title, fontsize=10)
         panel.set_xlabel("time (s)", fontsize=10)
         panel.grid(alpha=0.3)
-        panel.legend(fontsize=9)
+        if sided:
+            panel.legend(fontsize=9)
+        else:
+            panel.text(0.5, 0.5, f"no {title} carried", ha="center", va="center", transform=panel.transAxes, fontsize=10)
     panels[0].set_ylabel("speed (cm/s)", fontsize=10)
     return _png(figure)
 
