@@ -9,8 +9,10 @@ import json
 import re
 import shutil
 import subprocess
+import warnings
 from pathlib import Path
 
+import numpy as np
 import pytest
 from fitting_scene import write_fitted_run, write_ground_truth, write_session
 from render_fixtures import add_tracks
@@ -18,6 +20,7 @@ from render_fixtures import add_tracks
 from mmcsplat.cli import main
 from mmcsplat.configuration.registry import default_registry
 from mmcsplat.outputs.report_html import esc
+from mmcsplat.outputs.report_landmarks import speed_chart
 from mmcsplat.storage.curves import TrainingCurve
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.studies.cells import COMPLETE, CellOutcome
@@ -226,12 +229,6 @@ def test_pages_load_in_a_headless_browser(runs, study, tmp_path):
 def test_a_speed_chart_with_hands_only_says_no_feet_were_carried():
     """A run whose feet were not carried draws the hands and says so in the feet's panel, without matplotlib's
     empty-legend warning."""
-    import warnings
-
-    import numpy as np
-
-    from mmcsplat.outputs.report_landmarks import speed_chart
-
     times = np.arange(10) / 30.0
     hands = {label: np.cumsum(np.full((10, 3), 0.01), axis=0) for label in ("left hand", "right hand")}
     with warnings.catch_warnings():

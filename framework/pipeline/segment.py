@@ -37,8 +37,8 @@ NEAR_EMPTY, NEAR_FULL = 0.01, 0.9
 
 @attrs.frozen
 class BuiltSegmenter:
-    """A segmenter plugin under its registered name, built once for every pass over a session (a model loaded
-    once: ``mmcsplat run`` builds the user's segmenter to check it before ingest, then segments twice)."""
+    """A segmenter plugin under its registered name, built once (a model loaded once): ``mmcsplat run`` builds
+    the user's segmenter to check it before ingest, then segments the session with that same plugin."""
 
     name: str
     plugin: Segmenter
