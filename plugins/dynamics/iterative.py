@@ -104,9 +104,7 @@ class IterativeDynamics(Dynamics):
     means_lr: float | None = parameter(1.6e-3, doc="learning rate of the means, scaled by the scene scale: ten times the fit's, since "
                                        "Adam moves a mean by about its rate a step and a frame's few dozen steps must reach a limb the "
                                        "prediction left centimetres short (none: the fit's)", validator=above(0))
-    quats_lr: float | None = parameter(1e-2, doc="learning rate of the rotations: ten times the fit's, so that each Gaussian's frame, in "
-                                       "which the rigidity prior compares its neighbours, turns with the body within a frame's few dozen "
-                                       "steps instead of holding it against the turn (none: the fit's)", validator=above(0))
+    quats_lr: float | None = parameter(None, doc="learning rate of the rotations (none: the fit's)", validator=above(0))
     lr_final_ratio: float = parameter(1.0, doc="the means' and rotations' learning rates decay exponentially over each frame's "
                                       "iterations to this fraction of theirs, so a frame ends settled rather than where Adam's "
                                       "last lr-sized steps left it (1: constant; 0 would stop every step after a frame's first)",
