@@ -13,7 +13,7 @@ from mmcsplat.configuration.registry import default_registry
 from mmcsplat.jobs.capture import run_capture
 from mmcsplat.pipeline.ingest import ingest
 from mmcsplat.pipeline.plates import estimate_plates
-from mmcsplat.pipeline.segment import segment_session
+from mmcsplat.pipeline.segment import BuiltSegmenter, segment_session
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.synthetic import SynthConfig, synthesize
@@ -72,6 +72,13 @@ def test_refine_against_plates_needs_plates(sessions):
     segmenter = default_registry().create("segmenter", "parallax", refine="plate")
     with pytest.raises(InputError, match="mmcsplat plates"):
         next(segmenter.segment(SessionReader(sessions[0]), "cam_0"))
+
+
+def test_a_built_segmenter_refuses_parameters_it_would_not_use(sessions):
+    built = BuiltSegmenter("parallax", default_registry().create("segmenter", "parallax"))
+    with pytest.raises(ValueError, match="'parallax' is already built"):
+        segment_session(sessions[0], built, {"refine": "plate"}, progress=False)
+    assert not SessionReader(sessions[0]).has("mask")  # refused before anything is written
 
 
 def test_implausible_masks_stop_before_anything_is_written(sessions, tmp_path):

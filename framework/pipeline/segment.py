@@ -88,7 +88,7 @@ def segment_session(
     consistent: bool = False,
     check: bool = True,
 ) -> list[CameraSummary]:
-    """Run the registered ``segmenter`` (built with ``params``, or already built) on ``cameras`` of the session at ``url``
+    """Run the registered ``segmenter`` (built with ``params``, or already built, when ``params`` must be empty) on ``cameras`` of the session at ``url``
     (default: all, held-out ones included: evaluation needs their masks) and write its masks, and labels
     where it yields them, through one :class:`~mmcsplat.storage.session.SessionUpdater` commit; with
     ``check``, masks implausible in most cameras raise instead (:func:`check_plausible`)."""
@@ -101,6 +101,8 @@ def segment_session(
     for camera in selected:
         session.camera(camera)  # an unknown camera is an error naming the session and camera
     if isinstance(segmenter, BuiltSegmenter):
+        if params:  # a built plugin already holds its parameters: these would be silently unused
+            raise ValueError(f"segment_session: segmenter {segmenter.name!r} is already built; its parameters cannot be given again ({dict(params)})")
         segmenter, instance = segmenter.name, segmenter.plugin
     else:
         instance = default_registry().create("segmenter", segmenter, **dict(params or {}))
