@@ -1,7 +1,7 @@
 """``mmcsplat run`` on a synthetic capture with nothing but its videos, calibration and ground truth (no
 plates, no keypoints, no masks it fits on): the masks come from ``parallax``, and the capture's true joints
 are carried, hold the body's parts and are scored, as a TRC's would be. docs/real-data.md has the
-full-size figures."""
+full-size figures. The same run then resumes under the other spelling of its scale."""
 
 from __future__ import annotations
 
@@ -10,18 +10,31 @@ import shutil
 from contextlib import redirect_stdout
 from io import StringIO
 
+import pytest
+
 from mmcsplat.cli import main
+from mmcsplat.jobs.capture import SETTINGS_FILE
 from mmcsplat.synthetic import SynthConfig, synthesize
 
+ARGUMENTS = ["--set", "fit.iterations=60", "--track-iterations", "5", "--no-progress"]
 
-def test_run_carries_and_scores_a_synthetic_captures_true_joints(tmp_path):
-    capture = synthesize(tmp_path / "capture", SynthConfig(frames=4, cameras=6, width=128, height=96, seed=0), progress=False).out_dir
+
+@pytest.fixture(scope="module")
+def made(tmp_path_factory):
+    """The capture and the folder of one ``mmcsplat run`` at the default scale (``auto``: 1 at this size), and what it printed."""
+    root = tmp_path_factory.mktemp("run_synthetic")
+    capture = synthesize(root / "capture", SynthConfig(frames=4, cameras=6, width=128, height=96, seed=0), progress=False).out_dir
     shutil.rmtree(capture / "plates")  # nothing but videos, calibration and the ground truth
-    out = tmp_path / "out"
+    out = root / "out"
     with redirect_stdout(StringIO()) as printed:
-        assert main(["run", str(capture), "--out", str(out), "--set", "fit.iterations=60", "--track-iterations", "5", "--no-progress"]) == 0
+        assert main(["run", str(capture), "--out", str(out), *ARGUMENTS]) == 0
+    return capture, out, printed.getvalue()
+
+
+def test_run_carries_and_scores_a_synthetic_captures_true_joints(made):
+    capture, out, printed = made
     truth = str((capture / "ground_truth.zarr").resolve())
-    assert "joints: median 3D error" in printed.getvalue() and f"against the synthetic joints {truth}" in printed.getvalue()
+    assert "joints: median 3D error" in printed and f"against the synthetic joints {truth}" in printed
     assert json.loads((out / "masks.json").read_text())["masks"] == "parallax"
     track = json.loads((out / "run" / "track.json").read_text())
     assert track["params"]["skeleton"] == {"name": "synthetic", "path": truth}
@@ -30,3 +43,18 @@ def test_run_carries_and_scores_a_synthetic_captures_true_joints(tmp_path):
     assert info["source"] == "synthetic" and len(info["names"]) == 14 and not info["unbound"]
     # A few centimetres at worst at this size and with these few steps; the full-size run is at 2 mm (docs/real-data.md).
     assert 0 < info["accuracy_3d"]["median_mm"] < 30
+
+
+def test_a_folder_resumes_under_auto_where_auto_gives_the_scale_it_was_made_with(made, capsys):
+    capture, out, _ = made
+    record = out / SETTINGS_FILE
+    assert json.loads(record.read_text())["scale"] == "auto"
+    for spelled in (["--scale", "1"], []):  # made with auto, resumed with its number; then made with the number, resumed with auto
+        with redirect_stdout(StringIO()) as printed:
+            assert main(["run", str(capture), "--out", str(out), *spelled, *ARGUMENTS]) == 0
+        assert "first-frame fit already done" in printed.getvalue() and "track (iterative) already done" in printed.getvalue()
+        record.write_text(json.dumps({**json.loads(record.read_text()), "scale": 1.0}))  # as a folder made before `auto` records it
+    capsys.readouterr()
+    assert main(["run", str(capture), "--out", str(out), "--scale", "0.5", *ARGUMENTS]) == 2  # another scale is still refused
+    refused = capsys.readouterr().err
+    assert "was made with other settings" in refused and "scale 1.0, now 0.5" in refused

@@ -41,6 +41,7 @@ from typing import Any
 import attrs
 
 from mmcsplat.pipeline.capture_session import DEFAULT_SCALE, found, joints_source, keypoint_source, prepare_capture_session
+from mmcsplat.pipeline.image_scale import AUTO_SCALE
 from mmcsplat.pipeline.steps import BEFORE_FIELD, SettingsRecord, Step, StepTime, fit_complete, fresh, made_in_place, run_steps
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.storage.atomic import write_json_atomic
@@ -232,13 +233,24 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
         Step("report", lambda: fresh([run / REPORT_FILE], [run / METRICS_FILE]), lambda: write_report(run)),
     ]
     try:
-        times = run_steps("run", steps, log, SettingsRecord.of(out / SETTINGS_FILE, settings))
+        times = run_steps("run", steps, log, SettingsRecord.of(out / SETTINGS_FILE, settings, {"scale": lambda value: _scale_in(session, value)}))
     except BaseException:
         if created and not any(out.iterdir()):  # refused before any step made something: no empty folder left behind
             out.rmdir()
         raise
     info = json.loads((run / LANDMARKS_INFO).read_text()) if (run / LANDMARKS_INFO).exists() else {}
     return CaptureResult(out, run, json.loads((run / METRICS_FILE).read_text()), info, times)
+
+
+def _scale_in(session: Path, scale: Any) -> Any:
+    """The number ``scale`` stands for in the folder whose session is ``session``: ``auto`` is the scale that
+    session was ingested at (the same cameras resolve it the same way), so a folder made with ``--scale
+    0.25`` resumes under ``auto`` where that is what ``auto`` gives, and the other way round."""
+    if scale == AUTO_SCALE and session.exists():
+        from mmcsplat.storage.session import SessionReader
+
+        return SessionReader(session).provenance.get("scale", scale)
+    return scale
 
 
 def _made(folder: Path) -> Path:

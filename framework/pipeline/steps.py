@@ -51,25 +51,36 @@ class SettingsRecord:
     once a step has succeeded, so a first run that fails before making anything does not tie its folder to
     its settings (a rerun with corrected ones goes ahead). ``before`` holds, for settings added after
     folders were made without them, the value those folders had in effect: a folder whose record lacks
-    such a setting resumes when the value is unchanged. A setting without one is taken as changed."""
+    such a setting resumes when the value is unchanged. A setting without one is taken as changed.
+    ``same_as`` holds, for a setting that can be written two ways (``auto`` and the number it came to), a
+    function giving what a value stands for; two values that stand for the same one match."""
 
     path: Path
     settings: dict[str, Any]
     before: dict[str, Any] = attrs.field(factory=dict)
+    same_as: dict[str, Callable[[Any], Any]] = attrs.field(factory=dict)
 
     @classmethod
-    def of(cls, path: Path, settings: Any) -> SettingsRecord:
+    def of(cls, path: Path, settings: Any, same_as: dict[str, Callable[[Any], Any]] | None = None) -> SettingsRecord:
         """The record at ``path`` of the attrs instance ``settings``, as JSON reads it back; a field's
         :data:`BEFORE_FIELD` metadata is its ``before``."""
         before = {field.name: field.metadata[BEFORE_FIELD] for field in attrs.fields(type(settings)) if BEFORE_FIELD in field.metadata}
-        return cls(Path(path), json.loads(json.dumps(attrs.asdict(settings))), json.loads(json.dumps(before)))
+        return cls(Path(path), json.loads(json.dumps(attrs.asdict(settings))), json.loads(json.dumps(before)), dict(same_as or {}))
 
     def check(self) -> None:
         """Refuse when the folder was made with other settings, naming each that differs."""
         if not self.path.exists():
             return
         made = {**self.before, **json.loads(self.path.read_text())}
-        changed = sorted(key for key in self.settings.keys() | made.keys() if made.get(key) != self.settings.get(key))
+
+        def differs(key: str) -> bool:
+            was, now = made.get(key), self.settings.get(key)
+            if was == now:
+                return False
+            meaning = self.same_as.get(key)
+            return meaning is None or meaning(was) != meaning(now)
+
+        changed = sorted(key for key in self.settings.keys() | made.keys() if differs(key))
         if changed:
             raise InputError(f"{self.path.parent} was made with other settings ({self.path}: "
                              + ", ".join(f"{key} {made.get(key)!r}, now {self.settings.get(key)!r}" for key in changed)
