@@ -58,3 +58,14 @@ def test_a_folder_resumes_under_auto_where_auto_gives_the_scale_it_was_made_with
     assert main(["run", str(capture), "--out", str(out), "--scale", "0.5", *ARGUMENTS]) == 2  # another scale is still refused
     refused = capsys.readouterr().err
     assert "was made with other settings" in refused and "scale 1.0, now 0.5" in refused
+
+
+def test_a_folder_made_at_another_scale_than_auto_gives_is_refused_under_auto(made, tmp_path, capsys):
+    capture, _, _ = made
+    out = tmp_path / "half"
+    with redirect_stdout(StringIO()):
+        assert main(["run", str(capture), "--out", str(out), "--scale", "0.5", "--set", "fit.iterations=10", "--track-iterations", "1",
+                     "--no-progress"]) == 0
+    capsys.readouterr()
+    assert main(["run", str(capture), "--out", str(out), "--set", "fit.iterations=10", "--track-iterations", "1", "--no-progress"]) == 2
+    assert "scale 0.5, now 'auto'" in capsys.readouterr().err  # auto gives 1 here, not the 0.5 its session was stored at

@@ -41,7 +41,7 @@ from typing import Any
 import attrs
 
 from mmcsplat.pipeline.capture_session import DEFAULT_SCALE, found, joints_source, keypoint_source, prepare_capture_session
-from mmcsplat.pipeline.image_scale import AUTO_SCALE
+from mmcsplat.pipeline.image_scale import AUTO_SCALE, resolve_scale
 from mmcsplat.pipeline.steps import BEFORE_FIELD, SettingsRecord, Step, StepTime, fit_complete, fresh, made_in_place, run_steps
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.storage.atomic import write_json_atomic
@@ -243,13 +243,16 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
 
 
 def _scale_in(session: Path, scale: Any) -> Any:
-    """The number ``scale`` stands for in the folder whose session is ``session``: ``auto`` is the scale that
-    session was ingested at (the same cameras resolve it the same way), so a folder made with ``--scale
-    0.25`` resumes under ``auto`` where that is what ``auto`` gives, and the other way round."""
+    """The number ``scale`` stands for in the folder whose session is ``session``: ``auto`` resolved against
+    the cameras that session was ingested from (its provenance), so a folder made with ``--scale 0.25``
+    resumes under ``auto`` where that is what ``auto`` gives, and the other way round."""
     if scale == AUTO_SCALE and session.exists():
+        from mmcsplat.scene.camera import Camera
         from mmcsplat.storage.session import SessionReader
 
-        return SessionReader(session).provenance.get("scale", scale)
+        cameras = SessionReader(session).provenance.get("source_cameras")
+        if cameras:
+            return resolve_scale(scale, [Camera.from_dict(camera) for camera in cameras])
     return scale
 
 
