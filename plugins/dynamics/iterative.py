@@ -138,8 +138,8 @@ class IterativeDynamics(Dynamics):
     part_partners: int = parameter(8, doc="pairs drawn for each Gaussian on a part", validator=at_least(1))
     part_reach: float = parameter(0.15, doc="a Gaussian belongs to a part within this share of the torso length of its joints' "
                                   "segments", validator=above(0))
-    part_margin: float = parameter(0.02, doc="... and only if no other part is within this share of the torso length more (a "
-                                   "Gaussian at a joint belongs to neither part)", validator=at_least(0))
+    part_margin: float = parameter(0.02, doc="... and to every other part within this share of the torso length more (a "
+                                   "Gaussian at a joint belongs to both of its parts; 0: to its nearest part only)", validator=at_least(0))
     coarse_factor: int = parameter(2, doc="resolution reduction of the coarse steps (pixel blocks averaged)", validator=at_least(2))
 
     @property
