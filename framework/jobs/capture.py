@@ -247,12 +247,11 @@ def _scale_in(session: Path, scale: Any) -> Any:
     the cameras that session was ingested from (its provenance), so a folder made with ``--scale 0.25``
     resumes under ``auto`` where that is what ``auto`` gives, and the other way round."""
     if scale == AUTO_SCALE and session.exists():
-        from mmcsplat.scene.camera import Camera
         from mmcsplat.storage.session import SessionReader
 
-        cameras = SessionReader(session).provenance.get("source_cameras")
+        cameras = SessionReader(session).recorded_cameras()
         if cameras:
-            return resolve_scale(scale, [Camera.from_dict(camera) for camera in cameras])
+            return resolve_scale(scale, list(cameras.values()))
     return scale
 
 

@@ -179,7 +179,7 @@ def _accuracy_2d(registry: Registry, name: str, params: dict[str, Any] | None, s
     """Per camera, the 2D errors of the carried and reference landmarks against the detections of ``name``, over
     the ``scored`` frames."""
     detector: LandmarkSource = registry.create("landmarks", name, **(params or {}))
-    recorded_focal = {data["name"]: float(data["K"][0][0]) for data in session.provenance.get("source_cameras", [])}
+    recorded_focal = {name: float(camera.K[0, 0]) for name, camera in session.recorded_cameras().items()}
     result = {}
     for observed in detector.observations(session, frames):
         if not np.array_equal(observed.frames, frames):

@@ -20,7 +20,7 @@ from mmcsplat.plugin_api.parameters import between, parameter
 from mmcsplat.storage.camera_names import match_cameras
 from mmcsplat.storage.session import SessionReader
 
-from .triangulation import TriangulatedKeypoints, recorded_cameras, to_session_pixels
+from .triangulation import TriangulatedKeypoints, to_session_pixels
 
 #: One camera's keypoints: (names, frame numbers [T], [T, L, 3] x, y, confidence; NaN where undetected).
 KeypointTable = tuple[tuple[str, ...], np.ndarray, np.ndarray]
@@ -90,7 +90,7 @@ class TableKeypoints(TriangulatedKeypoints):
         # Matched by name: a stand-in path named after each file's label.
         folder, files = self.keypoint_files()
         matched = {name: files[path] for name, path in match_cameras(cameras, list(files), "keypoint file", folder, self.camera_map).items()}
-        recorded = recorded_cameras(session)
+        recorded = session.recorded_cameras()
         capture = session.capture_frames(frames)
         result, names = [], None
         for camera in cameras:

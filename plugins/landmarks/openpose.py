@@ -29,7 +29,7 @@ from mmcsplat.plugin_api.parameters import between, one_of, parameter
 from mmcsplat.storage.camera_names import match_cameras, natural_key
 from mmcsplat.storage.session import SessionReader
 
-from .triangulation import TriangulatedKeypoints, recorded_cameras, to_session_pixels
+from .triangulation import TriangulatedKeypoints, to_session_pixels
 
 #: Keypoint names by index, per model (OpenPose's documented orders).
 MODELS = {
@@ -85,7 +85,7 @@ class OpenPoseKeypoints(TriangulatedKeypoints):
         by_label = {folder / re.sub(r"_json$", "", path.name): path for path in folder.iterdir() if path.is_dir()}
         matched = match_cameras(cameras, list(by_label), "keypoint folder", folder, self.camera_map)
         folders = {name: by_label[label] for name, label in matched.items()}
-        recorded = recorded_cameras(session)
+        recorded = session.recorded_cameras()
         capture = session.capture_frames(frames)
         result = []
         for camera in cameras:

@@ -25,12 +25,6 @@ from mmcsplat.scene.triangulation import triangulate
 from mmcsplat.storage.session import SessionReader
 
 
-def recorded_cameras(session: SessionReader) -> dict[str, Camera]:
-    """The cameras as recorded (before undistortion and rescaling), from the session's provenance; empty
-    for a session ingested before mmcsplat kept them (its keypoints are then taken as stored pixels)."""
-    return {data["name"]: Camera.from_dict(data) for data in session.provenance.get("source_cameras", [])}
-
-
 def to_session_pixels(points: np.ndarray, recorded: Camera, stored: Camera) -> np.ndarray:
     """[..., 2] pixels of the recorded (distorted) camera → the stored (undistorted) camera's pixels."""
     import cv2

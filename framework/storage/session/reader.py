@@ -127,6 +127,11 @@ class SessionReader(SessionBase):
         start, _, step = self.provenance.get("frames", [0, None, 1])
         return (start or 0) + np.asarray(frames, dtype=np.int64) * (step or 1)
 
+    def recorded_cameras(self) -> dict[str, Camera]:
+        """The cameras as recorded (before undistortion and rescaling) by name, from the provenance; empty
+        for a session ingested before mmcsplat kept them."""
+        return {data["name"]: Camera.from_dict(data) for data in self.provenance.get("source_cameras", [])}
+
     def __repr__(self) -> str:
         return f"SessionReader({self.url!r}: {len(self.cameras)} cameras, {self.num_frames} frames)"
 
