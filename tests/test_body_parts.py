@@ -39,6 +39,13 @@ def test_a_gaussian_belongs_to_its_nearest_part_and_at_a_joint_to_both():
     assert ("RShoulder", "RElbow") not in parts  # the skeleton has no right elbow: a part needs two joints
 
 
+def test_the_neck_is_a_part_between_the_torso_and_the_head():
+    # Upright: the neck's base between the shoulders, the crown 0.27 m above it, the nose in front of the face.
+    joints = {**JOINTS, "Neck": np.array([0.0, 0.0, 0.5]), "Head": np.array([0.0, 0.0, 0.77]), "Nose": np.array([0.1, 0.0, 0.65])}
+    members, parts = part_members(np.array([[-0.03, 0.0, 0.6]]), joints, HUMAN_PARTS, reach=0.15 * TORSO, margin=0.02 * TORSO)
+    assert parts[members[0].argmax()] == ("Neck", "Head") and members[0].sum() == 1
+
+
 def pairs_on_the_arm() -> tuple[PartPairs, torch.Tensor, np.ndarray]:
     means = torch.as_tensor(arm_points(), dtype=torch.float32)
     pairs = PartPairs.build(means, np.arange(len(means)), JOINTS, HUMAN_PARTS, partners=4, reach=0.1, margin=0.02)

@@ -32,10 +32,13 @@ from .rigidity_kernel import Stretch, StretchPairs
 
 #: The synthetic infant's names of the torso's corners, in human_skeleton.TORSO's order.
 SYNTHETIC_TORSO = ("shoulder_left", "shoulder_right", "hip_right", "hip_left")
+#: The neck, base to crown: without it the Gaussians between the torso and the head belong to no part, and
+#: on the Pose2Sim demo the tracked head sank 37 mm into the shoulders (docs/results.md, "The neck").
+NECK: tuple[str, str] = ("Neck", "Head")
 #: Rigid parts of a human body by OpenPose's (and Pose2Sim's) keypoint names and by the synthetic infant's
 #: joint names; a part naming joints a skeleton lacks keeps the ones it has (two at least).
 HUMAN_PARTS: tuple[tuple[str, ...], ...] = (
-    *LIMB_BONES, *FEET, (*TORSO, "Neck"), HEAD,
+    *LIMB_BONES, *FEET, (*TORSO, "Neck"), HEAD, NECK,
     ("shoulder_left", "elbow_left"), ("elbow_left", "wrist_left"), ("shoulder_right", "elbow_right"), ("elbow_right", "wrist_right"),
     ("hip_left", "knee_left"), ("knee_left", "ankle_left"), ("hip_right", "knee_right"), ("knee_right", "ankle_right"),
     SYNTHETIC_TORSO,
