@@ -6,7 +6,6 @@ import shutil
 
 import attrs
 import cv2
-import imageio_ffmpeg
 import numpy as np
 import pytest
 from fitting_scene import ring_camera
@@ -15,8 +14,9 @@ from render_fixtures import add_tracks, fitted_run
 from mmcsplat.cli import main
 from mmcsplat.outputs.camera_path import camera_path, interpolate_camera, ring_order
 from mmcsplat.outputs.renders import default_frames_per_segment, draw_trails, trajectory_colors, trajectory_gaussians
-from mmcsplat.outputs.video import probe_video, write_video
+from mmcsplat.outputs.video import VideoInfo, parse_video_stream, probe_video, write_video
 from mmcsplat.pipeline.run_frames import RunStates
+from mmcsplat.plugin_api.errors import InputError
 
 FRAMES = 4
 TRAIN = 4  # the fitting scene's five cameras less the held-out cam_0
@@ -44,12 +44,15 @@ def rendered(runs, tmp_path_factory):
 
 
 def decoded(path):
-    """(metadata, frames) of a video, decoded by imageio-ffmpeg."""
-    reader = imageio_ffmpeg.read_frames(str(path))
-    meta = next(reader)
-    width, height = meta["size"]
-    frames = [np.frombuffer(frame, np.uint8).reshape(height, width, 3) for frame in reader]
-    return meta, frames
+    """(frame rate, frames) of a video, decoded by OpenCV: another decoder than the one that wrote it."""
+    capture = cv2.VideoCapture(str(path))
+    try:
+        frames = []
+        while (frame := capture.read()[1]) is not None:
+            frames.append(frame)
+        return capture.get(cv2.CAP_PROP_FPS), frames
+    finally:
+        capture.release()
 
 
 def test_path_passes_through_the_training_cameras_in_ring_order():
@@ -90,8 +93,8 @@ def test_videos_decode_as_browser_playable_h264(rendered):
     for name, count in expected.items():
         info = probe_video(rendered / name, count_frames=True)
         assert (info.codec, info.pix_fmt, info.width, info.height, info.frames) == ("h264", "yuv420p", WIDTH, HEIGHT + 1, count), name
-        meta, frames = decoded(rendered / name)
-        assert len(frames) == count and meta["fps"] == 30.0
+        fps, frames = decoded(rendered / name)
+        assert len(frames) == count and fps == 30.0
         assert max(frame.max() for frame in frames) > 50, f"{name} is black"
     assert not [path.name for path in rendered.iterdir() if path.name.startswith(".")], "temporary files left behind"
 
@@ -159,3 +162,15 @@ def test_clear_errors(runs, tmp_path, capsys):
     assert not (tmp_path / "novel.mp4").exists(), "rendered before checking the camera"
     assert main(["render", str(runs[0])]) == 2
     assert "--novel, --trajectories, --depth or --landmarks" in capsys.readouterr().err
+
+
+def test_probe_reads_the_stream_line_with_commas_inside_parentheses(tmp_path):
+    header = ("Input #0, mov,mp4,m4a,3gp,3g2,mj2, from 'x.mp4':\n"
+              "  Stream #0:0[0x1](und): Video: h264 (High) (avc1 / 0x31637661), yuv420p(tv, bt709, progressive), "
+              "270x481 [SAR 1:1 DAR 9:16], 2500 kb/s, 29.97 fps, 29.97 tbr, 15360 tbn (default)\n")
+    assert parse_video_stream(header) == VideoInfo("h264", "yuv420p", 270, 481, 29.97)
+    assert parse_video_stream("  Stream #0:0: Audio: aac, 48000 Hz, stereo\n") is None
+    not_a_video = tmp_path / "notes.mp4"
+    not_a_video.write_text("not a video")
+    with pytest.raises(InputError, match="notes.mp4: ffmpeg finds no video stream"):
+        probe_video(not_a_video)

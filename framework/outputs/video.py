@@ -9,6 +9,8 @@ to the next even size. The file appears under its name only once it is complete 
 from __future__ import annotations
 
 import os
+import re
+import subprocess
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -45,15 +47,38 @@ def probe_video(path: str | os.PathLike, count_frames: bool = False) -> VideoInf
     """Codec, pixel format, size and rate of the video at ``path`` (and its frame count on request)."""
     import imageio_ffmpeg
 
-    reader = imageio_ffmpeg.read_frames(str(path))
-    try:
-        meta = next(reader)
-    finally:
-        reader.close()
+    # ffmpeg prints the streams' header and exits (no output named), so no pipe outlives this call;
+    # imageio-ffmpeg's frame reader leaves its pipes to the garbage collector when ffmpeg exits first.
+    result = subprocess.run(
+        [imageio_ffmpeg.get_ffmpeg_exe(), "-hide_banner", "-nostdin", "-i", str(path)],
+        capture_output=True, text=True, errors="replace", check=False,
+    )
+    info = parse_video_stream(result.stderr)
+    if info is None:
+        last = result.stderr.strip().splitlines()[-1:] or ["no output"]
+        raise InputError(f"{path}: ffmpeg finds no video stream ({last[0]})")
     frames = imageio_ffmpeg.count_frames_and_secs(str(path))[0] if count_frames else None
-    width, height = meta["size"]
-    # ffmpeg reports e.g. "yuv420p(progressive)" or "yuv420p(tv, bt709)": keep the format's name.
-    return VideoInfo(meta["codec"], meta["pix_fmt"].split("(")[0], int(width), int(height), float(meta["fps"]), frames)
+    return attrs.evolve(info, frames=frames)
+
+
+def parse_video_stream(header: str) -> VideoInfo | None:
+    """The first video stream of ffmpeg's ``-i`` header, or None where it names none.
+
+    A stream line reads e.g. ``Stream #0:0(eng): Video: h264 (High) (avc1 / 0x31637661),
+    yuv420p(tv, bt709, progressive), 1080x1920 [SAR 1:1 DAR 9:16], 1851 kb/s, 60 fps, 60 tbr``:
+    its fields are split on the commas outside parentheses.
+    """
+    line = next((line for line in header.splitlines() if re.search(r"Stream #\S+.*: Video: ", line)), None)
+    if line is None:
+        return None
+    fields = [field.strip() for field in re.split(r",(?![^(]*\))", line.split(": Video: ", 1)[1])]
+    size = next((re.match(r"(\d+)x(\d+)", field) for field in fields if re.match(r"\d+x\d+", field)), None)
+    rate = re.search(r"([\d.]+)(k?) (?:fps|tbr)\b", line)
+    if size is None or rate is None or len(fields) < 2:
+        return None
+    fps = float(rate.group(1)) * (1000 if rate.group(2) else 1)
+    # The pixel format may carry its colour details, e.g. "yuv420p(progressive)": keep the format's name.
+    return VideoInfo(fields[0].split()[0], fields[1].split("(")[0], int(size.group(1)), int(size.group(2)), fps)
 
 
 def write_video(path: str | os.PathLike, frames: Iterable[np.ndarray], fps: float) -> VideoInfo:
