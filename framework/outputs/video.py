@@ -4,6 +4,9 @@ Every video output goes through :func:`write_video`: H.264 in yuv420p (what brow
 ``<video>``) through the ffmpeg binary shipped by imageio-ffmpeg, with the moov atom up front so playback
 starts before the download ends. yuv420p subsamples chroma 2×2, so odd frame sizes are padded with black
 to the next even size. The file appears under its name only once it is complete and probed.
+
+The probe reads ffmpeg's own ``-i`` header, parsed here: imageio-ffmpeg ships no ffprobe, its header parser
+is private, and its frame reader leaves ffmpeg's pipes to the garbage collector when ffmpeg exits first.
 """
 
 from __future__ import annotations
@@ -47,8 +50,7 @@ def probe_video(path: str | os.PathLike, count_frames: bool = False) -> VideoInf
     """Codec, pixel format, size and rate of the video at ``path`` (and its frame count on request)."""
     import imageio_ffmpeg
 
-    # ffmpeg prints the streams' header and exits (no output named), so no pipe outlives this call;
-    # imageio-ffmpeg's frame reader leaves its pipes to the garbage collector when ffmpeg exits first.
+    # With no output named, ffmpeg prints the streams' header and exits.
     result = subprocess.run(
         [imageio_ffmpeg.get_ffmpeg_exe(), "-hide_banner", "-nostdin", "-i", str(path)],
         capture_output=True, text=True, errors="replace", check=False,
