@@ -74,7 +74,7 @@ def parse_video_stream(header: str) -> VideoInfo | None:
     if line is None:
         return None
     fields = [field.strip() for field in re.split(r",(?![^(]*\))", line.split(": Video: ", 1)[1])]
-    size = next((re.match(r"(\d+)x(\d+)", field) for field in fields if re.match(r"\d+x\d+", field)), None)
+    size = next(filter(None, (re.match(r"(\d+)x(\d+)", field) for field in fields)), None)
     rate = re.search(r"([\d.]+)(k?) (?:fps|tbr)\b", line)
     if size is None or rate is None or len(fields) < 2:
         return None
