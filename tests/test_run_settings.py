@@ -18,7 +18,7 @@ from mmcsplat import Registration, hookimpl
 from mmcsplat.cli import main
 from mmcsplat.configuration.config import load_config
 from mmcsplat.configuration.registry import Registry, default_registry
-from mmcsplat.jobs.capture import DEFAULT_CONFIG, TRACK_MEANS_LR, CaptureSettings, guidance_overrides, run_capture
+from mmcsplat.jobs.capture import DEFAULT_CONFIG, TRACK_MEANS_LR, CaptureSettings, guidance_overrides, run_capture, track_iterations
 from mmcsplat.pipeline.track import dynamics_choice
 from mmcsplat.plugin_api.errors import InputError, MmcsplatError
 from mmcsplat.plugin_api.interfaces import Segmenter
@@ -28,6 +28,7 @@ from mmcsplat.storage.session import SessionReader
 @pytest.mark.parametrize(("settings", "message"), [
     (CaptureSettings(track_flow_gain=0), "flow_gain must be > 0, got 0"),
     (CaptureSettings(track_iterations=-1), "iterations must be ≥ 0, got -1"),
+    (CaptureSettings(track_iterations="many"), "track_iterations must be a whole number of steps or 'auto', got 'many'"),
     (CaptureSettings(overrides=("dynamics.lambda_rigid=-1",)), "lambda_rigid must be ≥ 0"),
     (CaptureSettings(track_keypoints=1), "--track-keypoints: .*capture has no 2D keypoints to guide the tracking with"),
     (CaptureSettings(cameras=("cam_01",)), r"--cameras cam_01 with --holdout \(none\) leaves 1 camera\(s\) .*a fit needs two"),
@@ -135,7 +136,14 @@ def test_a_backend_that_cannot_run_here_fails_before_the_first_step(tmp_path, ba
     assert not out.exists()
 
 
-def test_the_fit_gets_the_backend_and_the_tracking_settings(tmp_path, monkeypatch):
+@pytest.mark.parametrize(("fps", "steps"), [(60, 50), (120, 50), (30, 100), (25, 120), (29.97, 101), (10, 300)])
+def test_auto_iterations_give_a_second_of_video_the_same_steps_and_a_frame_fifty_at_least(fps, steps):
+    assert track_iterations("auto", fps) == steps
+    assert track_iterations(7, fps) == 7  # a number is kept whatever the frame rate
+
+
+@pytest.mark.parametrize(("iterations", "fps", "expected"), [(7, 30.0, 7), ("auto", 30.0, 100), ("auto", 60.0, 50)])
+def test_the_fit_gets_the_backend_and_the_tracking_settings(tmp_path, monkeypatch, iterations, fps, expected):
     class Stop(Exception):
         """Ends the run at its fit."""
 
@@ -146,16 +154,26 @@ def test_the_fit_gets_the_backend_and_the_tracking_settings(tmp_path, monkeypatc
         raise Stop
 
     monkeypatch.setattr("mmcsplat.pipeline.fit.FirstFrameFit", fit)
-    monkeypatch.setattr("mmcsplat.storage.session.SessionReader", lambda path: None)
+    monkeypatch.setattr("mmcsplat.storage.session.SessionReader", lambda path: types.SimpleNamespace(fps=fps))
     capture, out = tmp_path / "capture", tmp_path / "out"
     capture.mkdir()
     (out / "session.zarr").mkdir(parents=True)  # ingested already: the run goes straight to the fit
+    said = []
     with pytest.raises(Stop):
-        run_capture(capture, out, CaptureSettings(backend="torch-reference", track_iterations=7, track_flow_gain=1.5), progress=False,
-                    log=lambda line: None)
+        run_capture(capture, out, CaptureSettings(backend="torch-reference", track_iterations=iterations, track_flow_gain=1.5),
+                    progress=False, log=said.append)
     assert seen["backend"] == "torch-reference"
     # recorded in run.json with the fit, so that `mmcsplat track RUN` tracks as the run does
-    assert seen["dynamics"] == {"name": "iterative", "iterations": 7, "means_lr": TRACK_MEANS_LR, "flow_gain": 1.5}
+    assert seen["dynamics"] == {"name": "iterative", "iterations": expected, "means_lr": TRACK_MEANS_LR, "flow_gain": 1.5}
+    assert any(f"tracking at {expected} steps a frame" in line for line in said) == (iterations == "auto")
+
+
+def test_the_command_line_takes_auto_or_a_whole_number_of_iterations(tmp_path, capsys):
+    for bad in ("-1", "1.5", "some"):
+        with pytest.raises(SystemExit):
+            main(["run", str(tmp_path), "--out", str(tmp_path / "out"), "--track-iterations", bad])
+        assert f"expected a whole number of steps (0 or more) or 'auto', got '{bad}'" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
 
 
 def test_an_unknown_segmenter_fails_before_the_first_step(tmp_path):

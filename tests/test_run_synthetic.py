@@ -69,3 +69,20 @@ def test_a_folder_made_at_another_scale_than_auto_gives_is_refused_under_auto(ma
     capsys.readouterr()
     assert main(["run", str(capture), "--out", str(out), "--set", "fit.iterations=10", "--track-iterations", "1", "--no-progress"]) == 2
     assert "scale 0.5, now 'auto'" in capsys.readouterr().err  # auto gives 1 here, not the 0.5 its session was stored at
+
+
+def test_a_folder_resumes_under_auto_iterations_where_auto_gives_the_steps_it_was_tracked_with(made, capsys):
+    capture, out, _ = made
+    record = out / SETTINGS_FILE
+    made_with = json.loads(record.read_text())
+    assert made_with["track_iterations"] == 5
+    others = [argument for argument in ARGUMENTS if argument not in ("--track-iterations", "5")]
+    assert main(["run", str(capture), "--out", str(out), *others]) == 2  # auto gives 100 at the capture's 30 fps, not 5
+    assert "track_iterations 5, now 'auto'" in capsys.readouterr().err
+    record.write_text(json.dumps({**made_with, "track_iterations": 100}))  # as if tracked at what auto gives
+    try:
+        with redirect_stdout(StringIO()) as printed:
+            assert main(["run", str(capture), "--out", str(out), *others]) == 0
+        assert "track (iterative) already done" in printed.getvalue()
+    finally:
+        record.write_text(json.dumps(made_with))

@@ -15,7 +15,8 @@ flow → flow-guided track → landmarks → evaluate → renders → report.
   ``DIR/masks.json``. A capture ingested with recorded plates keeps them.
 - Fit: ``visual-hull-plate`` with the start cube sized from the masks' visual hull (its reach from the
   rig centre plus 10 cm, never below the configuration's), so an adult or a mouse fits like an infant.
-- Track: ``iterative`` at :data:`TRACK_MEANS_LR`, each frame started from the optical flow's lifted motion
+- Track: ``iterative`` at :data:`TRACK_STEPS_PER_SECOND` steps a second of video (:func:`track_iterations`:
+  50 a frame at 60 fps, 100 at 30) and :data:`TRACK_MEANS_LR`, each frame started from the optical flow's lifted motion
   times :data:`TRACK_FLOW_GAIN`, and with joints the body's parts held at their lengths
   (:data:`TRACK_LAMBDA_PARTS`). Keypoint guidance (``--track-keypoints WEIGHT``) pulls the tracks towards the
   training cameras' keypoints; it is off by default, since infants are where detectors fail. The fit's
@@ -33,7 +34,9 @@ step is done leaves DIR free for corrected settings).
 
 from __future__ import annotations
 
+import functools
 import json
+import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -62,6 +65,16 @@ TRACK_LAMBDA_PARTS = 2.0
 #: reports 0.73 of their motion, and a fit that starts short does not close the gap, so the tracks lag and the lag
 #: adds up (docs/results.md, "The flow's shortfall").
 TRACK_FLOW_GAIN = 2.0
+#: ``--track-iterations auto``: the iterative method's steps a frame come to this many a second of video, and
+#: :data:`TRACK_ITERATIONS` at least. A frame's steps must reach a limb that moved since the last one, and
+#: frames further apart move it further: the Pose2Sim demo at 60 fps is tracked at 50 a frame, and its every
+#: second frame (30 fps) loses the left leg at 50 (64.7 mm) but follows it at 100 (37.9 mm), in the same
+#: time per second of video (docs/results.md, "Lower frame rates").
+TRACK_STEPS_PER_SECOND = 3000.0
+#: The fewest steps a frame ``auto`` gives, whatever the frame rate: at 60 fps 30 steps lose accuracy (41.7
+#: against 35.8 mm, docs/performance.md, "Issue 27").
+TRACK_ITERATIONS = 50
+AUTO_ITERATIONS = "auto"
 
 
 @attrs.frozen
@@ -79,7 +92,8 @@ class CaptureSettings:
     config: str = DEFAULT_CONFIG
     overrides: tuple[str, ...] = attrs.field(default=(), converter=tuple)
     reader_options: tuple[str, ...] = attrs.field(default=(), converter=tuple, metadata={BEFORE_FIELD: ()})
-    track_iterations: int = 50
+    #: Steps a frame of the iterative method, or :data:`AUTO_ITERATIONS` (:func:`track_iterations`).
+    track_iterations: int | str = AUTO_ITERATIONS
     track_means_lr: float = TRACK_MEANS_LR
     track_lambda_parts: float = TRACK_LAMBDA_PARTS
     track_flow_gain: float = attrs.field(default=TRACK_FLOW_GAIN, metadata={BEFORE_FIELD: 1.0})
@@ -89,6 +103,17 @@ class CaptureSettings:
     #: A segmenter plugin that makes the masks instead of the keypoints, the plates or the subject's motion.
     segmenter: str | None = attrs.field(default=None, metadata={BEFORE_FIELD: None})
     segmenter_options: tuple[str, ...] = attrs.field(default=(), converter=tuple, metadata={BEFORE_FIELD: ()})
+
+
+def track_iterations(value: int | str, fps: float) -> int:
+    """The iterative method's steps a frame for the setting ``value`` on a session of ``fps`` frames a second:
+    ``value`` itself, or for :data:`AUTO_ITERATIONS` :data:`TRACK_STEPS_PER_SECOND` a second of video and
+    :data:`TRACK_ITERATIONS` at least (50 at 60 fps, 100 at 30 fps, 120 at 25 fps)."""
+    if value != AUTO_ITERATIONS:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise InputError(f"track_iterations must be a whole number of steps or {AUTO_ITERATIONS!r}, got {value!r}")
+        return value
+    return max(TRACK_ITERATIONS, math.ceil(TRACK_STEPS_PER_SECOND / fps - 1e-9))
 
 
 def quoted_override(key: str, value: Any) -> str:
@@ -142,13 +167,15 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     if source:
         log(f"run: keypoints: {source['name']} from {keypoints}")
     joints = joints_source(capture, settings.joints)
-    tracking = ["dynamics.name=iterative", f"dynamics.iterations={settings.track_iterations}", f"dynamics.means_lr={settings.track_means_lr}",
-                f"dynamics.flow_gain={settings.track_flow_gain}"]
+    tracking = [f"dynamics.means_lr={settings.track_means_lr}", f"dynamics.flow_gain={settings.track_flow_gain}"]
     if joints is not None and settings.track_lambda_parts > 0:
         tracking += [f"dynamics.lambda_parts={settings.track_lambda_parts}", f"dynamics.skeleton.name={joints['name']}",
                      quoted_override("dynamics.skeleton.path", joints["path"])]
     if settings.track_keypoints:  # a negative weight is refused by the dynamics' own check below
         tracking += guidance_overrides(settings.track_keypoints, source, capture)
+
+    def tracked_with(iterations: int) -> list[str]:
+        return ["dynamics.name=iterative", f"dynamics.iterations={iterations}", *tracking]
     start, stop, step = settings.frames
     count = None if stop is None else len(range(start or 0, stop, step or 1))  # without STOP it depends on the capture's length
     if count is not None and count < 2:
@@ -165,13 +192,27 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     segmenter = BuiltSegmenter.of(PluginChoice("segmenter", settings.segmenter, apply_overrides({}, settings.segmenter_options, "--segmenter-set"))) \
         if settings.segmenter else None
     # The fit's configuration names the tracking too, so RUN/run.json holds it and `mmcsplat track RUN` re-tracks as this run did.
-    fit_config = load_config(settings.config, [*settings.overrides, *tracking])
+    # `auto` iterations need the session's frame rate: checked here with the fewest they can come to.
+    provisional = TRACK_ITERATIONS if settings.track_iterations == AUTO_ITERATIONS else track_iterations(settings.track_iterations, 1.0)
+    fit_config = load_config(settings.config, [*settings.overrides, *tracked_with(provisional)])
     dynamics_choice(fit_config, "iterative").build()
     renderer_choice(fit_config, settings.backend).build()  # one that cannot run here (no GPU, no gsplat): named before minutes of ingest
     if settings.track_keypoints:
         log(f"run: keypoint guidance from the training cameras' {source['name']} keypoints, weight {settings.track_keypoints:g}: their 2D "
             "errors are no longer a test of the tracks (a held-out camera's still is)")
     session, run = out / "session.zarr", out / "run"
+
+    @functools.cache
+    def session_tracking() -> list[str]:
+        """The tracking overrides with the iterations this session's frame rate gives (said once)."""
+        if settings.track_iterations != AUTO_ITERATIONS:
+            return tracked_with(provisional)
+        fps = SessionReader(session).fps
+        iterations = track_iterations(AUTO_ITERATIONS, fps)
+        log(f"run: tracking at {iterations} steps a frame ({TRACK_STEPS_PER_SECOND:g} a second of video at {fps:g} fps, "
+            f"{TRACK_ITERATIONS} at least)")
+        return tracked_with(iterations)
+
     if not session.exists():
         capture_reader(capture, reader_options=reader_options)
     created = not out.exists()
@@ -187,8 +228,8 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
 
     def fit() -> None:
         try:
-            first = FirstFrameFit(SessionReader(session), fit_config, run, backend=settings.backend,
-                                  progress=progress)
+            first = FirstFrameFit(SessionReader(session), load_config(settings.config, [*settings.overrides, *session_tracking()]), run,
+                                  backend=settings.backend, progress=progress)
             for grown in first.grown_regions:
                 log(f"run: {grown}")
             first.run()
@@ -215,7 +256,7 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
         Step("first-frame fit", lambda: fit_complete(run), fit),
         Step("optical flow", lambda: flow_complete(session), lambda: compute_flow(session, progress=progress)),
         Step("track (iterative)", lambda: fresh([run / TRACKS_DIR, run / TRACK_INFO], [run / RUN_INFO]),
-             lambda: track_run(run, dynamics="iterative", overrides=tracking, progress=progress,
+             lambda: track_run(run, dynamics="iterative", overrides=session_tracking(), progress=progress,
                                overwrite=True)),
     ]
     if joints is not None:
@@ -233,7 +274,8 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
         Step("report", lambda: fresh([run / REPORT_FILE], [run / METRICS_FILE]), lambda: write_report(run)),
     ]
     try:
-        times = run_steps("run", steps, log, SettingsRecord.of(out / SETTINGS_FILE, settings, {"scale": lambda value: _scale_in(session, value)}))
+        times = run_steps("run", steps, log, SettingsRecord.of(out / SETTINGS_FILE, settings, {"scale": lambda value: _scale_in(session, value),
+                                                                                     "track_iterations": lambda value: _iterations_in(session, value)}))
     except BaseException:
         if created and not any(out.iterdir()):  # refused before any step made something: no empty folder left behind
             out.rmdir()
@@ -253,6 +295,17 @@ def _scale_in(session: Path, scale: Any) -> Any:
         if cameras:
             return resolve_scale(scale, list(cameras.values()))
     return scale
+
+
+def _iterations_in(session: Path, value: Any) -> Any:
+    """The steps a frame ``value`` stands for in the folder whose session is ``session``: ``auto`` resolved at
+    that session's frame rate, so a folder tracked at 50 steps a frame resumes under ``auto`` where that is
+    what ``auto`` gives."""
+    if value == AUTO_ITERATIONS and session.exists():
+        from mmcsplat.storage.session import SessionReader
+
+        return track_iterations(value, SessionReader(session).fps)
+    return value
 
 
 def _made(folder: Path) -> Path:
