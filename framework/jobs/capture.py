@@ -192,8 +192,8 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     segmenter = BuiltSegmenter.of(PluginChoice("segmenter", settings.segmenter, apply_overrides({}, settings.segmenter_options, "--segmenter-set"))) \
         if settings.segmenter else None
     # The fit's configuration names the tracking too, so RUN/run.json holds it and `mmcsplat track RUN` re-tracks as this run did.
-    # `auto` iterations need the session's frame rate: checked here with the fewest they can come to.
-    provisional = TRACK_ITERATIONS if settings.track_iterations == AUTO_ITERATIONS else track_iterations(settings.track_iterations, 1.0)
+    # `auto` iterations need the session's frame rate: checked here with the fewest they can come to (at any rate).
+    provisional = track_iterations(settings.track_iterations, math.inf)
     fit_config = load_config(settings.config, [*settings.overrides, *tracked_with(provisional)])
     dynamics_choice(fit_config, "iterative").build()
     renderer_choice(fit_config, settings.backend).build()  # one that cannot run here (no GPU, no gsplat): named before minutes of ingest
