@@ -12,7 +12,7 @@ import pytest
 from mmcsplat.analysis.lost_landmarks import lost_line
 from mmcsplat.cli import main
 from mmcsplat.configuration.config import load_config
-from mmcsplat.jobs.demo import DemoPaths, tracking_choice
+from mmcsplat.jobs.demo import DEMO_ITERATIONS, DemoPaths, tracking_choice
 
 TINY = ["--num-frames", "3", "--width", "64", "--height", "48", "--track-iterations", "2", "--no-progress",
         "--set", "fit.iterations=10"]  # fmt: skip
@@ -87,7 +87,7 @@ def test_rerun_with_other_settings_is_refused(demo, capsys):
 
 def test_tracking_iterations_come_from_option_then_table_then_default():
     bare = load_config("paper-masked")
-    assert tracking_choice(bare, None) == ("iterative", [])  # the method's defaults, as `run` tracks
+    assert tracking_choice(bare, None) == ("iterative", [f"dynamics.iterations={DEMO_ITERATIONS}"])  # not auto's 100 at 30 fps
     assert tracking_choice(bare, 7) == ("iterative", ["dynamics.iterations=7"])
     table = load_config("paper-masked", ["dynamics.name=iterative", "dynamics.iterations=40", "dynamics.means_lr=0.002"])
     assert tracking_choice(table, None) == ("iterative", [])  # the table's settings, kept by the tracking step

@@ -225,7 +225,9 @@ def test_track_refuses_to_overwrite_and_defaults_to_iterative(tracked, scene, tm
     assert "already exists" in capsys.readouterr().err
     # A bad value is named before the existing tracks: fixing it is the first thing to do.
     assert main(["track", str(tracked), "--set", "dynamics.iterations=abc", "--no-progress"]) == 2
-    assert "parameter 'iterations' must be an integer, got 'abc'" in capsys.readouterr().err
+    assert "parameter 'iterations' must be an integer or one of 'auto', got 'abc'" in capsys.readouterr().err
+    assert main(["track", str(tracked), "--set", "dynamics.iterations=-1", "--no-progress"]) == 2
+    assert "iterations: steps a frame must be a whole number ≥ 0 or 'auto', got -1" in capsys.readouterr().err
     assert main(["track", str(tracked), "--frames", "1:3", "--no-progress"]) == 2
     assert "tracking runs on from the fitted frame 0" in capsys.readouterr().err
     _, session, _ = scene
@@ -234,3 +236,12 @@ def test_track_refuses_to_overwrite_and_defaults_to_iterative(tracked, scene, tm
     assert "with iterative (the default: the configuration names no dynamics method)" in capsys.readouterr().out
     record = json.loads((run / TRACK_INFO).read_text())
     assert record["method"] == "iterative" and record["method_default"] is True and record["params"] == {"iterations": 1}
+
+
+def test_auto_steps_follow_the_session_frame_rate(scene, tmp_path):
+    """The method's default: 3000 steps a second of video, so the 30 fps session's frames take 100 each."""
+    _, session, _ = scene
+    run = write_fitted_run(tmp_path / "run", session, TRUTH)
+    assert main(["track", str(run), "--frames", ":2", "--no-progress"]) == 0
+    summary = json.loads((run / TRACK_INFO).read_text())["summary"]
+    assert summary["iterations_per_frame"] == 100 and [frame["iterations"] for frame in summary["frames"]] == [100]

@@ -18,7 +18,7 @@ from mmcsplat import Registration, hookimpl
 from mmcsplat.cli import main
 from mmcsplat.configuration.config import load_config
 from mmcsplat.configuration.registry import Registry, default_registry
-from mmcsplat.jobs.capture import DEFAULT_CONFIG, TRACK_MEANS_LR, CaptureSettings, guidance_overrides, run_capture, track_iterations
+from mmcsplat.jobs.capture import DEFAULT_CONFIG, TRACK_MEANS_LR, CaptureSettings, guidance_overrides, run_capture
 from mmcsplat.pipeline.track import dynamics_choice
 from mmcsplat.plugin_api.errors import InputError, MmcsplatError
 from mmcsplat.plugin_api.interfaces import Segmenter
@@ -27,8 +27,8 @@ from mmcsplat.storage.session import SessionReader
 
 @pytest.mark.parametrize(("settings", "message"), [
     (CaptureSettings(track_flow_gain=0), "flow_gain must be > 0, got 0"),
-    (CaptureSettings(track_iterations=-1), "iterations must be ≥ 0, got -1"),
-    (CaptureSettings(track_iterations="many"), "track_iterations must be a whole number of steps or 'auto', got 'many'"),
+    (CaptureSettings(track_iterations=-1), "track_iterations: steps a frame must be a whole number ≥ 0 or 'auto', got -1"),
+    (CaptureSettings(track_iterations="many"), "track_iterations: steps a frame must be a whole number ≥ 0 or 'auto', got 'many'"),
     (CaptureSettings(overrides=("dynamics.lambda_rigid=-1",)), "lambda_rigid must be ≥ 0"),
     (CaptureSettings(track_keypoints=1), "--track-keypoints: .*capture has no 2D keypoints to guide the tracking with"),
     (CaptureSettings(cameras=("cam_01",)), r"--cameras cam_01 with --holdout \(none\) leaves 1 camera\(s\) .*a fit needs two"),
@@ -134,12 +134,6 @@ def test_a_backend_that_cannot_run_here_fails_before_the_first_step(tmp_path, ba
     with pytest.raises(MmcsplatError, match=message):
         run_capture(capture, out, CaptureSettings(backend=backend), progress=False, log=lambda line: None)
     assert not out.exists()
-
-
-@pytest.mark.parametrize(("fps", "steps"), [(60, 50), (120, 50), (30, 100), (25, 120), (29.97, 101), (10, 300)])
-def test_auto_iterations_give_a_second_of_video_the_same_steps_and_a_frame_fifty_at_least(fps, steps):
-    assert track_iterations("auto", fps) == steps
-    assert track_iterations(7, fps) == 7  # a number is kept whatever the frame rate
 
 
 @pytest.mark.parametrize(("iterations", "fps", "expected"), [(7, 30.0, 7), ("auto", 30.0, 100), ("auto", 60.0, 50)])

@@ -20,16 +20,8 @@ from mmcsplat.pipeline.image_scale import AUTO_LONGEST_SIDE
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from mmcsplat.jobs.capture import (
-        AUTO_ITERATIONS,
-        DEFAULT_CONFIG,
-        DEFAULT_SCALE,
-        TRACK_FLOW_GAIN,
-        TRACK_ITERATIONS,
-        TRACK_LAMBDA_PARTS,
-        TRACK_MEANS_LR,
-        TRACK_STEPS_PER_SECOND,
-    )
+    from mmcsplat.jobs.capture import DEFAULT_CONFIG, DEFAULT_SCALE, TRACK_FLOW_GAIN, TRACK_LAMBDA_PARTS, TRACK_MEANS_LR
+    from mmcsplat.training.frame_steps import AUTO_STEPS, FEWEST_STEPS, STEPS_PER_SECOND
 
     parser.add_argument("capture", type=Path, help="the capture folder (videos or images and a calibration)")
     parser.add_argument("--out", required=True, type=Path, help="output directory (created; reused steps are skipped)")
@@ -53,9 +45,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                  "it: size_mismatch=crop for videos coded larger than calibrated, camera_map=order", dest="reader_options", flag="--reader-set")
     parser.add_argument("--backend", help="renderer backend by name, e.g. torch-cuda on a GPU (default: the configuration's [renderer]); "
                         "the later steps render with it too")
-    parser.add_argument("--track-iterations", type=iterations_value, default=AUTO_ITERATIONS, metavar="N",
-                        help=f"iterations per frame of the iterative method, or auto (the default): {TRACK_STEPS_PER_SECOND:g} a second of "
-                        f"video and {TRACK_ITERATIONS} at least (50 at 60 fps, 100 at 30 fps), since frames further apart leave a "
+    parser.add_argument("--track-iterations", type=iterations_value, default=AUTO_STEPS, metavar="N",
+                        help=f"iterations per frame of the iterative method, or auto (the default): {STEPS_PER_SECOND:g} a second of "
+                        f"video and {FEWEST_STEPS} at least (50 at 60 fps, 100 at 30 fps), since frames further apart leave a "
                         "limb further to reach")
     parser.add_argument("--track-means-lr", type=float, default=TRACK_MEANS_LR, metavar="RATE",
                         help=f"learning rate of the means while tracking, times the scene scale (default {TRACK_MEANS_LR:g}: ten times the fit's)")
@@ -72,18 +64,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def iterations_value(text: str) -> int | str:
-    """A whole number of steps ≥ 0, or ``auto`` (an argparse type; :func:`mmcsplat.jobs.capture.track_iterations`)."""
-    from mmcsplat.jobs.capture import AUTO_ITERATIONS
+    """A whole number of steps ≥ 0, or ``auto`` (an argparse type; :func:`mmcsplat.training.frame_steps.steps_per_frame`)."""
+    from mmcsplat.training.frame_steps import AUTO_STEPS
 
     word = text.strip().lower()
-    if word == AUTO_ITERATIONS:
+    if word == AUTO_STEPS:
         return word
     try:
         value = int(word)
     except ValueError:
         value = -1
     if value < 0:
-        raise argparse.ArgumentTypeError(f"expected a whole number of steps (0 or more) or {AUTO_ITERATIONS!r}, got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected a whole number of steps (0 or more) or {AUTO_STEPS!r}, got {text!r}")
     return value
 
 

@@ -15,8 +15,8 @@ flow → flow-guided track → landmarks → evaluate → renders → report.
   ``DIR/masks.json``. A capture ingested with recorded plates keeps them.
 - Fit: ``visual-hull-plate`` with the start cube sized from the masks' visual hull (its reach from the
   rig centre plus 10 cm, never below the configuration's), so an adult or a mouse fits like an infant.
-- Track: ``iterative`` at :data:`TRACK_STEPS_PER_SECOND` steps a second of video (:func:`track_iterations`:
-  50 a frame at 60 fps, 100 at 30) and :data:`TRACK_MEANS_LR`, each frame started from the optical flow's lifted motion
+- Track: ``iterative`` at :data:`~mmcsplat.training.frame_steps.STEPS_PER_SECOND` steps a second of video
+  (:func:`~mmcsplat.training.frame_steps.steps_per_frame`: 50 a frame at 60 fps, 100 at 30) and :data:`TRACK_MEANS_LR`, each frame started from the optical flow's lifted motion
   times :data:`TRACK_FLOW_GAIN`, and with joints the body's parts held at their lengths
   (:data:`TRACK_LAMBDA_PARTS`). Keypoint guidance (``--track-keypoints WEIGHT``) pulls the tracks towards the
   training cameras' keypoints; it is off by default, since infants are where detectors fail. The fit's
@@ -49,6 +49,7 @@ from mmcsplat.pipeline.steps import BEFORE_FIELD, SettingsRecord, Step, StepTime
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.storage.atomic import write_json_atomic
 from mmcsplat.storage.run import LANDMARKS_CSV, LANDMARKS_INFO, METRICS_FILE, MOVEMENT_JSON, RENDERS_DIR, REPORT_FILE, RUN_INFO, TRACK_INFO, TRACKS_DIR
+from mmcsplat.training.frame_steps import AUTO_STEPS, FEWEST_STEPS, STEPS_PER_SECOND, steps_per_frame
 
 SETTINGS_FILE = "capture.json"
 #: Which masks the run used (see :func:`mmcsplat.pipeline.capture_session.mask_choice`), written with the session.
@@ -65,16 +66,6 @@ TRACK_LAMBDA_PARTS = 2.0
 #: reports 0.73 of their motion, and a fit that starts short does not close the gap, so the tracks lag and the lag
 #: adds up (docs/results.md, "The flow's shortfall").
 TRACK_FLOW_GAIN = 2.0
-#: ``--track-iterations auto``: the iterative method's steps a frame come to this many a second of video, and
-#: :data:`TRACK_ITERATIONS` at least. A frame's steps must reach a limb that moved since the last one, and
-#: frames further apart move it further: the Pose2Sim demo at 60 fps is tracked at 50 a frame, and its every
-#: second frame (30 fps) loses the left leg at 50 (64.7 mm) but follows it at 100 (37.9 mm), in the same
-#: time per second of video (docs/results.md, "Lower frame rates").
-TRACK_STEPS_PER_SECOND = 3000.0
-#: The fewest steps a frame ``auto`` gives, whatever the frame rate: at 60 fps 30 steps lose accuracy (41.7
-#: against 35.8 mm, docs/performance.md, "Issue 27").
-TRACK_ITERATIONS = 50
-AUTO_ITERATIONS = "auto"
 
 
 @attrs.frozen
@@ -92,8 +83,8 @@ class CaptureSettings:
     config: str = DEFAULT_CONFIG
     overrides: tuple[str, ...] = attrs.field(default=(), converter=tuple)
     reader_options: tuple[str, ...] = attrs.field(default=(), converter=tuple, metadata={BEFORE_FIELD: ()})
-    #: Steps a frame of the iterative method, or :data:`AUTO_ITERATIONS` (:func:`track_iterations`).
-    track_iterations: int | str = AUTO_ITERATIONS
+    #: Steps a frame of the iterative method, or ``auto`` (:func:`~mmcsplat.training.frame_steps.steps_per_frame`).
+    track_iterations: int | str = AUTO_STEPS
     track_means_lr: float = TRACK_MEANS_LR
     track_lambda_parts: float = TRACK_LAMBDA_PARTS
     track_flow_gain: float = attrs.field(default=TRACK_FLOW_GAIN, metadata={BEFORE_FIELD: 1.0})
@@ -103,17 +94,6 @@ class CaptureSettings:
     #: A segmenter plugin that makes the masks instead of the keypoints, the plates or the subject's motion.
     segmenter: str | None = attrs.field(default=None, metadata={BEFORE_FIELD: None})
     segmenter_options: tuple[str, ...] = attrs.field(default=(), converter=tuple, metadata={BEFORE_FIELD: ()})
-
-
-def track_iterations(value: int | str, fps: float) -> int:
-    """The iterative method's steps a frame for the setting ``value`` on a session of ``fps`` frames a second:
-    ``value`` itself, or for :data:`AUTO_ITERATIONS` :data:`TRACK_STEPS_PER_SECOND` a second of video and
-    :data:`TRACK_ITERATIONS` at least (50 at 60 fps, 100 at 30 fps, 120 at 25 fps)."""
-    if value != AUTO_ITERATIONS:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise InputError(f"track_iterations must be a whole number of steps or {AUTO_ITERATIONS!r}, got {value!r}")
-        return value
-    return max(TRACK_ITERATIONS, math.ceil(TRACK_STEPS_PER_SECOND / fps - 1e-9))
 
 
 def quoted_override(key: str, value: Any) -> str:
@@ -193,7 +173,10 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
         if settings.segmenter else None
     # The fit's configuration names the tracking too, so RUN/run.json holds it and `mmcsplat track RUN` re-tracks as this run did.
     # `auto` iterations need the session's frame rate: checked here with the fewest they can come to (at any rate).
-    provisional = track_iterations(settings.track_iterations, math.inf)
+    try:
+        provisional = steps_per_frame(settings.track_iterations, math.inf)
+    except ValueError as error:
+        raise InputError(f"track_iterations: {error}") from error
     fit_config = load_config(settings.config, [*settings.overrides, *tracked_with(provisional)])
     dynamics_choice(fit_config, "iterative").build()
     renderer_choice(fit_config, settings.backend).build()  # one that cannot run here (no GPU, no gsplat): named before minutes of ingest
@@ -205,12 +188,12 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     @functools.cache
     def session_tracking() -> list[str]:
         """The tracking overrides with the iterations this session's frame rate gives (said once)."""
-        if settings.track_iterations != AUTO_ITERATIONS:
+        if settings.track_iterations != AUTO_STEPS:
             return tracked_with(provisional)
         fps = SessionReader(session).fps
-        iterations = track_iterations(AUTO_ITERATIONS, fps)
-        log(f"run: tracking at {iterations} steps a frame ({TRACK_STEPS_PER_SECOND:g} a second of video at {fps:g} fps, "
-            f"{TRACK_ITERATIONS} at least)")
+        iterations = steps_per_frame(AUTO_STEPS, fps)
+        log(f"run: tracking at {iterations} steps a frame ({STEPS_PER_SECOND:g} a second of video at {fps:g} fps, "
+            f"{FEWEST_STEPS} at least)")
         return tracked_with(iterations)
 
     if not session.exists():
@@ -301,10 +284,10 @@ def _iterations_in(session: Path, value: Any) -> Any:
     """The steps a frame ``value`` stands for in the folder whose session is ``session``: ``auto`` resolved at
     that session's frame rate, so a folder tracked at 50 steps a frame resumes under ``auto`` where that is
     what ``auto`` gives."""
-    if value == AUTO_ITERATIONS and session.exists():
+    if value == AUTO_STEPS and session.exists():
         from mmcsplat.storage.session import SessionReader
 
-        return track_iterations(value, SessionReader(session).fps)
+        return steps_per_frame(value, SessionReader(session).fps)
     return value
 
 

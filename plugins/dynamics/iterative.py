@@ -35,7 +35,7 @@ import logging
 import time
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Literal
 
 import attrs
 import numpy as np
@@ -50,6 +50,7 @@ from mmcsplat.storage.session.flow import FlowPair, SessionFlow, pair_present
 from mmcsplat.storage.tracks import TrackWriter
 from mmcsplat.training.coarse_views import CoarseToFine
 from mmcsplat.training.flow_prediction import FlowGuidance, FlowPrediction
+from mmcsplat.training.frame_steps import AUTO_STEPS, FEWEST_STEPS, STEPS_PER_SECOND, steps_per_frame
 from mmcsplat.training.keypoint_guidance import KeypointGuidance
 from mmcsplat.training.loop import LossTerm, OptimizerStep, PlateauStop, Sample, Step, TrainingLoop
 from mmcsplat.training.model import GaussianModel
@@ -64,6 +65,14 @@ COLORS = ("color_logits", "seg_logits")
 RESET_EACH_FRAME = ("means", "quats")
 
 logger = logging.getLogger(__name__)
+
+
+def _steps(_instance: Any, field: attrs.Attribute, value: Any) -> None:
+    """Validator: a whole number of steps ≥ 0, or ``auto`` (:func:`~mmcsplat.training.frame_steps.steps_per_frame`)."""
+    try:
+        steps_per_frame(value, 1.0)
+    except ValueError as error:
+        raise ValueError(f"{field.name}: {error}") from error
 
 
 @attrs.frozen
@@ -88,8 +97,10 @@ class IterativeDynamics(Dynamics):
 
     cameras_per_frame: ClassVar[int] = 2  # each frame is fitted from its own images alone
 
-    iterations: int = parameter(50, doc="Adam steps per frame, one training camera each (the reference study's 2000 take hours a "
-                                "frame on a real capture on a CPU)", validator=at_least(0))
+    iterations: int | Literal["auto"] = parameter(AUTO_STEPS, doc=f"Adam steps per frame, one training camera each, or auto: "
+                                                  f"{STEPS_PER_SECOND:g} a second of video and {FEWEST_STEPS} at least (50 at 60 fps, 100 at "
+                                                  "30), since frames further apart leave a limb further to reach (the reference study's "
+                                                  "2000 take hours a frame on a real capture on a CPU)", validator=_steps)
     neighbours: int = parameter(20, doc="k of the neighbour graph over foreground Gaussians", validator=at_least(1))
     neighbour_stride: int = parameter(1, doc="each Gaussian's neighbours are every neighbour_stride-th of its neighbours·neighbour_stride "
                                       "nearest: a longer reach at the same cost per step (1: the nearest)", validator=at_least(1))
@@ -173,6 +184,12 @@ class IterativeDynamics(Dynamics):
         """Fit every frame after the first; returns per-frame results and the neighbour graph's size."""
         from tqdm import tqdm
 
+        if self.iterations == AUTO_STEPS:
+            fps = context.session.fps / context.frames.step
+            steps = steps_per_frame(AUTO_STEPS, fps)
+            logger.info("iterative: %d steps a frame (auto: %g a second of video at %g fps, %d at least)", steps, STEPS_PER_SECOND, fps,
+                        FEWEST_STEPS)
+            return attrs.evolve(self, iterations=steps).track(context, out)
         if 0 < self.iterations <= self.coarse_iterations:
             raise InputError(f"dynamics.coarse_iterations = {self.coarse_iterations} leaves none of the {self.iterations} iterations per frame "
                              "at full size: set it below dynamics.iterations")
