@@ -238,10 +238,11 @@ def test_track_refuses_to_overwrite_and_defaults_to_iterative(tracked, scene, tm
     assert record["method"] == "iterative" and record["method_default"] is True and record["params"] == {"iterations": 1}
 
 
-def test_auto_steps_follow_the_session_frame_rate(scene, tmp_path):
+def test_auto_steps_follow_the_session_frame_rate(scene, tmp_path, capsys):
     """The method's default: 3000 steps a second of video, so the 30 fps session's frames take 100 each."""
     _, session, _ = scene
     run = write_fitted_run(tmp_path / "run", session, TRUTH)
     assert main(["track", str(run), "--frames", ":2", "--no-progress"]) == 0
+    assert "with iterative (the default: the configuration names no dynamics method) at 100 steps a frame in" in capsys.readouterr().out
     summary = json.loads((run / TRACK_INFO).read_text())["summary"]
     assert summary["iterations_per_frame"] == 100 and [frame["iterations"] for frame in summary["frames"]] == [100]

@@ -30,8 +30,10 @@ def run(args: argparse.Namespace) -> int:
     record = track_run(args.run, config=args.config, overrides=args.overrides, dynamics=args.dynamics,
                        backend=args.backend, progress=not args.no_progress, overwrite=args.overwrite, frames=args.frames)
     start, stop = record["frames"]
-    resumed = record["summary"].get("resumed_from") if isinstance(record["summary"], dict) else None
+    summary = record["summary"] if isinstance(record["summary"], dict) else {}
+    resumed, steps = summary.get("resumed_from"), summary.get("iterations_per_frame")
     default = " (the default: the configuration names no dynamics method)" if record["method_default"] else ""
-    print(f"{args.run}: tracked frames {start}–{stop - 1} with {record['method']}{default} in {record['wall_s']:.1f} s "
+    print(f"{args.run}: tracked frames {start}–{stop - 1} with {record['method']}{default}{f' at {steps} steps a frame' if steps else ''} "
+          f"in {record['wall_s']:.1f} s "
           f"({record['wall_s_per_frame']:.2f} s per frame){f', resumed from iteration {resumed}' if resumed is not None else ''}")
     return 0
