@@ -52,12 +52,13 @@ from typing import Any
 import attrs
 import numpy as np
 
+from mmcsplat.datasets.frame_rate import FPS_PARAMETER, stated_or_assumed
 from mmcsplat.datasets.images import frames_by_number, image_files
 from mmcsplat.datasets.nerfstudio import PIXEL_CENTRE
 from mmcsplat.datasets.posed_images import MISSING_FRAMES_PARAMETER, PosedImage, PosedImageRecording, missing_files
 from mmcsplat.plugin_api.errors import InputError, MissingFileError
 from mmcsplat.plugin_api.interfaces import Reader
-from mmcsplat.plugin_api.parameters import finite_positive, one_of, parameter
+from mmcsplat.plugin_api.parameters import one_of, parameter
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.calibration import metres_per_unit
 
@@ -106,7 +107,7 @@ class ColmapReader(Reader):
 
     layout: str = parameter("auto", doc="static (one frame, a camera per image), video (a camera per images/ sub-folder) or auto",
                             validator=one_of(*LAYOUTS))
-    fps: float = parameter(30.0, doc="the frame rate of the video layout, frames per second", converter=float, validator=finite_positive)
+    fps: float | None = FPS_PARAMETER
     missing_frames: str = MISSING_FRAMES_PARAMETER
 
     def detect(self, source: Path) -> bool:
@@ -155,7 +156,7 @@ class ColmapReader(Reader):
             cameras = [_camera(name, models[image.camera_id], image, scale, cameras_file, images_file) for name, image in zip(names, registered)]
             images = {name: {0: PosedImage(source / "images" / image.name, None, f"{images_file}: image {image.name!r}")}
                       for name, image in zip(names, registered)}
-            return PosedImageRecording(source, cameras, images, np.zeros(1), self.fps, (), provenance)
+            return PosedImageRecording(source, cameras, images, np.zeros(1), stated_or_assumed(self.fps, 1, source), (), provenance)
         return self._open_video(source, models, registered, scale, cameras_file, images_file, provenance)
 
     def _open_video(self, source: Path, models: Mapping[int, ColmapCamera], registered: list[ColmapImage], scale: float,
@@ -186,7 +187,8 @@ class ColmapReader(Reader):
                                             self.missing_frames, source)
         images = {name: {t: PosedImage(path, None, f"{images_file}: camera folder {name!r}") for t, path in enumerate(paths) if path is not None}
                   for name, paths in files.items()}
-        return PosedImageRecording(source, cameras, images, np.arange(num_frames) / self.fps, self.fps, (), provenance)
+        fps = stated_or_assumed(self.fps, num_frames, source)
+        return PosedImageRecording(source, cameras, images, np.arange(num_frames) / fps, fps, (), provenance)
 
 
 def _static_names(names: list[str]) -> list[str]:

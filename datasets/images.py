@@ -3,7 +3,7 @@
 Layout: ``SOURCE/<camera>/*.{png,jpg,jpeg}`` or ``SOURCE/images/<camera>/…`` (the sub-folder wins when it
 has camera folders), matched to the calibration's cameras by name (see :mod:`mmcsplat.datasets.rig`);
 frame t of a camera is its t-th image in natural order (``frame2`` before ``frame10``). The calibration
-is found as for the ``videos`` format. Images carry no frame rate: ``fps`` gives it (30 by default).
+is found as for the ``videos`` format. Images carry no frame rate: ``fps`` gives it (30 by default, with a warning: :mod:`.frame_rate`).
 
 Masks the capture brings: ``SOURCE/masks/<camera>/`` holds a mask image per frame with the frame image's
 stem (``masks/cam_01/frame0012.png`` for ``cam_01/frame0012.jpg``; a missing one is an error listing
@@ -20,6 +20,7 @@ from pathlib import Path
 import attrs
 import numpy as np
 
+from mmcsplat.datasets.frame_rate import FPS_PARAMETER, stated_or_assumed
 from mmcsplat.datasets.posed_images import ALPHA_THRESHOLD, MISSING_FRAMES_PARAMETER
 from mmcsplat.datasets.rig import (
     CAMERA_MAP_PARAMETER,
@@ -34,7 +35,6 @@ from mmcsplat.datasets.rig import (
 )
 from mmcsplat.plugin_api.errors import InputError, MissingFileError, NotAFolderError
 from mmcsplat.plugin_api.interfaces import Reader, RecordedFrame, Recording
-from mmcsplat.plugin_api.parameters import finite_positive, parameter
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.calibration import read_calibration
 from mmcsplat.storage.camera_names import match_cameras, natural_key
@@ -97,7 +97,7 @@ def camera_folders(source: Path) -> list[Path]:
 class ImageSequenceReader(Reader):
     """Reads per-camera image folders."""
 
-    fps: float = parameter(30.0, doc="the capture's frame rate, frames per second", converter=float, validator=finite_positive)
+    fps: float | None = FPS_PARAMETER
     size_mismatch: str = SIZE_MISMATCH_PARAMETER
     camera_map: Mapping[str, str] | str | None = CAMERA_MAP_PARAMETER
     cameras: tuple[str, ...] | None = CAMERAS_PARAMETER
@@ -131,7 +131,7 @@ class ImageSequenceReader(Reader):
             "size_mismatch": self.size_mismatch,
             "masks": f"{source / MASKS_FOLDER}" if masks else "the images' alpha channel (alpha > 127)" if alpha else None,
         }
-        return ImageRecording(source, cameras, self.fps, num_frames, provenance, files, masks, () if masks else alpha)
+        return ImageRecording(source, cameras, stated_or_assumed(self.fps, num_frames, source), num_frames, provenance, files, masks, () if masks else alpha)
 
 
 def _frame_masks(source: Path, cameras: Sequence[Camera], files: dict[str, list[Path | None]],

@@ -52,10 +52,10 @@ import attrs
 import numpy as np
 
 from mmcsplat.datasets.dnerf import GL_TO_CV
+from mmcsplat.datasets.frame_rate import FPS_PARAMETER, stated_or_assumed
 from mmcsplat.datasets.posed_images import MISSING_FRAMES_PARAMETER, PosedImage, PosedImageRecording, finite_matrix, missing_files, rigid_pose
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.interfaces import Reader
-from mmcsplat.plugin_api.parameters import finite_positive, parameter
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.calibration import metres_per_unit
 from mmcsplat.storage.camera_names import natural_key
@@ -97,8 +97,7 @@ class NerfstudioReader(Reader):
     """Reads nerfstudio's ``transforms.json``; ``fps`` is the frame rate when the frames carry no time,
     ``missing_frames`` what a listed image that is not on disk does."""
 
-    fps: float = parameter(30.0, doc="the frame rate when frames carry no time or timestamp, frames per second",
-                           converter=float, validator=finite_positive)
+    fps: float | None = FPS_PARAMETER
     missing_frames: str = MISSING_FRAMES_PARAMETER
 
     def detect(self, source: Path) -> bool:
@@ -259,7 +258,7 @@ def _camera(name: str, frame: _Frame, scale: float) -> Camera:
         raise InputError(f"{frame.where}: {error}") from error
 
 
-def _place_frames(path: Path, groups: dict[str, list[_Frame]], fps: float) -> tuple[dict[str, dict[int, PosedImage]], np.ndarray, float]:
+def _place_frames(path: Path, groups: dict[str, list[_Frame]], fps: float | None) -> tuple[dict[str, dict[int, PosedImage]], np.ndarray, float]:
     """Each camera's images by frame index, the seconds of the frame indices and the frame rate."""
     frames = [frame for group in groups.values() for frame in group]
     timed = [frame.time is not None for frame in frames]
@@ -269,7 +268,7 @@ def _place_frames(path: Path, groups: dict[str, list[_Frame]], fps: float) -> tu
     if all(timed):
         times = np.unique(np.round([frame.time for frame in frames], _DECIMALS))
         indices = {name: [int(np.searchsorted(times, round(frame.time, _DECIMALS))) for frame in group] for name, group in groups.items()}
-        fps = 1.0 / float(np.median(np.diff(times))) if len(times) > 1 else fps
+        fps = 1.0 / float(np.median(np.diff(times))) if len(times) > 1 else stated_or_assumed(fps, 1, path)
     else:
         counts = {name: len(group) for name, group in groups.items()}
         if len(set(counts.values())) != 1:
@@ -278,6 +277,7 @@ def _place_frames(path: Path, groups: dict[str, list[_Frame]], fps: float) -> tu
                              "add a time to every frame to say which images are simultaneous")
         groups = {name: sorted(group, key=lambda frame: natural_key(str(frame.image.path))) for name, group in groups.items()}
         indices = {name: list(range(len(group))) for name, group in groups.items()}
+        fps = stated_or_assumed(fps, next(iter(counts.values())), path)
         times = np.arange(next(iter(counts.values())), dtype=np.float64) / fps
     images: dict[str, dict[int, PosedImage]] = {}
     for name, group in groups.items():

@@ -19,6 +19,7 @@ from pathlib import Path
 import attrs
 import numpy as np
 
+from mmcsplat.datasets.frame_rate import DEFAULT_FPS
 from mmcsplat.datasets.rig import (
     CAMERA_MAP_PARAMETER,
     CAMERAS_PARAMETER,
@@ -38,8 +39,6 @@ from mmcsplat.storage.calibration import read_calibration
 from mmcsplat.storage.camera_names import match_cameras
 
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv")
-#: Frame rate assumed for a video whose container states none.
-DEFAULT_FPS = 30.0
 
 
 #: The folders tried for videos, in order (module docstring).

@@ -30,7 +30,8 @@ def _uneven_capture(folder: Path) -> Path:
 def test_a_warning_prints_as_one_line_in_mmcsplats_voice(tmp_path):
     source = _uneven_capture(tmp_path / "capture")
     entry = "import sys; from mmcsplat.cli import main; sys.exit(main())"  # what the console script runs
-    done = subprocess.run([sys.executable, "-c", entry, "ingest", str(source), str(tmp_path / "s.zarr"), "--no-progress"],
+    done = subprocess.run([sys.executable, "-c", entry, "ingest", str(source), str(tmp_path / "s.zarr"), "--set", "fps=30",
+                           "--no-progress"],
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     lines = done.stderr.splitlines()

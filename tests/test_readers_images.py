@@ -47,6 +47,18 @@ def test_reads_frames_in_natural_order_lazily(tmp_path: Path) -> None:
     assert int(np.median(next(recording.frames("c1", range(10, 11))).rgb)) == rig.background_level(10)
 
 
+def test_a_frame_rate_the_capture_does_not_state_is_assumed_aloud(tmp_path: Path, recwarn) -> None:
+    """Images carry no frame rate: 30 fps is assumed with a warning (a tracker's steps a frame follow the rate),
+    unless the reader is given one or the capture has a single frame."""
+    _capture(tmp_path / "moving", names=("c1",), frames=2)
+    _capture(tmp_path / "still", names=("c1",), frames=1)
+    with pytest.warns(UserWarning, match="moving: the capture states no frame rate; assuming 30 fps .*--reader-set fps=N"):
+        assert ImageSequenceReader().open(tmp_path / "moving").fps == 30.0
+    assert ImageSequenceReader(fps=60).open(tmp_path / "moving").fps == 60.0
+    assert ImageSequenceReader().open(tmp_path / "still").fps == 30.0
+    assert not [warning for warning in recwarn if "frame rate" in str(warning.message)]
+
+
 def test_ingest_undistorts_exactly(tmp_path: Path) -> None:
     calibrated = _capture(tmp_path / "capture")
     session = ingest(tmp_path / "capture", tmp_path / "out.zarr", progress=False)
@@ -104,7 +116,7 @@ def test_bad_inputs(tmp_path: Path) -> None:
     (0, "fps must be a finite number > 0, got 0.0"),
     (-25, "fps must be a finite number > 0, got -25.0"),
     (float("inf"), "fps must be a finite number > 0, got inf"),
-    ("25", "parameter 'fps' must be a number, got '25'"),
+    ("25", "parameter 'fps' must be a number( or none)?, got '25'"),
 ])
 def test_readers_refuse_a_frame_rate_that_is_not_positive(name: str, fps, message: str) -> None:
     with pytest.raises(InputError, match=f"reader '{name}': {message}"):
@@ -113,7 +125,7 @@ def test_readers_refuse_a_frame_rate_that_is_not_positive(name: str, fps, messag
 
 def test_reader_parameters_keep_their_defaults() -> None:
     registry = default_registry()
-    assert registry.create("reader", "images") == ImageSequenceReader(fps=30.0, size_mismatch="scale")
+    assert registry.create("reader", "images") == ImageSequenceReader(fps=None, size_mismatch="scale")
     assert ImageSequenceReader(fps=25).fps == 25.0 and isinstance(ImageSequenceReader(fps=25).fps, float)
     assert registry.create("reader", "images", fps=25, size_mismatch="crop").size_mismatch == "crop"
     with pytest.raises(InputError, match="reader 'videos': size_mismatch must be one of 'scale', 'crop', 'error', got 'stretch'"):
