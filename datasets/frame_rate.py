@@ -21,8 +21,8 @@ FPS_PARAMETER = parameter(None, doc=f"the capture's frame rate, frames per secon
 
 
 def stated_or_assumed(fps: float | None, frames: int, source: Path | str) -> float:
-    """``fps``, or :data:`DEFAULT_FPS` for ``None``, warned about when the capture at ``source`` has more
-    than ``frames`` = 1 frame."""
+    """``fps``, or for ``None`` :data:`DEFAULT_FPS`, with a warning naming ``source`` when the capture has
+    several ``frames`` (a single frame has no rate to get wrong)."""
     if fps is not None:
         return fps
     if frames > 1:
