@@ -277,8 +277,9 @@ def _place_frames(path: Path, groups: dict[str, list[_Frame]], fps: float | None
                              "add a time to every frame to say which images are simultaneous")
         groups = {name: sorted(group, key=lambda frame: natural_key(str(frame.image.path))) for name, group in groups.items()}
         indices = {name: list(range(len(group))) for name, group in groups.items()}
-        fps = stated_or_assumed(fps, next(iter(counts.values())), path)
-        times = np.arange(next(iter(counts.values())), dtype=np.float64) / fps
+        count = next(iter(counts.values()))
+        fps = stated_or_assumed(fps, count, path)
+        times = np.arange(count, dtype=np.float64) / fps
     images: dict[str, dict[int, PosedImage]] = {}
     for name, group in groups.items():
         by_index = images[name] = {}

@@ -13,7 +13,6 @@ report. Steps already done in OUT are reused, so a rerun resumes; docs/real-data
 from __future__ import annotations
 
 import argparse
-import math
 from pathlib import Path
 
 from mmcsplat.cli.options import add_frames, add_names, add_settings, scale_value
@@ -65,16 +64,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def iterations_value(text: str) -> int | str:
-    """A whole number of steps ≥ 0, or ``auto`` (an argparse type; :func:`mmcsplat.training.frame_steps.steps_per_frame`)."""
-    from mmcsplat.training.frame_steps import AUTO_STEPS, steps_per_frame
+    """A whole number of steps ≥ 0, or ``auto`` (an argparse type; :func:`mmcsplat.training.frame_steps.checked_steps`)."""
+    from mmcsplat.training.frame_steps import AUTO_STEPS, checked_steps
 
     word = text.strip().lower()
     try:
-        value = word if word == AUTO_STEPS else int(word)
-        steps_per_frame(value, math.inf)
+        return checked_steps(word if word == AUTO_STEPS else int(word))
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a whole number of steps (0 or more) or {AUTO_STEPS!r}, got {text!r}") from None
-    return value
 
 
 def run(args: argparse.Namespace) -> int:

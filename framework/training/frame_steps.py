@@ -20,12 +20,18 @@ STEPS_PER_SECOND = 3000.0
 FEWEST_STEPS = 50
 
 
+def checked_steps(value: int | str) -> int | str:
+    """``value`` when it is a setting of the steps a frame (a whole number ≥ 0, or :data:`AUTO_STEPS`); any
+    other raises ``ValueError``."""
+    if value != AUTO_STEPS and (isinstance(value, bool) or not isinstance(value, int) or value < 0):
+        raise ValueError(f"steps a frame must be a whole number ≥ 0 or {AUTO_STEPS!r}, got {value!r}")
+    return value
+
+
 def steps_per_frame(value: int | str, fps: float) -> int:
     """The steps a frame for the setting ``value`` on frames ``fps`` a second apart: ``value`` itself, or for
     :data:`AUTO_STEPS` :data:`STEPS_PER_SECOND` a second of video and :data:`FEWEST_STEPS` at least (50 at
-    60 fps, 100 at 30, 120 at 25, 150 at 20). A value that is neither raises ``ValueError``."""
-    if value == AUTO_STEPS:
+    60 fps, 100 at 30, 120 at 25, 150 at 20). A value that is neither raises ``ValueError`` (:func:`checked_steps`)."""
+    if checked_steps(value) == AUTO_STEPS:
         return max(FEWEST_STEPS, math.ceil(STEPS_PER_SECOND / fps - 1e-9))
-    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-        raise ValueError(f"steps a frame must be a whole number ≥ 0 or {AUTO_STEPS!r}, got {value!r}")
     return value

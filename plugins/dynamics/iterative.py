@@ -50,7 +50,7 @@ from mmcsplat.storage.session.flow import FlowPair, SessionFlow, pair_present
 from mmcsplat.storage.tracks import TrackWriter
 from mmcsplat.training.coarse_views import CoarseToFine
 from mmcsplat.training.flow_prediction import FlowGuidance, FlowPrediction
-from mmcsplat.training.frame_steps import AUTO_STEPS, FEWEST_STEPS, STEPS_PER_SECOND, steps_per_frame
+from mmcsplat.training.frame_steps import AUTO_STEPS, FEWEST_STEPS, STEPS_PER_SECOND, checked_steps, steps_per_frame
 from mmcsplat.training.keypoint_guidance import KeypointGuidance
 from mmcsplat.training.loop import LossTerm, OptimizerStep, PlateauStop, Sample, Step, TrainingLoop
 from mmcsplat.training.model import GaussianModel
@@ -68,9 +68,9 @@ logger = logging.getLogger(__name__)
 
 
 def _steps(_instance: Any, field: attrs.Attribute, value: Any) -> None:
-    """Validator: a whole number of steps ≥ 0, or ``auto`` (:func:`~mmcsplat.training.frame_steps.steps_per_frame`)."""
+    """Validator: a whole number of steps ≥ 0, or ``auto`` (:func:`~mmcsplat.training.frame_steps.checked_steps`)."""
     try:
-        steps_per_frame(value, 1.0)
+        checked_steps(value)
     except ValueError as error:
         raise ValueError(f"{field.name}: {error}") from error
 
