@@ -15,6 +15,7 @@ from mmcsplat.pipeline.ingest import ingest
 from mmcsplat.pipeline.plates import estimate_plates
 from mmcsplat.pipeline.segment import BuiltSegmenter, segment_session
 from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.plugins.segmenters.parallax import recurrence_share
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.synthetic import SynthConfig, synthesize
 
@@ -157,19 +158,24 @@ def test_a_change_where_no_camera_sees_the_floor_is_kept_only_near_its_frame(mon
     images = [moved] + [median] * 7
     hull = np.ones((40, 40), bool)
     session = scripted(monkeypatch, images, np.zeros((40, 40), bool), (median, hull, hull))
-    masks = list(default_registry().create("segmenter", "parallax", change_window=2).raw(session, "cam"))
+    masks = list(default_registry().create("segmenter", "parallax", change_window=2, recurrence=1.0).raw(session, "cam"))
     assert [t for t, _, _ in masks] == list(range(len(images)))
     patch = moved.max(axis=-1) > 90
     first = masks[0][1]
     assert not (first & ~patch).any() and first.sum() >= 0.9 * patch.sum()  # the opening takes the corners
     assert all(np.array_equal(mask, first) for _, mask, _ in masks[1:3])
     assert not any(mask.any() for _, mask, _ in masks[3:])
+    # What the window keeps after the change is the wall, whose colour recurs in the other frames: at the default
+    # `recurrence` it goes, while the change itself (one frame in eight) stays.
+    recurring = [mask for _, mask, _ in default_registry().create("segmenter", "parallax", change_window=2).raw(session, "cam")]
+    assert np.array_equal(recurring[0], first) and not any(mask.any() for mask in recurring[1:])
 
 
 def test_a_still_limb_where_no_camera_sees_the_floor_is_kept_where_it_differs_from_the_plate(monkeypatch):
-    # An arm held still longer than the change window, seen against a wall: the sequence's median shows the
+    # An arm held still for longer than the change window, seen against a wall: the sequence's median shows the
     # arm (no change), so only the plate, which shows the wall, tells it from the background — and only where
-    # the floor cannot judge; elsewhere the cameras' geometry decides.
+    # the floor cannot judge; elsewhere the cameras' geometry decides. Held for a quarter of the sequence, its
+    # colour recurs too rarely to be taken for the wall; held throughout, it would be.
     wall = np.full((40, 40, 3), 90, np.uint8)
     image = wall.copy()
     image[10:30, 15:25] = 200
@@ -177,10 +183,32 @@ def test_a_still_limb_where_no_camera_sees_the_floor_is_kept_where_it_differs_fr
     block[10:30, 15:25] = True
     hull[5:35, 5:35] = True
     unjudged[5:20, 5:35] = True
-    session = scripted(monkeypatch, [image] * 3, np.zeros((40, 40), bool), (image, hull, unjudged), plate=wall)
+    session = scripted(monkeypatch, [image] * 3 + [wall] * 9, np.zeros((40, 40), bool), (image, hull, unjudged), plate=wall)
     for refine, kept in (("plate", block & unjudged), ("none", np.zeros_like(block))):
-        masks = list(default_registry().create("segmenter", "parallax", refine=refine, close_radius=0).raw(session, "cam"))
-        assert len(masks) == 3 and all(np.array_equal(mask, kept) for _, mask, _ in masks)
+        masks = list(default_registry().create("segmenter", "parallax", refine=refine, change_window=0, close_radius=0).raw(session, "cam"))
+        assert len(masks) == 12 and all(np.array_equal(mask, kept) for _, mask, _ in masks[:3])
+
+
+def test_the_wall_that_recurs_beside_the_body_leaves_the_mask_where_no_camera_sees_the_floor(monkeypatch):
+    # A plate estimated from a sequence whose first masks missed the subject keeps a ghost of it, and every pixel
+    # of the wall differs from the ghost: where the floor cannot judge, the plate test keeps that halo. The wall
+    # shows its colour whenever the body is elsewhere; the moving body's colour recurs at a pixel only while the
+    # body covers it (here 2 of 10 frames). Pixels whose colour recurs in `recurrence` of the sampled frames go.
+    wall = np.full((40, 40, 3), 90, np.uint8)
+    images = []
+    for t in range(10):
+        image = wall.copy()
+        image[16:24, 4 * t : 4 * t + 8] = 200
+        images.append(image)
+    hull = np.ones((40, 40), bool)
+    ghost = np.full_like(wall, 150)
+    session = scripted(monkeypatch, images, np.zeros((40, 40), bool), (wall, hull, hull), plate=ghost)
+    for recurrence in (0.3, 1.0):
+        masks = [mask for _, mask, _ in default_registry().create("segmenter", "parallax", refine="plate", recurrence=recurrence,
+                                                                   close_radius=0).raw(session, "cam")]
+        for image, mask in zip(images, masks, strict=True):
+            body = image.max(axis=-1) > 90
+            assert np.array_equal(mask, body if recurrence < 1 else hull)  # without the rule, the halo fills the hull
 
 
 def test_a_body_split_in_an_image_keeps_both_pieces_but_not_the_specks(monkeypatch):
@@ -199,7 +227,8 @@ def test_a_body_split_in_an_image_keeps_both_pieces_but_not_the_specks(monkeypat
 def test_the_wall_a_limb_has_just_left_is_dropped_where_it_matches_the_plate(monkeypatch):
     # Where no other camera sees the floor, a pixel that changed within the window is kept at the frames after,
     # when the limb has gone and the wall shows again (the halo about a moving arm): refined against a plate
-    # that shows that wall, it stays only where the frame still differs from it by window_threshold.
+    # that shows that wall, it stays only where the frame still differs from it by window_threshold (the
+    # recurrence rule off here: that wall's colour recurs, so at its default the rule takes it too).
     wall = np.full((40, 40, 3), 90, np.uint8)
     moved = wall.copy()
     moved[15:25, 15:25] = 200
@@ -207,8 +236,16 @@ def test_the_wall_a_limb_has_just_left_is_dropped_where_it_matches_the_plate(mon
     session = scripted(monkeypatch, [moved] + [wall + 5] * 3, np.zeros((40, 40), bool), (wall, hull, hull), plate=wall)  # then the wall, brighter
     block = moved.max(axis=-1) > 90
     for threshold, share in ((8.0, 0.0), (3.0, 0.9)):
-        masks = [mask for _, mask, _ in default_registry().create("segmenter", "parallax", refine="plate", change_window=2,
+        masks = [mask for _, mask, _ in default_registry().create("segmenter", "parallax", refine="plate", change_window=2, recurrence=1.0,
                                                                    window_threshold=threshold, close_radius=0).raw(session, "cam")]
         assert np.array_equal(masks[0], block) and not masks[3].any()  # the limb differs from the plate; frame 3 is past the window
         for mask in masks[1:3]:  # kept whole but for the corners the change's opening takes, or not at all
             assert not (mask & ~block).any() and (mask.sum() >= share * block.sum() if share else not mask.any())
+
+
+def test_recurrence_share_counts_the_samples_within_the_threshold_in_every_channel():
+    rng = np.random.default_rng(1)
+    samples = rng.integers(0, 256, (7, 20, 30, 3), dtype=np.uint8)
+    for threshold in (0.5, 9.5, 10.0, 30.0):
+        largest = np.abs(samples.astype(int) - samples[2].astype(int)).max(axis=-1)
+        assert np.allclose(recurrence_share(samples[2], samples, threshold), (largest < threshold).mean(axis=0))

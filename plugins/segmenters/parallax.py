@@ -35,6 +35,14 @@ elsewhere, so they disagree (plane plus parallax). Each step:
    where the plate shows the wall behind it). And a pixel kept there for its change within the window
    stays only where it still differs from the plate by ``window_threshold``: the wall the subject has
    just left matches the plate.
+6. **What recurs is the wall** (``recurrence``): a pixel of the hull whose floor point no other camera
+   sees leaves the mask where its colour at the frame recurs, within ``recurrence_threshold`` grey
+   levels, in at least ``recurrence`` of the frames sampled over the sequence, unless the cameras'
+   geometry holds it (step 3). The wall beside a body
+   shows its colour whenever the body is elsewhere; a body part over a pixel changes as it moves. This
+   needs no plate, so it also clears the halo that a plate with a ghost of the subject leaves about the
+   body (the plate differs from the wall there). The floor judges every other pixel: a subject on a mat
+   seen from above keeps its still trunk.
 
 Every piece of a mask is kept (``keep = "all"``) but the specks under ``min_piece`` of its largest: bounded in 3D
 as the masks are, a body the plate test cuts at the belt is still the subject in both pieces.
@@ -177,6 +185,16 @@ def sampled_frames(session: SessionReader, camera: str, samples: int) -> np.ndar
     return np.stack([session.frame(int(t), camera).rgb for t in picks])
 
 
+def recurrence_share(image: np.ndarray, samples: np.ndarray, threshold: float) -> np.ndarray:
+    """[H, W] float: the share of ``samples`` [S, H, W, 3] whose colour at each pixel lies within ``threshold``
+    grey levels (largest channel difference) of ``image``'s [H, W, 3]."""
+    within = (int(np.ceil(threshold)) - 1,) * 3  # a difference under the threshold, in whole grey levels
+    count = np.zeros(image.shape[:2], np.int32)
+    for sample in samples:  # one image-sized difference at a time (the samples may be full-size frames), in OpenCV's
+        count += cv2.inRange(cv2.absdiff(sample, image), (0, 0, 0), within) > 0  # single passes: 13× numpy's max over channels
+    return count / len(samples)
+
+
 def median_image(session: SessionReader, camera: str, samples: int) -> np.ndarray:
     """The per-pixel median [H, W, 3] uint8 of ``samples`` frames spread over ``camera``'s sequence."""
     return np.median(sampled_frames(session, camera, samples), axis=0).astype(np.uint8)
@@ -229,6 +247,10 @@ class ParallaxSegmenter(PostProcessedSegmenter):
     window_threshold: float = parameter(8.0, doc="plate: grey levels by which a pixel kept for its change within the window, where no other "
                                                 "camera sees its floor point, must still differ from the plate", validator=at_least(0))
     refine_radius: int = parameter(0, doc="plate: pixels a kept pixel may lie from one that differs from the plate", validator=at_least(0))
+    recurrence: float = parameter(0.3, doc="change: share of the sequence's sampled frames in which the colour of a pixel of the hull whose "
+                                           "floor point no other camera sees must recur for the pixel to leave the mask as the wall (1 keeps them)",
+                                  validator=between(0, 1))
+    recurrence_threshold: float = parameter(10.0, doc="change: grey levels within which a colour recurs", validator=finite_positive)
     close_radius: int = parameter(2, doc="morphological closing of the mask, pixels (0 skips)", validator=at_least(0))
     # Every large piece is the subject: the voxels bound the masks to the rig and the hull of change to what moved,
     # while a body splits in an image where dark clothes pass before a dark floor (the Pose2Sim demo's cam_01 and
@@ -243,8 +265,9 @@ class ParallaxSegmenter(PostProcessedSegmenter):
         plate = self._plate(session, camera) if self.refine == "plate" else None
         region = self.subject_region(session).get(camera) if self.region == "change" else None
         median, hull, unjudged = region if region is not None else (None, None, None)
+        samples = sampled_frames(session, camera, REGION_SAMPLES) if region is not None and self.recurrence < 1 else None
         for t, image, now, near in self._changes(session, camera, median):
-            mask = self._masks(session, t)[camera]
+            geometric = mask = self._masks(session, t)[camera]
             if region is not None:
                 mask, recent = hull & (mask | now), unjudged & near
             if plate is not None:
@@ -258,6 +281,8 @@ class ParallaxSegmenter(PostProcessedSegmenter):
                 mask = mask & dilate(differs, self.refine_radius)
             if region is not None:
                 mask |= recent
+                if samples is not None:  # what the cameras' geometry holds stays
+                    mask &= ~(unjudged & ~geometric & (recurrence_share(image, samples, self.recurrence_threshold) >= self.recurrence))
             yield t, fill_holes(open_close(mask, 0, self.close_radius)), None
 
     def _changes(self, session: SessionReader, camera: str, median: np.ndarray | None
