@@ -38,11 +38,11 @@ elsewhere, so they disagree (plane plus parallax). Each step:
 6. **What recurs is the wall** (``recurrence``): a pixel of the hull whose floor point no other camera
    sees leaves the mask where its colour at the frame recurs, within ``recurrence_threshold`` grey
    levels, in at least ``recurrence`` of the frames sampled over the sequence, unless the cameras'
-   geometry holds it (step 3). The wall beside a body
-   shows its colour whenever the body is elsewhere; a body part over a pixel changes as it moves. This
-   needs no plate, so it also clears the halo that a plate with a ghost of the subject leaves about the
-   body (the plate differs from the wall there). The floor judges every other pixel: a subject on a mat
-   seen from above keeps its still trunk.
+   geometry holds it (step 3). The wall beside a body shows its colour whenever the body is elsewhere;
+   a body part over a pixel changes as it moves. This needs no plate, so it also clears the halo that a
+   plate with a ghost of the subject leaves about the body (the plate differs from the wall there). The
+   floor judges every other pixel: a subject on a mat seen from above keeps its still trunk. A limb held
+   still against a wall for ``recurrence`` of the sequence leaves the mask where it rests.
 
 Every piece of a mask is kept (``keep = "all"``) but the specks under ``min_piece`` of its largest: bounded in 3D
 as the masks are, a body the plate test cuts at the belt is still the subject in both pieces.
