@@ -2,7 +2,8 @@
 capture sessions alike: ingested, then masks (the capture's own when it brings them for every training
 camera; else, with 2D keypoints, the ``keypoints`` segmenter's skeleton; else the difference to the
 capture's recorded plates, or with neither the ``parallax`` segmenter), plates estimated with those masks
-holding the subject out (unless recorded), and the masks refined against the plates (docs/real-data.md).
+holding the subject out (unless recorded), and the masks refined against the plates (docs/real-data.md); the
+``parallax`` segmenter's masks twice, the plates estimated again with its refined masks held out.
 A segmenter the user names (``run --segmenter``) makes the masks of every camera instead, as they stay:
 the plates are estimated around them.
 """
@@ -88,17 +89,21 @@ def prepare_capture_session(capture: Path, partial: Path, *, calibration: Path |
     ingest(capture, partial, calibration=calibration, units=units, frames=frames, scale=scale, cameras=cameras, holdout=list(holdout),
            overwrite=True, progress=progress, reader_options=reader_options)
     recorded = any(SessionReader(partial).plate(name) is not None for name in SessionReader(partial).camera_names)
-    # The first masks hold the subject out of estimated plates; the refined ones (None: the first are final) are made against the plates.
-    name, first, refined = (segmenter.name, None, None) if segmenter else \
-        ("keypoints", {"source": source}, {"source": source, "refine": "plate"}) if source else \
-        ("background", {"method": "median"}, {"method": "plate"}) if recorded else ("parallax", {}, {"refine": "plate"})
+    # The first masks hold the subject out of estimated plates; the refined ones (None: the first are final) are made against the
+    # plates. Motion masks miss a still body in many of the plates' samples, so their plates keep its ghost: the refined masks,
+    # which hold more of it, hold it out of the plates once more, and the masks are refined against those (a second round).
+    name, first, refined, rounds = (segmenter.name, None, None, 0) if segmenter else \
+        ("keypoints", {"source": source}, {"source": source, "refine": "plate"}, 1) if source else \
+        ("background", {"method": "median"}, {"method": "plate"}, 1) if recorded else ("parallax", {}, {"refine": "plate"}, 2)
     choice = mask_choice(SessionReader(partial), name, chosen=segmenter is not None)
     made = choice["masks"] != "capture"
     if made and (not recorded or refined is None):
         segment_session(partial, segmenter or name, first, progress=progress)
     if not recorded:
         estimate_plates(str(partial), None, progress=progress)
-    if made and refined is not None:
+    for round_ in range(rounds if made else 0):
+        if round_:  # only the parallax masks, made where no plates were recorded
+            estimate_plates(str(partial), None, replace=True, progress=progress)
         segment_session(partial, name, refined, progress=progress)
     return choice
 
