@@ -92,19 +92,20 @@ def prepare_capture_session(capture: Path, partial: Path, *, calibration: Path |
     # The first masks hold the subject out of estimated plates; the refined ones (None: the first are final) are made against the
     # plates. Motion masks miss a still body in many of the plates' samples, so their plates keep its ghost: the refined masks,
     # which hold more of it, hold it out of the plates once more, and the masks are refined against those (a second round).
-    name, first, refined, rounds = (segmenter.name, None, None, 0) if segmenter else \
-        ("keypoints", {"source": source}, {"source": source, "refine": "plate"}, 1) if source else \
-        ("background", {"method": "median"}, {"method": "plate"}, 1) if recorded else ("parallax", {}, {"refine": "plate"}, 2)
+    name, first, refined, again = (segmenter.name, None, None, False) if segmenter else \
+        ("keypoints", {"source": source}, {"source": source, "refine": "plate"}, False) if source else \
+        ("background", {"method": "median"}, {"method": "plate"}, False) if recorded else ("parallax", {}, {"refine": "plate"}, True)
     choice = mask_choice(SessionReader(partial), name, chosen=segmenter is not None)
     made = choice["masks"] != "capture"
     if made and (not recorded or refined is None):
         segment_session(partial, segmenter or name, first, progress=progress)
     if not recorded:
         estimate_plates(str(partial), None, progress=progress)
-    for round_ in range(rounds if made else 0):
-        if round_:  # only the parallax masks, made where no plates were recorded
-            estimate_plates(str(partial), None, replace=True, progress=progress)
+    if made and refined is not None:
         segment_session(partial, name, refined, progress=progress)
+        if again:
+            estimate_plates(str(partial), None, replace=True, progress=progress)
+            segment_session(partial, name, refined, progress=progress)
     return choice
 
 
