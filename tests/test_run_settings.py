@@ -35,6 +35,7 @@ from mmcsplat.storage.session import SessionReader
     (CaptureSettings(cameras=("a", "b"), holdout=("b",)), r"--cameras a,b with --holdout b leaves 1 camera\(s\) to train on \(a\)"),
     (CaptureSettings(segmenter_options=("model=person.onnx",)), "--segmenter-set model=person.onnx without --segmenter"),
     (CaptureSettings(segmenter="background", segmenter_options=("method=guess",)), "method must be one of"),
+    (CaptureSettings(keypoint_options=("camera_map=order",)), "--keypoints-set camera_map=order: .* has no 2D keypoints .*give --keypoints"),
 ])
 def test_bad_tracking_values_fail_before_the_first_step(tmp_path, settings, message):
     capture, out = tmp_path / "capture", tmp_path / "out"
@@ -47,6 +48,8 @@ def test_bad_tracking_values_fail_before_the_first_step(tmp_path, settings, mess
 @pytest.mark.parametrize("source", [
     {"name": "openpose", "folder": 'C:\\rig "2"\\pose_2d'},
     {"name": "sleap", "files": ["/data/a b.slp", "/data/c.analysis.h5"]},
+    {"name": "openpose", "folder": "/rig/pose_2d", "camera_map": {"cam_01": "north", "cam 2": 'we"st'}},
+    {"name": "deeplabcut", "folder": "/rig/pose-2d", "camera_map": "order"},
 ])
 def test_keypoint_guidance_reaches_the_tracking_with_the_capture_keypoints(tmp_path, source):
     overrides = guidance_overrides(0.5, source, tmp_path)

@@ -34,6 +34,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_names(parser, "--holdout", "cameras kept for evaluation (default: the capture format's, else none)")
     parser.add_argument("--keypoints", help="2D keypoints: a folder of OpenPose JSON folders per camera, or of SLEAP (.slp, .analysis.h5) or "
                         "DeepLabCut (.csv, .h5) files per camera, or one such file (default: CAPTURE/pose_2d when it exists)")
+    add_settings(parser, "a parameter of the keypoints' source (`mmcsplat plugins --show landmarks:openpose`, sleap, deeplabcut), e.g. "
+                 "camera_map={cam_01=\"left\"} where the keypoints' names differ from the calibration's; the reader's camera_map "
+                 "(--reader-set) maps the keypoints too unless this gives theirs", dest="keypoint_options", flag="--keypoints-set")
     parser.add_argument("--joints", help="TRC file of joints to carry as landmarks (default: the capture's single *.trc, else a "
                         "synthetic capture's true joints from its ground_truth.zarr)")
     parser.add_argument("--segmenter", metavar="NAME", help="make every camera's masks with this segmenter plugin, e.g. onnx-semantic with "
@@ -80,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
     frames = (args.frames.start, args.frames.stop, args.frames.step) if args.frames else (None, None, None)
     settings = CaptureSettings(calibration=args.calibration, units=args.units, scale=args.scale, frames=frames, cameras=args.cameras or (),
                                holdout=args.holdout or (),
-                               keypoints=args.keypoints, joints=args.joints, config=args.config, overrides=args.overrides,
+                               keypoints=args.keypoints, keypoint_options=args.keypoint_options, joints=args.joints, config=args.config, overrides=args.overrides,
                                reader_options=args.reader_options,
                                track_iterations=args.track_iterations, track_means_lr=args.track_means_lr,
                                track_lambda_parts=args.track_parts, track_flow_gain=args.track_flow_gain,

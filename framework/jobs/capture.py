@@ -5,7 +5,8 @@ flow → flow-guided track → landmarks → evaluate → renders → report.
 - Masks: the capture's own when it brings them for every training camera (Dynamic3DGaussians ``seg/``,
   a ``masks/`` folder per camera, RGBA alpha: whatever its reader ingests); else, with 2D keypoints
   (``--keypoints PATH``, default ``CAPTURE/pose_2d`` when it exists: a folder of OpenPose camera folders,
-  of SLEAP or of DeepLabCut files, or one such file; see :func:`keypoint_source`) the skeleton-then-plate
+  of SLEAP or of DeepLabCut files, or one such file; see :func:`keypoint_source`; their source's parameters
+  ``--keypoints-set``, its ``camera_map`` the reader's unless given: :func:`keypoints_with`) the skeleton-then-plate
   path of the ``keypoints`` segmenter; without, against the capture's recorded plates (``background``, method
   ``plate``) or, with nothing but videos and a calibration, the ``parallax`` segmenter (what the cameras
   agree stands off the floor: a still trunk too), refined against plates estimated with its masks held
@@ -79,6 +80,8 @@ class CaptureSettings:
     cameras: tuple[str, ...] = attrs.field(default=(), converter=tuple)
     holdout: tuple[str, ...] = attrs.field(default=(), converter=tuple)
     keypoints: str | None = None
+    #: Parameters of the keypoints' source (``--keypoints-set``), e.g. its ``camera_map``.
+    keypoint_options: tuple[str, ...] = attrs.field(default=(), converter=tuple, metadata={BEFORE_FIELD: ()})
     joints: str | None = None
     config: str = DEFAULT_CONFIG
     overrides: tuple[str, ...] = attrs.field(default=(), converter=tuple)
@@ -96,10 +99,29 @@ class CaptureSettings:
     segmenter_options: tuple[str, ...] = attrs.field(default=(), converter=tuple, metadata={BEFORE_FIELD: ()})
 
 
+def toml_literal(value: Any) -> str:
+    """``value`` (a string, number, boolean, list or table of them) as a TOML literal: strings as JSON writes
+    them (a JSON string is a TOML basic string), tables inline."""
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{json.dumps(str(key))} = {toml_literal(item)}" for key, item in value.items()) + "}"
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(toml_literal(item) for item in value) + "]"
+    return json.dumps(value)
+
+
 def quoted_override(key: str, value: Any) -> str:
-    """``KEY=VALUE`` for ``--set``, the value written as a TOML literal (a JSON string or list is one), so that
-    a path with quotes, backslashes or spaces arrives as it is."""
-    return f"{key}={json.dumps(value)}"
+    """``KEY=VALUE`` for ``--set``, the value written as a TOML literal (:func:`toml_literal`), so that a path with
+    quotes, backslashes or spaces, or a keypoint source's ``camera_map`` table, arrives as it is."""
+    return f"{key}={toml_literal(value)}"
+
+
+def keypoints_with(source: dict[str, Any], options: dict[str, Any], reader_options: dict[str, Any]) -> dict[str, Any]:
+    """The keypoint source ``source`` (:func:`~mmcsplat.pipeline.capture_session.keypoint_source`) with the
+    parameters ``options`` (``--keypoints-set``). The reader's ``camera_map`` (``--reader-set``) maps the keypoints
+    too unless ``options`` gives their own: a rig's keypoint folders and files are named after its videos (Pose2Sim's
+    ``pose_2d/cam01`` beside ``videos/cam01.mp4``, anipose's ``pose-2d/trial-cam1.csv`` beside ``trial-cam1.mp4``)."""
+    shared = {"camera_map": reader_options["camera_map"]} if "camera_map" in reader_options else {}
+    return {**source, **shared, **options}
 
 
 def guidance_overrides(weight: float, source: dict[str, Any] | None, capture: Path) -> list[str]:
@@ -126,6 +148,7 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
                 log: Callable[[str], None] = print) -> CaptureResult:
     """Run every step into ``out`` (module docstring); ``log`` gets one line per step."""
     from mmcsplat.configuration.config import PluginChoice, apply_overrides, load_config
+    from mmcsplat.configuration.registry import default_registry
     from mmcsplat.outputs.landmark_video import render_landmarks
     from mmcsplat.outputs.renders import RunRenderer, render_trajectories
     from mmcsplat.outputs.report import write_report
@@ -142,10 +165,22 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     capture, out = Path(capture).resolve(), Path(out).resolve()
     if not capture.is_dir():
         raise InputError(f"capture {capture} is not a folder")
+    # A bad reader or keypoint option fails before anything runs.
+    reader_options = apply_overrides({}, settings.reader_options, "--reader-set")
     keypoints = found(capture, settings.keypoints, "pose_2d", "keypoints")
-    source = keypoint_source(keypoints) if keypoints else None
+    if settings.keypoint_options and not keypoints:
+        raise InputError(f"--keypoints-set {' '.join(settings.keypoint_options)}: {capture} has no 2D keypoints (no pose_2d/ folder) for "
+                         "it to set: give --keypoints PATH")
+    source = keypoints_with(keypoint_source(keypoints), apply_overrides({}, settings.keypoint_options, "--keypoints-set"),
+                            reader_options) if keypoints else None
     if source:
-        log(f"run: keypoints: {source['name']} from {keypoints}")
+        try:
+            default_registry().create("landmarks", source["name"], **{key: value for key, value in source.items() if key != "name"})
+        except InputError as error:
+            raise InputError(f"--keypoints-set: {error}") from error
+        extra = {key: value for key, value in source.items() if key not in ("name", "folder", "files")}
+        log(f"run: keypoints: {source['name']} from {keypoints}" + (f" ({', '.join(f'{key}={value}' for key, value in extra.items())})"
+                                                                  if extra else ""))
     joints = joints_source(capture, settings.joints)
     tracking = [f"dynamics.means_lr={settings.track_means_lr}", f"dynamics.flow_gain={settings.track_flow_gain}"]
     if joints is not None and settings.track_lambda_parts > 0:
@@ -165,8 +200,7 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     if settings.cameras and len(training) < 2:
         raise InputError(f"--cameras {','.join(settings.cameras)} with --holdout {','.join(settings.holdout) or '(none)'} leaves "
                          f"{len(training)} camera(s) to train on ({','.join(training) or 'none'}): a fit needs two at least")
-    # A bad reader option, segmenter, configuration or tracking value fails before anything runs.
-    reader_options = apply_overrides({}, settings.reader_options, "--reader-set")
+    # A bad segmenter, configuration or tracking value fails before anything runs.
     if settings.segmenter_options and not settings.segmenter:
         raise InputError(f"--segmenter-set {' '.join(settings.segmenter_options)} without --segmenter: name the segmenter it sets")
     segmenter = BuiltSegmenter.of(PluginChoice("segmenter", settings.segmenter, apply_overrides({}, settings.segmenter_options, "--segmenter-set"))) \

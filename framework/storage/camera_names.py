@@ -39,15 +39,20 @@ def _within(outer: tuple, inner: tuple) -> bool:
 
 #: The ``camera_map`` value that pairs the calibration's cameras, in its order, with the files in name order.
 BY_ORDER = "order"
+#: Where a reader's ``camera_map`` is set (videos, image and mask folders), for the errors' hints.
+READER_CAMERA_MAP = "the reader's camera_map: mmcsplat ingest --set, mmcsplat run --reader-set"
+#: Where a keypoint source's ``camera_map`` is set, for the errors' hints.
+KEYPOINTS_CAMERA_MAP = "the keypoint source's camera_map: mmcsplat run --keypoints-set, mmcsplat landmarks --set or --keypoints-set"
 
 
 def match_cameras(cameras: Sequence[Camera], paths: Iterable[Path], what: str, where: Path,
-                  camera_map: Mapping[str, str] | str | None = None) -> dict[str, Path]:
+                  camera_map: Mapping[str, str] | str | None = None, set_by: str = READER_CAMERA_MAP) -> dict[str, Path]:
     """Camera name → its file: by ``camera_map`` (calibration name → file stem) where given, else by the
     module's name rule — the same stem, else the same name key, else a file whose key runs inside the
     camera's (Pose2Sim names ``cam01.mp4``'s camera ``int_cam01_img``); an error naming any camera without
     one. Files that match no camera are ignored with a warning. ``camera_map`` :data:`BY_ORDER` pairs the
     cameras, in the calibration's order, with the files in natural name order, when their counts agree.
+    ``set_by`` says in the errors where ``camera_map`` is set for these files.
     """
     paths = list(paths)
     if isinstance(camera_map, str):
@@ -90,7 +95,7 @@ def match_cameras(cameras: Sequence[Camera], paths: Iterable[Path], what: str, w
         if not candidates:
             available = ", ".join(sorted(by_stem, key=natural_key)) or "none"
             raise MissingFileError(f"{where}: no {what} for calibrated camera {camera.name!r} (found: {available}); map names with "
-                                   f"--set 'camera_map={{{camera.name}=\"FILE_STEM\"}}'")
+                                   f"camera_map={{{camera.name}=\"FILE_STEM\"}} ({set_by})")
         matched[camera.name] = candidates[0]
     owners: dict[Path, list[str]] = {}
     for name, path in matched.items():
@@ -98,7 +103,7 @@ def match_cameras(cameras: Sequence[Camera], paths: Iterable[Path], what: str, w
     shared = {path: names for path, names in owners.items() if len(names) > 1}
     if shared:
         path, names = next(iter(shared.items()))
-        raise InputError(f"{where}: cameras {', '.join(map(repr, names))} both match {path.name}; say which is which with --set camera_map")
+        raise InputError(f"{where}: cameras {', '.join(map(repr, names))} both match {path.name}; say which is which with camera_map ({set_by})")
     unused = sorted(set(by_stem.values()) - set(matched.values()))
     if unused:
         warnings.warn(f"{where}: ignoring {what}s of no calibrated camera: {', '.join(p.name for p in unused)}", stacklevel=3)

@@ -17,7 +17,7 @@ import numpy as np
 from mmcsplat.plugin_api.errors import InputError, MissingFileError
 from mmcsplat.plugin_api.interfaces import KeypointObservations
 from mmcsplat.plugin_api.parameters import between, parameter
-from mmcsplat.storage.camera_names import match_cameras
+from mmcsplat.storage.camera_names import KEYPOINTS_CAMERA_MAP, match_cameras
 from mmcsplat.storage.session import SessionReader
 
 from .triangulation import TriangulatedKeypoints, to_session_pixels
@@ -34,7 +34,8 @@ class TableKeypoints(TriangulatedKeypoints):
     folder: str | None = parameter(None, doc="the folder of one keypoint file per camera")
     files: tuple[str, ...] | None = parameter(None, doc="the keypoint files themselves, one per camera (instead of folder)")
     min_confidence: float = parameter(0.6, doc="detections of lower confidence are not used", validator=between(0, 1))
-    camera_map: dict | None = parameter(None, doc="session camera name → its file's name (without the suffix), where the names differ")
+    camera_map: dict | str | None = parameter(None, doc="session camera name → its file's name (without the suffix), where the names "
+                                               "differ; or \"order\": the cameras, in the calibration's order, to the files in name order")
 
     #: The file suffixes read, in order of preference: a folder's files of the first suffix it has are used.
     SUFFIXES: ClassVar[tuple[str, ...]] = ()
@@ -89,7 +90,8 @@ class TableKeypoints(TriangulatedKeypoints):
         cameras = [session.camera(name) for name in session.camera_names]
         # Matched by name: a stand-in path named after each file's label.
         folder, files = self.keypoint_files()
-        matched = {name: files[path] for name, path in match_cameras(cameras, list(files), "keypoint file", folder, self.camera_map).items()}
+        matched = {name: files[path] for name, path in match_cameras(cameras, list(files), "keypoint file", folder, self.camera_map,
+                                                                   KEYPOINTS_CAMERA_MAP).items()}
         recorded = session.recorded_cameras()
         capture = session.capture_frames(frames)
         result, names = [], None

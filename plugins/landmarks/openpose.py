@@ -26,7 +26,7 @@ import numpy as np
 from mmcsplat.plugin_api.errors import InputError, MissingFileError
 from mmcsplat.plugin_api.interfaces import KeypointObservations
 from mmcsplat.plugin_api.parameters import between, one_of, parameter
-from mmcsplat.storage.camera_names import match_cameras, natural_key
+from mmcsplat.storage.camera_names import KEYPOINTS_CAMERA_MAP, match_cameras, natural_key
 from mmcsplat.storage.session import SessionReader
 
 from .triangulation import TriangulatedKeypoints, to_session_pixels
@@ -68,7 +68,8 @@ class OpenPoseKeypoints(TriangulatedKeypoints):
     folder: str = parameter(doc="the folder of per-camera keypoint folders (Pose2Sim: pose_2d)", kw_only=True)
     model: str = parameter("BODY_25B", doc="the keypoint model, which names the keypoints", validator=one_of(*MODELS))
     min_confidence: float = parameter(0.3, doc="detections below this confidence are not used", validator=between(0, 1))
-    camera_map: dict | None = parameter(None, doc="session camera name → its keypoint folder's name, where the names differ")
+    camera_map: dict | str | None = parameter(None, doc="session camera name → its keypoint folder's name, where the names differ; or "
+                                               "\"order\": the cameras, in the calibration's order, to the folders in name order")
 
     @property
     def described(self) -> str:
@@ -83,7 +84,7 @@ class OpenPoseKeypoints(TriangulatedKeypoints):
         cameras = [session.camera(name) for name in session.camera_names]
         # OpenPose and older Pose2Sim name a camera's folder CAMERA_json: the suffix is not part of the name.
         by_label = {folder / re.sub(r"_json$", "", path.name): path for path in folder.iterdir() if path.is_dir()}
-        matched = match_cameras(cameras, list(by_label), "keypoint folder", folder, self.camera_map)
+        matched = match_cameras(cameras, list(by_label), "keypoint folder", folder, self.camera_map, KEYPOINTS_CAMERA_MAP)
         folders = {name: by_label[label] for name, label in matched.items()}
         recorded = session.recorded_cameras()
         capture = session.capture_frames(frames)

@@ -1,0 +1,81 @@
+"""``mmcsplat run`` on a capture whose files are not named after the calibration's cameras: one
+``camera_map`` (``--reader-set``) maps the videos and the 2D keypoints named like them, ``--keypoints-set``
+gives the keypoints their own, and each error says where the map is set."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mmcsplat.configuration.registry import default_registry
+from mmcsplat.jobs.capture import CaptureSettings, keypoints_with, run_capture
+from mmcsplat.plugin_api.errors import InputError, MissingFileError
+from mmcsplat.storage.session import SessionReader
+
+DEMO = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "pose2sim_demo"
+#: The demo's cameras under names that neither match theirs nor pair with them in name order.
+RENAMED = {"cam_01": "west", "cam_02": "north", "cam_03": "east", "cam_04": "south"}
+needs_demo = pytest.mark.skipif(not DEMO.is_dir(), reason="needs ../shared/data/pose2sim_demo")
+
+
+def renamed_capture(root: Path) -> Path:
+    """The demo's videos, keypoint folders and calibration, the videos and folders named by :data:`RENAMED`."""
+    capture = root / "rig"
+    (capture / "videos").mkdir(parents=True)
+    (capture / "pose_2d").mkdir()
+    (capture / "Calib_qualisys.toml").symlink_to(DEMO / "Calib_qualisys.toml")
+    for camera, name in RENAMED.items():
+        number = camera[-2:]
+        (capture / "videos" / f"{name}.mp4").symlink_to(DEMO / "videos" / f"cam{number}.mp4")
+        (capture / "pose_2d" / name).symlink_to(DEMO / "pose_2d" / f"cam{number}", target_is_directory=True)
+    return capture
+
+
+def test_the_readers_camera_map_maps_the_keypoints_unless_they_are_given_their_own():
+    source = {"name": "openpose", "folder": "/rig/pose_2d"}
+    assert keypoints_with(source, {}, {"camera_map": RENAMED, "size_mismatch": "crop"}) == {**source, "camera_map": RENAMED}
+    assert keypoints_with(source, {"camera_map": "order"}, {"camera_map": RENAMED}) == {**source, "camera_map": "order"}
+    assert keypoints_with(source, {"min_confidence": 0.5}, {}) == {**source, "min_confidence": 0.5}
+
+
+class Stop(Exception):
+    """Ends the run at its fit."""
+
+
+@needs_demo
+def test_one_camera_map_makes_keypoint_masks_from_files_named_otherwise(tmp_path, monkeypatch):
+    capture, out = renamed_capture(tmp_path), tmp_path / "out"
+    monkeypatch.setattr("mmcsplat.pipeline.fit.FirstFrameFit", lambda *args, **kwargs: (_ for _ in ()).throw(Stop()))
+    camera_map = "camera_map={" + ", ".join(f'{camera}="{name}"' for camera, name in RENAMED.items()) + "}"
+    said: list[str] = []
+    settings = CaptureSettings(frames=(0, 3, None), scale=0.125, reader_options=(camera_map,))
+    with pytest.raises(Stop):
+        run_capture(capture, out, settings, progress=False, log=said.append)
+    assert json.loads((out / "masks.json").read_text())["masks"] == "keypoints"
+    assert any("run: keypoints: openpose from" in line and "camera_map=" in line for line in said)
+    # Each camera's keypoints are its own: the same detections as the demo's folders named after the cameras.
+    session = SessionReader(out / "session.zarr")
+    unmapped = default_registry().create("landmarks", "openpose", folder=str(capture / "pose_2d"))
+    with pytest.raises(MissingFileError, match=r"no keypoint folder for calibrated camera 'cam_01' .*\(the keypoint source's camera_map: "
+                                         r"mmcsplat run --keypoints-set"):
+        unmapped.observations(session, [0])
+    mapped = default_registry().create("landmarks", "openpose", folder=str(capture / "pose_2d"), camera_map=RENAMED)
+    named = default_registry().create("landmarks", "openpose", folder=str(DEMO / "pose_2d"))
+    for seen, expected in zip(mapped.observations(session, [0, 1, 2]), named.observations(session, [0, 1, 2]), strict=True):
+        assert seen.camera == expected.camera
+        np.testing.assert_array_equal(seen.pixels, expected.pixels)
+
+
+@needs_demo
+def test_files_named_otherwise_say_where_their_camera_map_is_set(tmp_path):
+    capture = renamed_capture(tmp_path)
+    with pytest.raises(MissingFileError, match=r"no video for calibrated camera 'cam_01' .*\(the reader's camera_map: mmcsplat ingest --set, "
+                                         r"mmcsplat run --reader-set\)"):
+        run_capture(capture, tmp_path / "out", CaptureSettings(frames=(0, 3, None), scale=0.125), progress=False, log=lambda line: None)
+    settings = CaptureSettings(frames=(0, 3, None), scale=0.125, reader_options=("camera_map=order",), keypoint_options=("nosuch=1",))
+    with pytest.raises(InputError, match="--keypoints-set: landmarks 'openpose': unknown parameter"):
+        run_capture(capture, tmp_path / "out", settings, progress=False, log=lambda line: None)
+    assert not (tmp_path / "out").exists()
