@@ -79,3 +79,22 @@ def test_files_named_otherwise_say_where_their_camera_map_is_set(tmp_path):
     with pytest.raises(InputError, match="--keypoints-set: landmarks 'openpose': unknown parameter"):
         run_capture(capture, tmp_path / "out", settings, progress=False, log=lambda line: None)
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize(("folders", "expected"), [
+    (("pose_2d", "pose-2d"), "pose_2d"),  # Pose2Sim's
+    (("pose-2d", "pose-2d-filtered"), "pose-2d-filtered"),  # anipose's filtered poses, what it triangulates when it filters
+    (("pose-2d",), "pose-2d"),
+    ((), None),
+])
+def test_run_finds_an_anipose_sessions_keypoints_beside_its_videos(tmp_path, folders, expected):
+    capture = tmp_path / "session"
+    capture.mkdir()
+    for name in folders:
+        (capture / name).mkdir()
+        (capture / name / "trial-cam1.csv").write_text("scorer\n")
+    said: list[str] = []
+    with pytest.raises(InputError):  # no videos or calibration: refused at the ingest, after the keypoints were found
+        run_capture(capture, tmp_path / "out", CaptureSettings(), progress=False, log=said.append)
+    found = [line for line in said if line.startswith("run: keypoints:")]
+    assert found == ([f"run: keypoints: deeplabcut from {capture / expected}"] if expected else [])

@@ -39,6 +39,16 @@ def found(capture: Path, given: str | None, pattern: str, what: str) -> Path | N
     return matches[0].resolve() if matches else None
 
 
+#: Where a capture keeps its 2D keypoints, looked for in this order: Pose2Sim's folder, then anipose's filtered
+#: 2D poses (what it triangulates when its filter is on), then its raw ones.
+KEYPOINT_FOLDERS = ("pose_2d", "pose-2d-filtered", "pose-2d")
+
+
+def keypoint_folder(capture: Path, given: str | None) -> Path | None:
+    """``given``, else the first of :data:`KEYPOINT_FOLDERS` that ``capture`` holds (None when it holds none)."""
+    return next((path for name in KEYPOINT_FOLDERS if (path := found(capture, given, name, "keypoints")) is not None), None)
+
+
 def joints_source(capture: Path, given: str | None) -> dict[str, str] | None:
     """The landmarks plugin (``name``) and file (``path``) of the joints ``run`` carries and scores: a TRC
     (``given``, else the capture's single ``*.trc``), else the true joints of a synthetic capture (its
