@@ -82,12 +82,15 @@ def test_files_named_otherwise_say_where_their_camera_map_is_set(tmp_path):
 
 
 @pytest.mark.parametrize(("folders", "expected"), [
-    (("pose_2d", "pose-2d"), "pose_2d"),  # Pose2Sim's
+    (("pose_2d", "pose-2d"), "pose_2d"),  # the Pose2Sim demo's
+    (("pose", "pose-sync", "pose-associated"), "pose-associated"),  # today's Pose2Sim: what its triangulation reads
+    (("pose", "pose-sync"), "pose-sync"),
+    (("pose",), "pose"),
     (("pose-2d", "pose-2d-filtered"), "pose-2d-filtered"),  # anipose's filtered poses, what it triangulates when it filters
     (("pose-2d",), "pose-2d"),
     ((), None),
 ])
-def test_run_finds_an_anipose_sessions_keypoints_beside_its_videos(tmp_path, folders, expected):
+def test_run_finds_the_keypoints_pose2sim_and_anipose_write_beside_the_videos(tmp_path, folders, expected):
     capture = tmp_path / "session"
     capture.mkdir()
     for name in folders:

@@ -4,8 +4,8 @@ flow → flow-guided track → landmarks → evaluate → renders → report.
 
 - Masks: the capture's own when it brings them for every training camera (Dynamic3DGaussians ``seg/``,
   a ``masks/`` folder per camera, RGBA alpha: whatever its reader ingests); else, with 2D keypoints
-  (``--keypoints PATH``, default the capture's ``pose_2d/``, else anipose's ``pose-2d-filtered/`` or ``pose-2d/``
-  (:func:`keypoint_folder`): a folder of OpenPose camera folders,
+  (``--keypoints PATH``, default the capture's ``pose_2d/``, else Pose2Sim's ``pose-associated/``, ``pose-sync/``
+  or ``pose/``, else anipose's ``pose-2d-filtered/`` or ``pose-2d/`` (:func:`keypoint_folder`): a folder of OpenPose camera folders,
   of SLEAP or of DeepLabCut files, or one such file; see :func:`keypoint_source`; their source's parameters
   ``--keypoints-set``, its ``camera_map`` the reader's unless given: :func:`keypoints_with`) the skeleton-then-plate
   path of the ``keypoints`` segmenter; without, against the capture's recorded plates (``background``, method
@@ -129,8 +129,8 @@ def guidance_overrides(weight: float, source: dict[str, Any] | None, capture: Pa
     """The tracking overrides that turn keypoint guidance on at ``weight`` from the keypoints ``source`` reads
     (:func:`~mmcsplat.pipeline.capture_session.keypoint_source`); an error when the capture has none."""
     if source is None:
-        raise InputError(f"--track-keypoints: {capture} has no 2D keypoints to guide the tracking with (no pose_2d/ or pose-2d/ folder): give "
-                         "--keypoints PATH, or leave --track-keypoints at 0")
+        raise InputError(f"--track-keypoints: {capture} has no 2D keypoints to guide the tracking with (no pose_2d/, pose/ or pose-2d/ "
+                         "folder): give --keypoints PATH, or leave --track-keypoints at 0")
     return [f"dynamics.lambda_keypoints={weight}", *(quoted_override(f"dynamics.keypoints.{key}", value) for key, value in source.items())]
 
 
@@ -170,8 +170,8 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     reader_options = apply_overrides({}, settings.reader_options, "--reader-set")
     keypoints = keypoint_folder(capture, settings.keypoints)
     if settings.keypoint_options and not keypoints:
-        raise InputError(f"--keypoints-set {' '.join(settings.keypoint_options)}: {capture} has no 2D keypoints (no pose_2d/ or pose-2d/ folder) for "
-                         "it to set: give --keypoints PATH")
+        raise InputError(f"--keypoints-set {' '.join(settings.keypoint_options)}: {capture} has no 2D keypoints (no pose_2d/, pose/ or "
+                         "pose-2d/ folder) for it to set: give --keypoints PATH")
     source = keypoints_with(keypoint_source(keypoints), apply_overrides({}, settings.keypoint_options, "--keypoints-set"),
                             reader_options) if keypoints else None
     if source:
@@ -257,7 +257,7 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
             frames = SessionReader(session).num_frames
             raise InputError(f"{error} (the masks come from the subject's motion against plates estimated from these {frames} frames: where "
                              "they are nearly empty it barely moved; give more frames, a plates/ folder of the empty scene, or 2D keypoints "
-                             "in pose_2d/, pose-2d/ or --keypoints)") from error
+                             "in pose_2d/, pose/, pose-2d/ or --keypoints)") from error
 
     def landmarks() -> None:
         track_landmarks(run, joints["name"], {"path": joints["path"]}, keypoints=source["name"] if source else None,

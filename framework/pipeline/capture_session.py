@@ -39,9 +39,10 @@ def found(capture: Path, given: str | None, pattern: str, what: str) -> Path | N
     return matches[0].resolve() if matches else None
 
 
-#: Where a capture keeps its 2D keypoints, looked for in this order: Pose2Sim's folder, then anipose's filtered
-#: 2D poses (what it triangulates when its filter is on), then its raw ones.
-KEYPOINT_FOLDERS = ("pose_2d", "pose-2d-filtered", "pose-2d")
+#: Where a capture keeps its 2D keypoints, looked for in this order: older Pose2Sim's ``pose_2d``; today's Pose2Sim
+#: poses associated across cameras, synchronised, then as detected (the order its triangulation takes them in);
+#: anipose's filtered 2D poses (what it triangulates when its filter is on), then its raw ones.
+KEYPOINT_FOLDERS = ("pose_2d", "pose-associated", "pose-sync", "pose", "pose-2d-filtered", "pose-2d")
 
 
 def keypoint_folder(capture: Path, given: str | None) -> Path | None:
