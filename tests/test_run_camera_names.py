@@ -12,6 +12,7 @@ import pytest
 
 from mmcsplat.configuration.registry import default_registry
 from mmcsplat.jobs.capture import CaptureSettings, keypoints_with, run_capture
+from mmcsplat.pipeline.capture_session import joints_file
 from mmcsplat.plugin_api.errors import InputError, MissingFileError
 from mmcsplat.storage.session import SessionReader
 
@@ -101,3 +102,15 @@ def test_run_finds_the_keypoints_pose2sim_and_anipose_write_beside_the_videos(tm
         run_capture(capture, tmp_path / "out", CaptureSettings(), progress=False, log=said.append)
     found = [line for line in said if line.startswith("run: keypoints:")]
     assert found == ([f"run: keypoints: deeplabcut from {capture / expected}"] if expected else [])
+
+
+def test_the_joints_are_the_captures_single_trc_else_the_one_pose2sim_wrote_in_pose_3d(tmp_path):
+    (tmp_path / "pose-3d").mkdir()
+    (tmp_path / "pose-3d" / "trial_0-100.trc").write_text("")
+    assert joints_file(tmp_path, None) == tmp_path / "pose-3d" / "trial_0-100.trc"
+    (tmp_path / "joints.trc").write_text("")
+    assert joints_file(tmp_path, None) == tmp_path / "joints.trc"
+    (tmp_path / "joints.trc").unlink()
+    (tmp_path / "pose-3d" / "trial_0-100_filt_butterworth.trc").write_text("")
+    with pytest.raises(InputError, match=r"several joints TRC file candidates \(trial_0-100.trc, trial_0-100_filt_butterworth.trc\)"):
+        joints_file(tmp_path, None)

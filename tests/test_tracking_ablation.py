@@ -96,6 +96,16 @@ def test_a_stored_session_read_in_place_gains_its_flow_and_nothing_else(tmp_path
     assert flow_module.flow_complete(tmp_path / "scene.zarr") and (SessionReader(tmp_path / "scene.zarr").frame(1, "cam_1").rgb == frame).all()
 
 
+def test_a_capture_session_finds_todays_pose2sim_keypoints_and_joints_as_run_does(tmp_path):
+    capture = tmp_path / "capture"
+    (capture / "pose" / "cam01_json").mkdir(parents=True)
+    (capture / "pose-3d").mkdir()
+    (capture / "pose-3d" / "trial_0-100.trc").write_text("")
+    study = load_study(write_study(tmp_path, iterative("flow", 'predict = "flow"'), 'capture = { path = "capture" }'))
+    settings = study.sessions[0].capture
+    assert settings["keypoints"] == str(capture / "pose") and settings["joints"] == str(capture / "pose-3d" / "trial_0-100.trc")
+
+
 def test_a_capture_session_fills_in_what_run_would_and_refuses_what_does_not_apply(tmp_path, monkeypatch):
     capture = tmp_path / "capture"
     (capture / "pose_2d").mkdir(parents=True)

@@ -5,7 +5,7 @@ For a rig's own folder (a Pose2Sim project, an anipose session, videos beside a 
 recorded plates; else from the subject's motion; or with the segmenter --segmenter names), estimates clean plates with the
 subject masked out and refines the masks against them (not --segmenter's), fits the first
 frame with the start region sized from the masks' visual hull, tracks the sequence, evaluates on the
-held-out cameras, carries the joints of a TRC file (the capture's single *.trc, or --joints; a synthetic
+held-out cameras, carries the joints of a TRC file (the capture's single *.trc, else Pose2Sim's pose-3d/*.trc, or --joints; a synthetic
 capture's true joints without one) and scores them against it and the keypoints, renders the tracking figure and the landmark overlay, and writes the
 report. Steps already done in OUT are reused, so a rerun resumes; docs/real-data.md walks through it.
 """
@@ -37,7 +37,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_settings(parser, "a parameter of the keypoints' source (`mmcsplat plugins --show landmarks:openpose`, sleap, deeplabcut), e.g. "
                  "camera_map={cam_01=\"left\"} where the keypoints' names differ from the calibration's; the reader's camera_map "
                  "(--reader-set) maps the keypoints too unless this gives theirs", dest="keypoint_options", flag="--keypoints-set")
-    parser.add_argument("--joints", help="TRC file of joints to carry as landmarks (default: the capture's single *.trc, else a "
+    parser.add_argument("--joints", help="TRC file of joints to carry as landmarks (default: the capture's single *.trc, else the single one in "
+                        "Pose2Sim's pose-3d/, else a "
                         "synthetic capture's true joints from its ground_truth.zarr)")
     parser.add_argument("--segmenter", metavar="NAME", help="make every camera's masks with this segmenter plugin, e.g. onnx-semantic with "
                         "a person-segmentation model (`mmcsplat plugins --show segmenter:NAME`), instead of from keypoints, plates or motion")

@@ -24,7 +24,7 @@ flow → flow-guided track → landmarks → evaluate → renders → report.
   training cameras' keypoints; it is off by default, since infants are where detectors fail. The fit's
   configuration carries these settings as its ``[dynamics]`` table, so RUN/run.json holds them and
   ``mmcsplat track DIR/run`` re-tracks as ``run`` did.
-- Landmarks: a TRC of joints (``--joints FILE``, default the single ``CAPTURE/*.trc``), else a synthetic
+- Landmarks: a TRC of joints (``--joints FILE``, default the single ``CAPTURE/*.trc``, else ``CAPTURE/pose-3d/*.trc``), else a synthetic
   capture's true joints (its ``ground_truth.zarr``), bound at the fitted frame, scored against their later
   frames and against the keypoints in every camera.
 

@@ -50,11 +50,17 @@ def keypoint_folder(capture: Path, given: str | None) -> Path | None:
     return next((path for name in KEYPOINT_FOLDERS if (path := found(capture, given, name, "keypoints")) is not None), None)
 
 
+def joints_file(capture: Path, given: str | None) -> Path | None:
+    """``given``, else the capture's single ``*.trc``, else the single one in today's Pose2Sim's ``pose-3d/``
+    (where its triangulation writes it); None when there is none."""
+    return found(capture, given, "*.trc", "joints TRC file") or found(capture, None, "pose-3d/*.trc", "joints TRC file")
+
+
 def joints_source(capture: Path, given: str | None) -> dict[str, str] | None:
     """The landmarks plugin (``name``) and file (``path``) of the joints ``run`` carries and scores: a TRC
-    (``given``, else the capture's single ``*.trc``), else the true joints of a synthetic capture (its
-    ``ground_truth.zarr``, written by ``mmcsplat synth``); None when the capture has neither."""
-    trc = found(capture, given, "*.trc", "joints TRC file")
+    (:func:`joints_file`), else the true joints of a synthetic capture (its ``ground_truth.zarr``, written by
+    ``mmcsplat synth``); None when the capture has neither."""
+    trc = joints_file(capture, given)
     if trc is not None:
         return {"name": "trc", "path": str(trc)}
     truth = capture / GROUND_TRUTH

@@ -324,9 +324,10 @@ def synthetic_settings(table: Mapping[str, Any], where: str) -> dict[str, Any]:
 
 def capture_settings(table: Mapping[str, Any], where: str, folder: Path | None) -> dict[str, Any]:
     """A capture table with its paths resolved (relative ones from the study file's folder) and every default
-    filled in as ``mmcsplat run`` fills it — the scale it ingests at, the capture's ``pose_2d`` folder of 2D
-    keypoints and its single ``*.trc`` of joints when it has them — so equal captures get equal identities."""
-    from mmcsplat.pipeline.capture_session import DEFAULT_SCALE, found
+    filled in as ``mmcsplat run`` fills it — the scale it ingests at, the capture's folder of 2D keypoints and its
+    TRC of joints when it has them (:func:`~mmcsplat.pipeline.capture_session.keypoint_folder`,
+    :func:`~mmcsplat.pipeline.capture_session.joints_file`) — so equal captures get equal identities."""
+    from mmcsplat.pipeline.capture_session import DEFAULT_SCALE, joints_file, keypoint_folder
     from mmcsplat.pipeline.image_scale import AUTO_SCALE
 
     _check_keys(table, CAPTURE_KEYS, where, "capture")
@@ -344,8 +345,8 @@ def capture_settings(table: Mapping[str, Any], where: str, folder: Path | None) 
     if scale != AUTO_SCALE and (not isinstance(scale, (int, float)) or isinstance(scale, bool) or not 0 < scale <= 1):
         raise StudyError(f"{where} capture scale must be a number in (0, 1] or {AUTO_SCALE!r}, got {scale!r}")
     try:
-        keypoints = found(capture, paths["keypoints"], "pose_2d", "keypoint folder")
-        joints = found(capture, paths["joints"], "*.trc", "joints TRC file")
+        keypoints = keypoint_folder(capture, paths["keypoints"])
+        joints = joints_file(capture, paths["joints"])
     except InputError as error:
         raise StudyError(f"{where} capture: {error}") from error
     return {"path": str(capture), "calibration": paths["calibration"], "units": str(table.get("units", "m")), "scale": scale if scale == AUTO_SCALE else float(scale),
