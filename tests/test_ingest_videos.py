@@ -112,6 +112,17 @@ def test_fuzzy_names_videos_folder_and_truncation(tmp_path: Path) -> None:
     assert session.provenance["reader"]["videos"]["cam_02"].endswith("Cam-2.mp4")
 
 
+def test_cameras_named_by_letter_match_files_as_anipose_names_them(tmp_path: Path) -> None:
+    source = tmp_path / "capture"
+    cameras = rig.ring_cameras(["A", "B"])
+    source.mkdir()
+    write_calibration(source / "calibration.toml", cameras)
+    rig.write_videos(source / "videos-raw", cameras, [3, 3], stems=["2019-08-02-vid01-camB", "2019-08-02-vid01-camA"])
+    session = _ingest(source, tmp_path / "out.zarr")
+    assert session.provenance["reader"]["videos"]["A"].endswith("vid01-camA.mp4")
+    assert session.provenance["reader"]["videos"]["B"].endswith("vid01-camB.mp4")
+
+
 def test_size_mismatch_scales_K_with_a_warning(tmp_path: Path) -> None:
     source = tmp_path / "capture"
     cameras = rig.ring_cameras(["a", "b"])

@@ -6,7 +6,9 @@ same *name key*: the lower-cased runs of letters and of digits, with digit runs 
 every other character ignored (so ``cam_01`` ↔ ``cam01.mp4`` ↔ ``Cam-1.avi``), or else when the file's key
 runs inside the camera's (Pose2Sim names ``cam01.mp4``'s camera ``int_cam01_img``). Two files with the
 same key are ambiguous and an error; an explicit map overrides the rule. Last, a camera's key running
-inside a file's (``cam1`` ↔ ``trial-cam1.csv``, as anipose and DeepLabCut name their files) matches.
+inside a file's (``cam1`` ↔ ``trial-cam1.csv``, as anipose and DeepLabCut name their files) matches, and a
+camera named by letters matches a file whose name ends in ``cam`` and them (``A`` ↔ ``vid01-camA.avi``: anipose's
+default ``cam_regex``, ``-cam([A-Z])$``).
 """
 
 from __future__ import annotations
@@ -89,6 +91,8 @@ def match_cameras(cameras: Sequence[Camera], paths: Iterable[Path], what: str, w
             candidates = [path for key, found in by_key.items() if _within(name_key(camera.name), key) for path in found]
         if not candidates:  # the camera's name inside the file's: anipose's and DeepLabCut's trial-cam1.mp4, …-cam1.csv
             candidates = [path for key, found in by_key.items() if _within(key, name_key(camera.name)) for path in found]
+        if not candidates and camera.name.isalpha():  # anipose's default cam_regex, -cam([A-Z])$: camera A's files end in camA
+            candidates = [path for key, found in by_key.items() if key and key[-1] == f"cam{camera.name.lower()}" for path in found]
         if len(candidates) > 1:
             names = ", ".join(sorted(path.name for path in candidates))
             raise InputError(f"{where}: camera {camera.name!r} matches several {what}s ({names}); rename them")
