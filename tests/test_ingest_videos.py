@@ -121,6 +121,11 @@ def test_cameras_named_by_letter_match_files_as_anipose_names_them(tmp_path: Pat
     session = _ingest(source, tmp_path / "out.zarr")
     assert session.provenance["reader"]["videos"]["A"].endswith("vid01-camA.mp4")
     assert session.provenance["reader"]["videos"]["B"].endswith("vid01-camB.mp4")
+    # a second trial beside the first (anipose keeps a session's trials in one folder): which one is asked for
+    rig.write_videos(source / "videos-raw", cameras[:1], [3], stems=["2019-08-02-vid02-camA"])
+    with pytest.raises(ValueError, match=r"camera 'A' matches several videos \(2019-08-02-vid01-camA.mp4, 2019-08-02-vid02-camA.mp4\); "
+                                         r"choose one with camera_map=\{A=\"FILE_STEM\"\} \(the reader's camera_map"):
+        _ingest(source, tmp_path / "two.zarr")
 
 
 def test_size_mismatch_scales_K_with_a_warning(tmp_path: Path) -> None:

@@ -95,7 +95,8 @@ def match_cameras(cameras: Sequence[Camera], paths: Iterable[Path], what: str, w
             candidates = [path for key, found in by_key.items() if key and key[-1] == f"cam{camera.name.lower()}" for path in found]
         if len(candidates) > 1:
             names = ", ".join(sorted(path.name for path in candidates))
-            raise InputError(f"{where}: camera {camera.name!r} matches several {what}s ({names}); rename them")
+            raise InputError(f"{where}: camera {camera.name!r} matches several {what}s ({names}); choose one with "
+                             f"camera_map={{{camera.name}=\"FILE_STEM\"}} ({set_by})")
         if not candidates:
             available = ", ".join(sorted(by_stem, key=natural_key)) or "none"
             raise MissingFileError(f"{where}: no {what} for calibrated camera {camera.name!r} (found: {available}); map names with "
