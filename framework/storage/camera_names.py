@@ -50,9 +50,7 @@ KEYPOINTS_CAMERA_MAP = "the keypoint source's camera_map: mmcsplat run --keypoin
 def match_cameras(cameras: Sequence[Camera], paths: Iterable[Path], what: str, where: Path,
                   camera_map: Mapping[str, str] | str | None = None, set_by: str = READER_CAMERA_MAP) -> dict[str, Path]:
     """Camera name → its file: by ``camera_map`` (calibration name → file stem) where given, else by the
-    module's name rule — the same stem, else the same name key, else a file whose key runs inside the
-    camera's (Pose2Sim names ``cam01.mp4``'s camera ``int_cam01_img``); an error naming any camera without
-    one. Files that match no camera are ignored with a warning. ``camera_map`` :data:`BY_ORDER` pairs the
+    module's name rules, in their order; an error naming any camera without one, or with several. Files that match no camera are ignored with a warning. ``camera_map`` :data:`BY_ORDER` pairs the
     cameras, in the calibration's order, with the files in natural name order, when their counts agree.
     ``set_by`` says in the errors where ``camera_map`` is set for these files.
     """
