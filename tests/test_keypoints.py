@@ -13,6 +13,7 @@ from fitting_scene import write_session
 
 from mmcsplat.cli import main
 from mmcsplat.configuration.registry import default_registry
+from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugins.landmarks.openpose import MODELS
 from mmcsplat.storage.landmark_formats import read_trc
 from mmcsplat.storage.session import SessionReader, SessionUpdater
@@ -133,9 +134,9 @@ def test_pose2sim_keypoints_triangulate_near_its_joints(tmp_path):
     assert sum(np.median(e) < 0.02 for e in errors.values()) >= 12
 
 
-def test_deeplabcut_csv_keypoints_triangulate_too(scene, tmp_path):
-    session, _ = scene
-    reader = SessionReader(session)
+def _write_deeplabcut_csvs(reader: SessionReader, folder: Path, trial: str, shift: float = 0.0) -> None:
+    """One DeepLabCut CSV per camera, ``TRIAL-CAMERA.csv``, of the figure's keypoints (moved ``shift`` px right);
+    the Head undetected at frame 1 in every camera."""
     parts = list(FIGURE)
     for camera in reader.cameras:
         header = [["scorer", *(["DLC_resnet50"] * 3 * len(parts))], ["bodyparts", *(p for p in parts for _ in range(3))],
@@ -144,9 +145,16 @@ def test_deeplabcut_csv_keypoints_triangulate_too(scene, tmp_path):
         for t in range(FRAMES):
             joints = figure_at(t)[[MODELS["BODY_25B"].index(p) for p in parts]]
             pixels = camera.project(joints)
-            rows.append([t, *(value for (x, y) in pixels for value in (x, y, 0.95))])
-        rows[1][4:7] = ["", "", ""]  # the Head undetected at frame 1 in every camera
-        (tmp_path / f"trial-{camera.name}.csv").write_text("\n".join(",".join(map(str, row)) for row in header + rows))
+            rows.append([t, *(value for (x, y) in pixels for value in (x + shift, y, 0.95))])
+        rows[1][4:7] = ["", "", ""]
+        (folder / f"{trial}-{camera.name}.csv").write_text("\n".join(",".join(map(str, row)) for row in header + rows))
+
+
+def test_deeplabcut_csv_keypoints_triangulate_too(scene, tmp_path):
+    session, _ = scene
+    reader = SessionReader(session)
+    parts = list(FIGURE)
+    _write_deeplabcut_csvs(reader, tmp_path, "trial")
     landmarks = default_registry().create("landmarks", "deeplabcut", folder=str(tmp_path)).read(reader, range(FRAMES))
     assert landmarks.names == tuple(parts)
     expected = np.stack([figure_at(t)[[MODELS["BODY_25B"].index(p) for p in parts]] for t in range(FRAMES)])
@@ -155,6 +163,21 @@ def test_deeplabcut_csv_keypoints_triangulate_too(scene, tmp_path):
     (tmp_path / "trial-cam_0.csv").write_text("scorer,x\nbodyparts,nose\n")
     with pytest.raises(Exception, match="not a DeepLabCut CSV"):
         default_registry().create("landmarks", "deeplabcut", folder=str(tmp_path)).read(reader, range(FRAMES))
+
+
+def test_a_camera_map_picks_one_trial_of_keypoint_files_side_by_side(scene, tmp_path):
+    """An anipose session's pose-2d/ holds every trial's files: a camera_map naming one trial's reads that one."""
+    reader = SessionReader(scene[0])
+    _write_deeplabcut_csvs(reader, tmp_path, "vid01")
+    _write_deeplabcut_csvs(reader, tmp_path, "vid02", shift=40.0)
+    with pytest.raises(InputError, match="matches several keypoint files .*choose one with camera_map"):
+        default_registry().create("landmarks", "deeplabcut", folder=str(tmp_path)).observations(reader, range(FRAMES))
+    camera_map = {camera.name: f"vid01-{camera.name}" for camera in reader.cameras}
+    with pytest.warns(UserWarning, match="ignoring keypoint files of no calibrated camera: vid02-"):
+        landmarks = default_registry().create("landmarks", "deeplabcut", folder=str(tmp_path), camera_map=camera_map).read(reader, range(FRAMES))
+    expected = _expected(list(FIGURE))
+    expected[1, 1] = np.nan
+    np.testing.assert_allclose(landmarks.positions, expected, atol=1e-6)
 
 
 def _figure_pixels(camera, t: int, parts: list[str]) -> np.ndarray:
