@@ -100,12 +100,18 @@ def test_an_auto_scale_is_recorded_as_the_number_it_became(tmp_path: Path) -> No
         main(["ingest", str(tmp_path / "capture"), str(tmp_path / "bad.zarr"), "--scale", "half"])
 
 
-def test_fuzzy_names_videos_folder_and_truncation(tmp_path: Path) -> None:
+def _capture(tmp_path: Path, names: list[str], folder: str, frames: list[int], stems: list[str]) -> tuple[Path, list]:
+    """A capture folder: a calibration of ring cameras ``names`` and their videos in ``folder``, named ``stems``."""
     source = tmp_path / "capture"
-    cameras = rig.ring_cameras(["cam_01", "cam_02"])
+    cameras = rig.ring_cameras(names)
     source.mkdir()
     write_calibration(source / "calibration.toml", cameras)
-    rig.write_videos(source / "videos", cameras, [5, 3], stems=["cam01", "Cam-2"])
+    rig.write_videos(source / folder, cameras, frames, stems=stems)
+    return source, cameras
+
+
+def test_fuzzy_names_videos_folder_and_truncation(tmp_path: Path) -> None:
+    source, _ = _capture(tmp_path, ["cam_01", "cam_02"], "videos", [5, 3], ["cam01", "Cam-2"])
     with pytest.warns(UserWarning, match=r"differ in length \(cam_01: 5, cam_02: 3\); truncating every camera to 3"):
         session = _ingest(source, tmp_path / "out.zarr")
     assert session.num_frames == 3
@@ -113,11 +119,7 @@ def test_fuzzy_names_videos_folder_and_truncation(tmp_path: Path) -> None:
 
 
 def test_cameras_named_by_letter_match_files_as_anipose_names_them(tmp_path: Path) -> None:
-    source = tmp_path / "capture"
-    cameras = rig.ring_cameras(["A", "B"])
-    source.mkdir()
-    write_calibration(source / "calibration.toml", cameras)
-    rig.write_videos(source / "videos-raw", cameras, [3, 3], stems=["2019-08-02-vid01-camB", "2019-08-02-vid01-camA"])
+    source, cameras = _capture(tmp_path, ["A", "B"], "videos-raw", [3, 3], ["2019-08-02-vid01-camB", "2019-08-02-vid01-camA"])
     session = _ingest(source, tmp_path / "out.zarr")
     assert session.provenance["reader"]["videos"]["A"].endswith("vid01-camA.mp4")
     assert session.provenance["reader"]["videos"]["B"].endswith("vid01-camB.mp4")
