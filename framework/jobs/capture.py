@@ -174,9 +174,11 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
                          "pose-2d/ folder) for it to set: give --keypoints PATH")
     source = keypoints_with(keypoint_source(keypoints), apply_overrides({}, settings.keypoint_options, "--keypoints-set"),
                             reader_options) if keypoints else None
+    # The keypoint source's parameters: checked here, and the ones its landmarks step scores with.
+    keypoint_params = {key: value for key, value in source.items() if key != "name"} if source else None
     if source:
         try:
-            default_registry().create("landmarks", source["name"], **{key: value for key, value in source.items() if key != "name"})
+            default_registry().create("landmarks", source["name"], **keypoint_params)
         except InputError as error:
             raise InputError(f"--keypoints-set: {error}") from error
         extra = {key: value for key, value in source.items() if key not in ("name", "folder", "files")}
@@ -261,7 +263,7 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
 
     def landmarks() -> None:
         track_landmarks(run, joints["name"], {"path": joints["path"]}, keypoints=source["name"] if source else None,
-                        keypoint_params={key: value for key, value in source.items() if key != "name"} if source else None)
+                        keypoint_params=keypoint_params)
 
     renders = run / RENDERS_DIR
 
