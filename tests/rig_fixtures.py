@@ -14,19 +14,23 @@ from mmcsplat.storage.calibration import write_calibration
 
 #: Strong barrel distortion, so that skipping undistortion moves the markers by pixels.
 DISTORTION = (-0.3, 0.1, 0.0, 0.0, 0.0)
+#: A fisheye lens's (k1, k2, k3, k4), for ``ring_cameras(..., fisheye=True)``: pixels from where a pinhole would see.
+FISHEYE = (-0.2, 0.02, 0.0, 0.0)
 #: World points drawn as markers: a grid on the floor (z = 0) around the origin.
 MARKERS = np.array([[x, y, 0.0] for x in (-0.8, -0.4, 0.0, 0.4, 0.8) for y in (-0.6, 0.0, 0.6)])
 
 
-def ring_cameras(names: Sequence[str], width: int = 128, height: int = 96, distortion=DISTORTION) -> list[Camera]:
-    """Cameras on a ring of radius 1.5 m, 1.2 m up, looking at the origin."""
+def ring_cameras(names: Sequence[str], width: int = 128, height: int = 96, distortion=None, fisheye: bool = False) -> list[Camera]:
+    """Cameras on a ring of radius 1.5 m, 1.2 m up, looking at the origin, with ``distortion`` (by default
+    :data:`DISTORTION`, or :data:`FISHEYE` for fisheye lenses)."""
+    distortion = (FISHEYE if fisheye else DISTORTION) if distortion is None else distortion
     cameras = []
     for i, name in enumerate(names):
         angle = 2 * np.pi * i / len(names)
         centre = np.array([1.5 * np.cos(angle), 1.5 * np.sin(angle), 1.2])
         R = look_at(centre, np.zeros(3))
         K = [[0.8 * width, 0, (width - 1) / 2 + 1.5], [0, 0.8 * width, (height - 1) / 2 - 1.0], [0, 0, 1]]
-        cameras.append(Camera(name, width, height, K, R, -R @ centre, distortion))
+        cameras.append(Camera(name, width, height, K, R, -R @ centre, distortion, fisheye=fisheye))
     return cameras
 
 

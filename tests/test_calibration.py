@@ -152,7 +152,6 @@ GOOD = {
         ({"matrix": None}, r"\[cam_0\]: missing matrix"),
         ({"matrix": [[1.0, 0.0], [0.0, 1.0]]}, r"\[cam_0\]: matrix must have shape \[3, 3\]"),
         ({"distortions": [0.1, 0.2, 0.3]}, r"\[cam_0\]: distortions must hold 4"),
-        ({"fisheye": True}, r"\[cam_0\]: fisheye calibrations are not supported"),
         ({"size": [640.5, 480]}, r"\[cam_0\]: size must be two positive whole numbers"),
         ({"rotation": ["x", 0, 0]}, r"\[cam_0\]: rotation must be numbers"),
         ({"translation": [0.0, 1.0]}, r"\[cam_0\]: translation must have shape \[3\]"),

@@ -3,7 +3,9 @@
 The format's reader is found through the registry (named, or auto-detected with ``Reader.detect``).
 Frames, masks and depth are undistorted with OpenCV — ``getOptimalNewCameraMatrix`` with ``alpha=0``
 (only valid pixels, no black border) and ``initUndistortRectifyMap`` + ``remap``, linear for colour and
-nearest for masks and depth — so the stored cameras have zero distortion and the new K; ``scale`` then
+nearest for masks and depth; a fisheye camera through ``cv2.fisheye``'s
+``estimateNewCameraMatrixForUndistortRectify`` with ``balance=0`` (the same: no border, the image's
+periphery cropped) and its ``initUndistortRectifyMap`` — so the stored cameras are ideal pinholes with the new K; ``scale`` then
 resizes the images (area averaging when shrinking) with K scaled to match (:meth:`Camera.scaled`).
 Everything is written through :class:`~mmcsplat.storage.session.SessionWriter`, which commits atomically: a failed
 or interrupted ingest leaves nothing that reads as a session.
@@ -83,7 +85,7 @@ def detect_format(source: Path, registry: Registry | None = None) -> str:
 class Undistorter:
     """Maps one camera's images into the stored (undistorted, rescaled) image space."""
 
-    #: The stored camera: zero distortion, the new K, rescaled.
+    #: The stored camera: an ideal pinhole, the new K, rescaled.
     camera: Camera
     #: ``initUndistortRectifyMap``'s (map_x, map_y) at the original size, or None for an ideal pinhole.
     maps: tuple[np.ndarray, np.ndarray] | None
@@ -96,11 +98,16 @@ class Undistorter:
         size = (camera.width, camera.height)
         maps = None
         undistorted = camera
-        if camera.is_distorted:
+        if camera.fisheye:
+            lens = camera.fisheye_coefficients
+            new_K = cv2.fisheye.estimateNewCameraMatrixForUndistortRectify(camera.K, lens, size, np.eye(3), balance=0.0)
+            maps = cv2.fisheye.initUndistortRectifyMap(camera.K, lens, np.eye(3), new_K, size, cv2.CV_32FC1)
+            undistorted = attrs.evolve(camera, K=new_K)
+        elif camera.is_distorted:
             new_K, _ = cv2.getOptimalNewCameraMatrix(camera.K, camera.distortion, size, 0.0, size)
             maps = cv2.initUndistortRectifyMap(camera.K, camera.distortion, None, new_K, size, cv2.CV_32FC1)
             undistorted = attrs.evolve(camera, K=new_K)
-        undistorted = attrs.evolve(undistorted, distortion=[])
+        undistorted = attrs.evolve(undistorted, distortion=[], fisheye=False)
         width, height = round(camera.width * scale), round(camera.height * scale)
         if width < 1 or height < 1:
             raise InputError(f"camera {camera.name!r}: scale {scale} leaves no pixels of its {camera.width}×{camera.height} images")

@@ -1,4 +1,5 @@
-"""Calibrated pinhole cameras with OpenCV distortion, in metres and OpenCV axes."""
+"""Calibrated cameras, in metres and OpenCV axes: a pinhole with OpenCV's lens distortion, or OpenCV's fisheye
+(Kannala–Brandt) model. The distortion is applied and undone by OpenCV (``cv2`` and ``cv2.fisheye``)."""
 
 from __future__ import annotations
 
@@ -56,8 +57,16 @@ def _distortion(value: Any) -> np.ndarray:
 
 
 def _check_distortion(instance: Camera, attribute: attrs.Attribute, value: np.ndarray) -> None:
-    if value.size not in (0, 4, 5) or not np.all(np.isfinite(value)):
-        raise InputError(f"camera {instance.name!r}: distortion must be 0, 4 (k1 k2 p1 p2) or 5 (… k3) finite values, got {value.tolist()}")
+    if not np.all(np.isfinite(value)):
+        raise InputError(f"camera {instance.name!r}: distortion must be finite, got {value.tolist()}")
+    if instance.fisheye and value.size not in (0, 4):
+        raise InputError(f"camera {instance.name!r}: a fisheye camera's distortion must be 0 or 4 values (k1 k2 k3 k4), got {value.tolist()}")
+    if not instance.fisheye and value.size not in (0, 4, 5):
+        raise InputError(f"camera {instance.name!r}: distortion must be 0, 4 (k1 k2 p1 p2) or 5 (… k3) values, got {value.tolist()}")
+
+
+#: Undoing a distortion iterates; OpenCV's default stops after 5 steps, short of a strong lens's exact inverse.
+_UNDISTORT_CRITERIA = (3, 100, 1e-12)  # cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, steps, tolerance
 
 
 def _rotation_matrix(value: Any) -> np.ndarray:
@@ -78,6 +87,10 @@ class Camera:
     ``K`` is the 3×3 intrinsic matrix in pixels; ``distortion`` holds OpenCV's (k1, k2, p1, p2[, k3]) or is
     empty for an ideal pinhole; ``R`` (3×3) and ``t`` (3,) map world points to camera coordinates,
     ``x_cam = R @ x_world + t``, with OpenCV axes (x right, y down, z forward) and metres throughout.
+    ``fisheye`` selects OpenCV's fisheye model instead (``cv2.fisheye``): a ray at angle θ to the optical
+    axis lands at θ (1 + k1 θ² + k2 θ⁴ + k3 θ⁶ + k4 θ⁸) from the principal point in normalised
+    coordinates, ``distortion`` holding (k1, k2, k3, k4); without coefficients that is the equidistant
+    projection, still not a pinhole.
     """
 
     name: str = attrs.field(validator=attrs.validators.instance_of(str))
@@ -87,6 +100,7 @@ class Camera:
     R: np.ndarray = attrs.field(converter=_rotation_matrix, validator=_float_array((3, 3))["validator"])
     t: np.ndarray = attrs.field(**_float_array((3,)))
     distortion: np.ndarray = attrs.field(factory=lambda: np.zeros(0), converter=_distortion, validator=_check_distortion)
+    fisheye: bool = attrs.field(default=False, converter=bool, kw_only=True)
 
     def __attrs_post_init__(self) -> None:
         if self.width <= 0 or self.height <= 0:
@@ -116,18 +130,55 @@ class Camera:
 
     @property
     def is_distorted(self) -> bool:
-        return bool(np.any(self.distortion != 0))
+        """Whether the camera is anything but an ideal pinhole (a fisheye always is)."""
+        return self.fisheye or bool(np.any(self.distortion != 0))
 
     def project(self, points: np.ndarray) -> np.ndarray:
-        """Project world points [N, 3] to pixels [N, 2], applying the distortion (OpenCV's model)."""
+        """Project world points [N, 3] to pixels [N, 2], applying the lens model."""
         import cv2
 
-        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 1, 3)
         if len(points) == 0:
             return np.zeros((0, 2))
-        dist = self.distortion if self.distortion.size else None
-        pixels, _ = cv2.projectPoints(points, self.rvec, self.t, self.K, dist)
+        if self.fisheye:
+            pixels, _ = cv2.fisheye.projectPoints(points, self.rvec.reshape(3, 1), self.t.reshape(3, 1), self.K, self.fisheye_coefficients)
+        else:
+            pixels, _ = cv2.projectPoints(points, self.rvec, self.t, self.K, self.distortion if self.distortion.size else None)
         return pixels.reshape(-1, 2)
+
+    def distort(self, normalized: np.ndarray) -> np.ndarray:
+        """Pixels [N, 2] of normalised image coordinates [N, 2] (x/z, y/z in the camera's frame)."""
+        import cv2
+
+        normalized = np.asarray(normalized, dtype=np.float64).reshape(-1, 2)
+        if len(normalized) == 0:
+            return np.zeros((0, 2))
+        if self.fisheye:
+            return cv2.fisheye.distortPoints(normalized.reshape(-1, 1, 2), self.K, self.fisheye_coefficients).reshape(-1, 2)
+        rays = np.concatenate([normalized, np.ones((len(normalized), 1))], axis=1)
+        pixels, _ = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), self.K, self.distortion if self.distortion.size else None)
+        return pixels.reshape(-1, 2)
+
+    def undistort(self, pixels: np.ndarray, new_K: np.ndarray | None = None) -> np.ndarray:
+        """The inverse of the lens model: [..., 2] pixels → normalised image coordinates, or the pixels of
+        an ideal pinhole with intrinsics ``new_K`` when given."""
+        import cv2
+
+        pixels = np.asarray(pixels, dtype=np.float64)
+        flat = np.ascontiguousarray(pixels.reshape(-1, 1, 2))
+        if len(flat) == 0:
+            return pixels.copy()
+        P = None if new_K is None else np.asarray(new_K, dtype=np.float64)
+        if self.fisheye:
+            mapped = cv2.fisheye.undistortPoints(flat, self.K, self.fisheye_coefficients, R=np.eye(3), P=P, criteria=_UNDISTORT_CRITERIA)
+        else:
+            mapped = cv2.undistortPoints(flat, self.K, self.distortion if self.distortion.size else None, P=P, criteria=_UNDISTORT_CRITERIA)
+        return mapped.reshape(pixels.shape)
+
+    @property
+    def fisheye_coefficients(self) -> np.ndarray:
+        """A fisheye camera's (k1, k2, k3, k4), zeros where none are given, as ``cv2.fisheye`` takes them."""
+        return np.pad(self.distortion, (0, 4 - self.distortion.size)).reshape(4, 1)
 
     def scaled(self, sx: float, sy: float | None = None) -> Camera:
         """This camera for an image resized by (sx, sy): K scaled so pixel centres stay consistent."""
@@ -148,9 +199,10 @@ class Camera:
             "R": self.R.tolist(),
             "t": self.t.tolist(),
             "distortion": self.distortion.tolist(),
+            **({"fisheye": True} if self.fisheye else {}),
         }
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> Camera:
-        """The inverse of :meth:`to_dict`."""
-        return cls(**{key: data[key] for key in ("name", "width", "height", "K", "R", "t", "distortion")})
+        """The inverse of :meth:`to_dict` (``fisheye`` is written only when true)."""
+        return cls(**{key: data[key] for key in ("name", "width", "height", "K", "R", "t", "distortion")}, fisheye=data.get("fisheye", False))

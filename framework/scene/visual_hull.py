@@ -50,10 +50,7 @@ def in_hull(seen: np.ndarray, inside: np.ndarray, tolerance: int = 0) -> np.ndar
 def pixel_rays(camera: Camera, pixels: np.ndarray, depths: np.ndarray) -> np.ndarray:
     """[P, D, 3] world points on the rays of ``camera``'s ``pixels`` [P, 2] at ``depths`` [D] (metres
     along its optical axis), its lens distortion undone."""
-    import cv2
-
-    normalized = cv2.undistortPoints(np.asarray(pixels, dtype=np.float64).reshape(-1, 1, 2), camera.K,
-                                     camera.distortion if camera.distortion.size else None).reshape(-1, 2)
+    normalized = camera.undistort(np.asarray(pixels, dtype=np.float64).reshape(-1, 2))
     directions = np.concatenate([normalized, np.ones((len(normalized), 1))], axis=1)
     local = directions[:, None, :] * np.asarray(depths, dtype=np.float64)[None, :, None]
     return (local - camera.t) @ camera.R  # R^T (x - t): camera to world

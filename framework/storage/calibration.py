@@ -2,8 +2,9 @@
 
 anipose (``CameraGroup.dump``) writes one ``[cam_N]`` table per camera with ``name``, ``size = [w, h]``,
 ``matrix`` (3×3 K), ``distortions`` (k1, k2, p1, p2, k3), ``rotation`` (a Rodrigues vector, world to
-camera) and ``translation``, plus a ``[metadata]`` table. Pose2Sim names its tables after the cameras,
-writes sizes as floats, 4 distortion values and ``fisheye = false``.
+camera) and ``translation``, plus a ``[metadata]`` table; a fisheye camera (``FisheyeCamera``) adds
+``fisheye = true`` and has 4 distortion values, OpenCV's fisheye (k1, k2, k3, k4). Pose2Sim names its tables
+after the cameras, writes sizes as floats, 4 distortion values and ``fisheye = false``.
 
 Translations in a file are in the calibration board's unit (``"m"`` or ``"mm"``); the cameras returned
 are always in metres. Tables named ``cam_N`` are ordered by N (``cam_10`` after ``cam_9``); a file whose
@@ -33,7 +34,7 @@ _REQUIRED = ("size", "matrix", "distortions", "rotation", "translation")
 #: cameras ~0.3 m, a motion-capture hall's ~10 m).
 RIG_RADIUS_M = (0.05, 50.0)
 #: How much radial distortion may scale a radius within the image: beyond it the coefficients are wrong
-#: (strong wide-angle lenses scale their corners by 0.6–0.8; fisheye models are refused anyway).
+#: (strong wide-angle lenses scale their corners by 0.6–0.8; a fisheye's scale from θ to tan θ is its model's).
 RADIAL_SCALE = (1 / 3, 3.0)
 
 
@@ -90,13 +91,15 @@ def read_calibration(path: Path, units: str = "m", cameras: Sequence[str] | None
 def check_distortion(camera: Camera, where: str) -> None:
     """Refuse radial distortion no lens has: over the image's radius (the principal point to its farthest
     corner, in normalised coordinates) the mapping r → r (1 + k1 r² + k2 r⁴ + k3 r⁶) must rise (else the
-    image folds over itself) and stay within :data:`RADIAL_SCALE` of r (else pixels move off the image)."""
+    image folds over itself) and stay within :data:`RADIAL_SCALE` of r (else pixels move off the image).
+    A fisheye's θ → θ (1 + k1 θ² + … + k4 θ⁸) must rise up to the image's radius (:func:`_check_fisheye`)."""
+    if camera.fisheye:
+        _check_fisheye(camera, where)
+        return
     if not camera.is_distorted:
         return
     k1, k2, _, _, k3 = np.pad(camera.distortion, (0, 5 - len(camera.distortion)))
-    fx, fy, cx, cy = camera.K[0, 0], camera.K[1, 1], camera.K[0, 2], camera.K[1, 2]
-    corners = np.array([[0, 0], [camera.width, 0], [0, camera.height], [camera.width, camera.height]], dtype=np.float64)
-    reach = float(np.max(np.hypot((corners[:, 0] - cx) / fx, (corners[:, 1] - cy) / fy)))
+    reach = _image_reach(camera)
     r2 = np.linspace(0.0, reach, 257)[1:] ** 2
     scale = 1 + k1 * r2 + k2 * r2**2 + k3 * r2**3  # distorted radius / undistorted radius
     slope = 1 + 3 * k1 * r2 + 5 * k2 * r2**2 + 7 * k3 * r2**3  # d(distorted radius) / d(radius)
@@ -109,6 +112,30 @@ def check_distortion(camera: Camera, where: str) -> None:
     if np.any((scale < low) | (scale > high)):
         raise InputError(f"{where}: camera {camera.name!r}: its distortion ({coefficients}) moves the image's corner {scale[-1]:.3g} times "
                          f"as far from the centre (plausible lenses stay within {low:g}–{high:g}); check the coefficients and their order")
+
+
+def _image_reach(camera: Camera) -> float:
+    """The image's radius in normalised coordinates: from the principal point to the farthest corner."""
+    fx, fy, cx, cy = camera.K[0, 0], camera.K[1, 1], camera.K[0, 2], camera.K[1, 2]
+    corners = np.array([[0, 0], [camera.width, 0], [0, camera.height], [camera.width, camera.height]], dtype=np.float64)
+    return float(np.max(np.hypot((corners[:, 0] - cx) / fx, (corners[:, 1] - cy) / fy)))
+
+
+def _check_fisheye(camera: Camera, where: str) -> None:
+    """Refuse fisheye coefficients under which the image folds over itself: θ_d(θ) = θ (1 + k1 θ² + k2 θ⁴ +
+    k3 θ⁶ + k4 θ⁸) must rise from the optical axis until it reaches the image's corner (or θ = π/2, beyond
+    which OpenCV's model sees nothing)."""
+    k = camera.fisheye_coefficients.ravel()
+    theta = np.linspace(0.0, np.pi / 2, 513)[1:]
+    reached = theta * (1 + k[0] * theta**2 + k[1] * theta**4 + k[2] * theta**6 + k[3] * theta**8)
+    slope = 1 + 3 * k[0] * theta**2 + 5 * k[1] * theta**4 + 7 * k[2] * theta**6 + 9 * k[3] * theta**8
+    inside = np.cumsum(reached >= _image_reach(camera)) <= 1  # up to and including the first angle at the corner
+    folds = (slope <= 0) & inside
+    if np.any(folds):
+        coefficients = ", ".join(f"{name} = {value:g}" for name, value in zip(("k1", "k2", "k3", "k4"), k, strict=True))
+        raise InputError(f"{where}: camera {camera.name!r}: its fisheye distortion ({coefficients}) folds the image over itself "
+                         f"{np.degrees(theta[np.argmax(folds)]):.0f}° from the optical axis, inside the image (no lens does); check the "
+                         "coefficients and their order (k1 k2 k3 k4)")
 
 
 def check_rig(cameras: Sequence[Camera], where: str, units: str) -> None:
@@ -147,8 +174,9 @@ def _camera(path: Path, section: str, table: dict[str, Any]) -> Camera:
     missing = [key for key in _REQUIRED if key not in table]
     if missing:
         raise InputError(f"{where}: missing {', '.join(missing)}")
-    if table.get("fisheye", False):
-        raise InputError(f"{where}: fisheye calibrations are not supported (only OpenCV's pinhole distortion model)")
+    fisheye = table.get("fisheye", False)
+    if not isinstance(fisheye, bool):
+        raise InputError(f"{where}: fisheye must be true or false, got {fisheye!r}")
     name = table.get("name", section)
     if not isinstance(name, str):
         raise InputError(f"{where}: name must be a string, got {name!r}")
@@ -156,13 +184,15 @@ def _camera(path: Path, section: str, table: dict[str, Any]) -> Camera:
     if np.any(size != np.round(size)) or np.any(size <= 0):
         raise InputError(f"{where}: size must be two positive whole numbers [width, height], got {table['size']}")
     distortion = _array(where, "distortions", table["distortions"], None).reshape(-1)
+    if fisheye and distortion.size != 4:
+        raise InputError(f"{where}: a fisheye camera's distortions must hold 4 values (k1 k2 k3 k4), got {distortion.size}")
     if distortion.size not in (4, 5):
         raise InputError(f"{where}: distortions must hold 4 (k1 k2 p1 p2) or 5 (… k3) values, got {distortion.size}")
     K = _array(where, "matrix", table["matrix"], (3, 3))
     R = _array(where, "rotation", table["rotation"], (3,))
     t = _array(where, "translation", table["translation"], (3,))
     try:  # the Camera's own checks name the camera, not the file: add it (once)
-        return Camera(name=name, width=int(size[0]), height=int(size[1]), K=K, R=R, t=t, distortion=distortion)
+        return Camera(name=name, width=int(size[0]), height=int(size[1]), K=K, R=R, t=t, distortion=distortion, fisheye=fisheye)
     except ValueError as error:
         raise InputError(f"{where}: {error}") from error
 
@@ -184,7 +214,8 @@ def write_calibration(path: Path, cameras: Sequence[Camera], units: str = "m", m
     """Write ``cameras`` (metres) as an anipose ``calibration.toml`` with translations in ``units``.
 
     Tables are ``[cam_0]``, ``[cam_1]``, … in the given order, each with 5 distortion values (zeros
-    padded); ``metadata`` becomes the ``[metadata]`` table. The file is replaced atomically.
+    padded), or a fisheye camera's 4 and ``fisheye = true`` as aniposelib writes them; ``metadata`` becomes
+    the ``[metadata]`` table. The file is replaced atomically.
     """
     import tomli_w
 
@@ -192,7 +223,7 @@ def write_calibration(path: Path, cameras: Sequence[Camera], units: str = "m", m
     scale = metres_per_unit(units)
     document: dict[str, Any] = {}
     for index, camera in enumerate(cameras):
-        distortion = np.zeros(5)
+        distortion = np.zeros(4 if camera.fisheye else 5)
         distortion[: camera.distortion.size] = camera.distortion
         document[f"cam_{index}"] = {
             "name": camera.name,
@@ -201,6 +232,7 @@ def write_calibration(path: Path, cameras: Sequence[Camera], units: str = "m", m
             "distortions": distortion.tolist(),
             "rotation": camera.rvec.tolist(),
             "translation": (camera.t / scale).tolist(),
+            **({"fisheye": True} if camera.fisheye else {}),
         }
     document["metadata"] = dict(metadata or {})
     write_text_atomic(path, tomli_w.dumps(document))

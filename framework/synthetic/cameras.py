@@ -39,14 +39,11 @@ def pixel_rays(camera: Camera, samples: int = 1) -> np.ndarray:
     pixel of the distorted image (one at the centre when ``samples`` is 1; pixel (u, v) is centred at
     (u, v), OpenCV's convention), row-major by pixel, then by sub-sample. Each direction has camera-z
     component 1, so a hit at ray parameter s lies at camera depth s."""
-    import cv2
-
     offsets = (np.arange(samples) + 0.5) / samples - 0.5
     v, u, dv, du = np.meshgrid(np.arange(camera.height), np.arange(camera.width), offsets, offsets, indexing="ij")
     # meshgrid orders the axes (v, u, dv, du) as given, so flattening keeps pixels row-major.
-    pixels = np.stack([u + du, v + dv], axis=-1).reshape(-1, 1, 2).astype(np.float64)
-    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
-    normalised = cv2.undistortPoints(pixels, camera.K, camera.distortion, criteria=criteria).reshape(-1, 2)
+    pixels = np.stack([u + du, v + dv], axis=-1).reshape(-1, 2).astype(np.float64)
+    normalised = camera.undistort(pixels)
     directions = np.concatenate([normalised, np.ones((len(normalised), 1))], axis=1)
     return directions @ camera.R  # camera → world: R.T @ d, row-wise
 
@@ -59,8 +56,6 @@ def sphere_pixel_boxes(camera: Camera, centres: np.ndarray, radii: np.ndarray, m
     (densely sampled, plus ``margin`` px); a sphere reaching the edge of the lens model's valid range
     gets the whole image.
     """
-    import cv2
-
     local = centres @ camera.R.T + camera.t
     distance_xz, distance_yz = np.hypot(local[:, 0], local[:, 2]), np.hypot(local[:, 1], local[:, 2])
     bounds = []
@@ -74,9 +69,7 @@ def sphere_pixel_boxes(camera: Camera, centres: np.ndarray, radii: np.ndarray, m
     side_u, side_v = np.concatenate([t, 0 * t, t, 0 * t + 1]), np.concatenate([0 * t, t, 0 * t + 1, t])
     xs = x0[:, None] + (x1 - x0)[:, None] * side_u
     ys = y0[:, None] + (y1 - y0)[:, None] * side_v
-    points = np.stack([xs, ys, np.ones_like(xs)], axis=-1).reshape(-1, 3)
-    pixels, _ = cv2.projectPoints(points, np.zeros(3), np.zeros(3), camera.K, camera.distortion)
-    pixels = pixels.reshape(len(centres), -1, 2)
+    pixels = camera.distort(np.stack([xs, ys], axis=-1).reshape(-1, 2)).reshape(len(centres), -1, 2)
     low, high = pixels.min(axis=1) - 0.5 - margin, pixels.max(axis=1) + 0.5 + margin
     boxes = np.stack([np.floor(low[:, 0]), np.ceil(high[:, 0]), np.floor(low[:, 1]), np.ceil(high[:, 1])], axis=1)
     boxes = np.clip(boxes, 0, [camera.width, camera.width, camera.height, camera.height]).astype(int)

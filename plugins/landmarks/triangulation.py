@@ -4,7 +4,7 @@ session's stored (undistorted, rescaled) images and triangulated — what the ``
 
 Pixels: a keypoint at (x, y) of the source video is mapped into the stored image through the camera as
 recorded (its distortion and decoded size, kept in the session's provenance by ingest) and the stored,
-undistorted camera: ``cv2.undistortPoints`` with the stored K as the new projection.
+undistorted camera: the recorded lens undone (:meth:`Camera.undistort`) with the stored K as the new projection.
 
 Triangulation (:func:`mmcsplat.scene.triangulation.triangulate`): for each frame and keypoint, the linear
 (DLT) solution over the cameras whose detection has a confidence above the source's threshold, each row
@@ -27,11 +27,7 @@ from mmcsplat.storage.session import SessionReader
 
 def to_session_pixels(points: np.ndarray, recorded: Camera, stored: Camera) -> np.ndarray:
     """[..., 2] pixels of the recorded (distorted) camera → the stored (undistorted) camera's pixels."""
-    import cv2
-
-    flat = np.ascontiguousarray(points.reshape(-1, 1, 2), dtype=np.float64)
-    mapped = cv2.undistortPoints(flat, np.asarray(recorded.K), np.asarray(recorded.distortion), P=np.asarray(stored.K))
-    return mapped.reshape(points.shape)
+    return recorded.undistort(points, stored.K)
 
 
 class TriangulatedKeypoints(LandmarkSource):
