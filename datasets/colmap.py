@@ -15,8 +15,10 @@ Conventions applied:
 
 - Camera models: SIMPLE_PINHOLE (f cx cy), PINHOLE (fx fy cx cy), SIMPLE_RADIAL (f cx cy k), RADIAL
   (f cx cy k1 k2) and OPENCV (fx fy cx cy k1 k2 p1 p2), whose distortion is OpenCV's (k1, k2, p1, p2)
-  with the missing terms zero (none when all are zero). Other models (fisheye, FULL_OPENCV, FOV, thin
-  prism) are refused, naming the model.
+  with the missing terms zero (none when all are zero); OPENCV_FISHEYE (fx fy cx cy k1 k2 k3 k4),
+  RADIAL_FISHEYE (f cx cy k1 k2) and SIMPLE_RADIAL_FISHEYE (f cx cy k), which are OpenCV's fisheye model
+  (θ (1 + k1 θ² + k2 θ⁴ + k3 θ⁶ + k4 θ⁸)) with the missing terms zero. Other models (FULL_OPENCV, FOV,
+  thin prism) are refused, naming the model.
 - Principal point: COLMAP's image coordinates have the image's top-left corner at (0, 0), so the centre
   of the top-left pixel is (0.5, 0.5); mmcsplat's pixel (u, v) is centred at (u, v)
   (:func:`mmcsplat.scene.camera.resize_matrix`), so cx and cy are read minus 0.5.
@@ -63,7 +65,10 @@ from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.calibration import metres_per_unit
 
 #: The supported camera models and their number of parameters.
-MODEL_PARAMETERS = {"SIMPLE_PINHOLE": 3, "PINHOLE": 4, "SIMPLE_RADIAL": 4, "RADIAL": 5, "OPENCV": 8}
+MODEL_PARAMETERS = {"SIMPLE_PINHOLE": 3, "PINHOLE": 4, "SIMPLE_RADIAL": 4, "RADIAL": 5, "OPENCV": 8,
+                    "OPENCV_FISHEYE": 8, "SIMPLE_RADIAL_FISHEYE": 4, "RADIAL_FISHEYE": 5}
+#: The supported models that are OpenCV's fisheye model.
+FISHEYE_MODELS = ("OPENCV_FISHEYE", "SIMPLE_RADIAL_FISHEYE", "RADIAL_FISHEYE")
 #: COLMAP's model ids (the binary model's), supported or not.
 MODEL_IDS = {0: "SIMPLE_PINHOLE", 1: "PINHOLE", 2: "SIMPLE_RADIAL", 3: "RADIAL", 4: "OPENCV", 5: "OPENCV_FISHEYE", 6: "FULL_OPENCV",
              7: "FOV", 8: "SIMPLE_RADIAL_FISHEYE", 9: "RADIAL_FISHEYE", 10: "THIN_PRISM_FISHEYE", 11: "RAD_TAN_THIN_PRISM_FISHEYE"}
@@ -213,13 +218,13 @@ def _camera(name: str, model: ColmapCamera, image: ColmapImage, scale: float, ca
     """The mmcsplat camera of a registered image: K with the principal point moved to pixel-centre coordinates."""
     p = model.params
     where = f"{cameras_file}: camera {model.id}"
-    if model.model in ("SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL"):
+    if model.model in ("SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "SIMPLE_RADIAL_FISHEYE", "RADIAL_FISHEYE"):
         fx = fy = p[0]
         cx, cy = p[1], p[2]
-        distortion = [p[3], p[4] if model.model == "RADIAL" else 0.0, 0.0, 0.0] if model.model != "SIMPLE_PINHOLE" else []
+        distortion = [*p[3:], 0.0, 0.0, 0.0, 0.0][:4] if model.model != "SIMPLE_PINHOLE" else []
     else:
         fx, fy, cx, cy = p[:4]
-        distortion = list(p[4:8]) if model.model == "OPENCV" else []
+        distortion = list(p[4:8]) if model.model in ("OPENCV", "OPENCV_FISHEYE") else []
     if not any(distortion):
         distortion = []
     if not (fx > 0 and fy > 0):
@@ -229,7 +234,7 @@ def _camera(name: str, model: ColmapCamera, image: ColmapImage, scale: float, ca
         raise InputError(f"{images_file}: image {image.name!r}: qvec {list(image.qvec)} is not a rotation")
     try:
         return Camera(name=name, width=model.width, height=model.height, K=K, R=rotation_from_quaternion(image.qvec),
-                      t=np.array(image.tvec) * scale, distortion=distortion)
+                      t=np.array(image.tvec) * scale, distortion=distortion, fisheye=model.model in FISHEYE_MODELS)
     except ValueError as error:
         raise InputError(f"{images_file}: image {image.name!r}: {error}") from error
 

@@ -9,9 +9,10 @@ level key by key. ``val_filenames`` / ``test_filenames`` (lists of file paths) m
 Conventions chosen here:
 
 - Camera models: ``OPENCV`` (the default when none is given) and ``PINHOLE``; both read the distortion
-  keys, as nerfstudio does. ``OPENCV_FISHEYE``, ``EQUIRECTANGULAR`` and any other model are refused. A
-  non-zero ``k4`` (nerfstudio's r⁸ term, which OpenCV's pinhole model lacks) is refused; the others
-  become OpenCV's (k1, k2, p1, p2[, k3]): none when all are zero, k3 only when it is non-zero.
+  keys, as nerfstudio does. A non-zero ``k4`` (nerfstudio's r⁸ term, which OpenCV's pinhole model lacks)
+  is refused; the others become OpenCV's (k1, k2, p1, p2[, k3]): none when all are zero, k3 only when it
+  is non-zero. ``OPENCV_FISHEYE`` is OpenCV's fisheye model with ``k1`` … ``k4``; a non-zero ``p1`` or
+  ``p2``, which it has no place for, is refused. ``EQUIRECTANGULAR`` and any other model are refused.
 - Principal point: nerfstudio (like COLMAP) puts a pixel's centre at (u + 0.5, v + 0.5) — its rays pass
   through pixel coordinates offset by half a pixel — whereas mmcsplat's pixel (u, v) is centred at (u, v),
   so cx and cy are read minus 0.5 (the inverse of ``mmcsplat export --transforms``).
@@ -63,7 +64,7 @@ from mmcsplat.storage.capture_files import read_json
 
 #: Where mmcsplat's pixel centre (u, v) lies in nerfstudio's (and COLMAP's) pixel coordinates.
 PIXEL_CENTRE = 0.5
-_MODELS = ("OPENCV", "PINHOLE")
+_MODELS = ("OPENCV", "PINHOLE", "OPENCV_FISHEYE")
 _INTRINSICS = ("fl_x", "fl_y", "cx", "cy", "w", "h")
 _DISTORTION = ("k1", "k2", "k3", "k4", "p1", "p2")
 _DECIMALS = 9  # times, poses and intrinsics equal to this many decimals are the same
@@ -80,6 +81,7 @@ class _Frame:
     K: np.ndarray
     size: tuple[int, int]
     distortion: np.ndarray
+    fisheye: bool
     c2w: np.ndarray
 
     @property
@@ -87,8 +89,8 @@ class _Frame:
         return self.image.listed
 
     def key(self) -> tuple[float, ...]:
-        """What makes two frames one camera: pose, intrinsics, size and distortion, rounded."""
-        values = np.concatenate([self.c2w[:3].ravel(), self.K.ravel(), self.size, self.distortion])
+        """What makes two frames one camera: pose, intrinsics, size and lens, rounded."""
+        values = np.concatenate([self.c2w[:3].ravel(), self.K.ravel(), self.size, [self.fisheye], self.distortion])
         return tuple(np.round(values, _DECIMALS).tolist())
 
 
@@ -181,7 +183,7 @@ def _parse_frame(path: Path, source: Path, document: Mapping[str, Any], index: i
     model = merged["camera_model"] if merged["camera_model"] is not None else "OPENCV"
     if model not in _MODELS:
         raise InputError(f"{where}: camera_model {model!r} is not supported (only {' and '.join(_MODELS)}; "
-                         "undistort fisheye or panoramic images first)")
+                         "undistort panoramic images first)")
     absent = [key for key in _INTRINSICS if merged[key] is None]
     if absent:
         raise InputError(f"{where}: missing intrinsics {', '.join(repr(key) for key in absent)} (neither the frame nor the file's top level gives them)")
@@ -192,18 +194,25 @@ def _parse_frame(path: Path, source: Path, document: Mapping[str, Any], index: i
     if any(value <= 0 or not value.is_integer() for value in size):
         raise InputError(f"{where}: 'w' and 'h' must be positive whole numbers, got {merged['w']!r}, {merged['h']!r}")
     coefficients = {key: _number(where, key, merged[key]) if merged[key] is not None else 0.0 for key in _DISTORTION}
-    if coefficients["k4"] != 0:
+    fisheye = model == "OPENCV_FISHEYE"
+    if fisheye:
+        tangential = [f"{key} = {coefficients[key]:g}" for key in ("p1", "p2") if coefficients[key] != 0]
+        if tangential:
+            raise InputError(f"{where}: {', '.join(tangential)} is not supported with OPENCV_FISHEYE (OpenCV's fisheye model has k1 k2 k3 k4 only)")
+        distortion = [coefficients[key] for key in ("k1", "k2", "k3", "k4")]
+    elif coefficients["k4"] != 0:
         raise InputError(f"{where}: k4 = {coefficients['k4']:g} is not supported (OpenCV's pinhole distortion has k1 k2 p1 p2 k3 only)")
-    distortion = [coefficients[key] for key in ("k1", "k2", "p1", "p2", "k3")]
-    if distortion[4] == 0:
-        distortion = distortion[:4]
+    else:
+        distortion = [coefficients[key] for key in ("k1", "k2", "p1", "p2", "k3")]
+        if distortion[4] == 0:
+            distortion = distortion[:4]
     if not any(distortion):
         distortion = []
     K = np.array([[fx, 0.0, cx - PIXEL_CENTRE], [0.0, fy, cy - PIXEL_CENTRE], [0.0, 0.0, 1.0]])
     mask = _file(source, where, "mask_path", entry["mask_path"]) if entry.get("mask_path") is not None else None
     image = PosedImage(_file(source, where, "file_path", entry["file_path"]), mask, where)
     return _Frame(index, image, _camera_name(where, entry.get("camera")), _time(where, entry), K, (int(size[0]), int(size[1])),
-                  np.array(distortion, dtype=np.float64), rigid_pose(where, entry["transform_matrix"]))
+                  np.array(distortion, dtype=np.float64), fisheye, rigid_pose(where, entry["transform_matrix"]))
 
 
 def _camera_name(where: str, value: Any) -> str | None:
@@ -253,7 +262,7 @@ def _camera(name: str, frame: _Frame, scale: float) -> Camera:
     R = c2w_cv[:3, :3].T
     try:
         return Camera(name=name, width=frame.size[0], height=frame.size[1], K=frame.K, R=R, t=-R @ (c2w_cv[:3, 3] * scale),
-                      distortion=frame.distortion)
+                      distortion=frame.distortion, fisheye=frame.fisheye)
     except ValueError as error:
         raise InputError(f"{frame.where}: {error}") from error
 

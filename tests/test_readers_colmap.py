@@ -15,7 +15,8 @@ from mmcsplat.pipeline.ingest import detect_format
 from mmcsplat.scene.camera import look_at
 
 W, H = 16, 12
-MODEL_IDS = {"SIMPLE_PINHOLE": 0, "PINHOLE": 1, "SIMPLE_RADIAL": 2, "RADIAL": 3, "OPENCV": 4, "OPENCV_FISHEYE": 5}
+MODEL_IDS = {"SIMPLE_PINHOLE": 0, "PINHOLE": 1, "SIMPLE_RADIAL": 2, "RADIAL": 3, "OPENCV": 4, "OPENCV_FISHEYE": 5, "FULL_OPENCV": 6,
+             "SIMPLE_RADIAL_FISHEYE": 8, "RADIAL_FISHEYE": 9}
 #: One camera per model: (model, COLMAP params with the principal point in COLMAP's pixel coordinates).
 MODELS = [
     ("SIMPLE_PINHOLE", (20.0, 8.0, 6.0)),
@@ -23,8 +24,12 @@ MODELS = [
     ("SIMPLE_RADIAL", (19.0, 8.1, 6.2, 0.03)),
     ("RADIAL", (18.0, 7.9, 5.8, 0.02, -0.01)),
     ("OPENCV", (22.0, 23.0, 8.3, 6.4, 0.04, -0.02, 0.001, -0.002)),
+    ("OPENCV_FISHEYE", (12.0, 12.5, 8.2, 6.1, 0.05, -0.02, 0.01, -0.002)),
+    ("SIMPLE_RADIAL_FISHEYE", (11.0, 7.8, 6.3, -0.04)),
+    ("RADIAL_FISHEYE", (11.5, 8.0, 6.0, 0.03, -0.01)),
 ]
-CENTRES = [(4.0, 0.0, 1.0), (0.0, 4.0, 1.5), (-3.0, -3.0, 0.5), (2.0, -3.5, 2.0), (-4.0, 1.0, 1.0)]
+CENTRES = [(4.0, 0.0, 1.0), (0.0, 4.0, 1.5), (-3.0, -3.0, 0.5), (2.0, -3.5, 2.0), (-4.0, 1.0, 1.0), (3.0, 3.0, 0.8), (-1.0, -4.0, 1.2),
+           (1.0, 4.5, 0.3)]
 POINT = np.array([0.1, -0.2, 0.3])
 
 
@@ -81,7 +86,7 @@ def write_model(folder: Path, kind: str, cameras: list[tuple[int, str, tuple]], 
 
 
 def make_static(root: Path, kind: str) -> Path:
-    """A still scene: five images, each with its own COLMAP camera of another model."""
+    """A still scene: one image for each of :data:`MODELS`, each with its own COLMAP camera of that model."""
     (root / "images").mkdir(parents=True, exist_ok=True)
     images = []
     for index, centre in enumerate(CENTRES):
@@ -97,6 +102,11 @@ def _colmap_pixel(model: str, params: tuple, R: np.ndarray, t: np.ndarray, point
     x, y, z = R @ point + t
     u, v = x / z, y / z
     r2 = u * u + v * v
+    if model.endswith("FISHEYE"):  # θ_d = θ (1 + k1 θ² + k2 θ⁴ + k3 θ⁶ + k4 θ⁸), θ = atan(r)
+        fx, fy, cx, cy, *ks = params if model == "OPENCV_FISHEYE" else (params[0], *params)
+        theta = np.arctan(np.sqrt(r2))
+        scale = theta * (1 + sum(k * theta ** (2 * i + 2) for i, k in enumerate(ks))) / np.sqrt(r2)
+        return np.array([fx * u * scale + cx - 0.5, fy * v * scale + cy - 0.5])
     if model in ("SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL"):
         f, cx, cy, *ks = params
         fx = fy = f
@@ -126,7 +136,7 @@ def test_registered_and_detects_only_its_layout(tmp_path):
 @pytest.mark.parametrize("kind", ["txt", "bin"])
 def test_cameras_match_the_known_ones_and_project_alike(tmp_path, kind):
     recording = ColmapReader().open(make_static(tmp_path, kind))
-    assert [camera.name for camera in recording.cameras] == [f"shot_{index}" for index in range(5)]
+    assert [camera.name for camera in recording.cameras] == [f"shot_{index}" for index in range(len(MODELS))]
     assert recording.num_frames == 1 and recording.describe()["layout"] == "static"
     assert recording.describe()["model_files"] == {"txt": "text", "bin": "binary"}[kind]
     for index, ((model, params), centre, camera) in enumerate(zip(MODELS, CENTRES, recording.cameras)):
@@ -134,6 +144,7 @@ def test_cameras_match_the_known_ones_and_project_alike(tmp_path, kind):
         np.testing.assert_allclose(camera.R, R, atol=1e-6)
         np.testing.assert_allclose(camera.t, t, atol=1e-6)
         fx, fy, cx, cy = (params[0], params[0], params[1], params[2]) if model.startswith(("SIMPLE", "RADIAL")) else params[:4]
+        assert camera.fisheye == model.endswith("FISHEYE")
         np.testing.assert_allclose(camera.K, [[fx, 0, cx - 0.5], [0, fy, cy - 0.5], [0, 0, 1]], atol=1e-6)
         np.testing.assert_allclose(camera.project(POINT[None])[0], _colmap_pixel(model, params, R, t, POINT), atol=1e-6)
         (frame,) = recording.frames(camera.name, range(1))
@@ -198,12 +209,13 @@ def test_video_layout_needs_one_pose_per_folder(tmp_path):
 def test_unsupported_model_names_file_and_model(tmp_path):
     root = make_static(tmp_path / "txt", "txt")
     path = root / "sparse" / "0" / "cameras.txt"
-    path.write_text(path.read_text().replace("PINHOLE 16 12 20.0 21.0 7.7 5.9", "OPENCV_FISHEYE 16 12 20.0 21.0 7.7 5.9 0.1 0.0 0.0 0.0"))
-    with pytest.raises(ValueError, match=r"cameras\.txt: line 3: camera 11: camera model OPENCV_FISHEYE is not supported"):
+    full = "FULL_OPENCV 16 12 20.0 21.0 7.7 5.9 0.1 0.0 0.0 0.0 0.0 0.0 0.0 0.0"
+    path.write_text(path.read_text().replace("PINHOLE 16 12 20.0 21.0 7.7 5.9", full))
+    with pytest.raises(ValueError, match=r"cameras\.txt: line 3: camera 11: camera model FULL_OPENCV is not supported"):
         ColmapReader().open(root)
     root = make_static(tmp_path / "bin", "bin")
-    write_model(root / "sparse" / "0", "bin", [(10, "OPENCV_FISHEYE", (20.0, 21.0, 7.7, 5.9, 0.1, 0.0, 0.0, 0.0))], [])
-    with pytest.raises(ValueError, match=r"cameras\.bin: camera 10: camera model OPENCV_FISHEYE is not supported"):
+    write_model(root / "sparse" / "0", "bin", [(10, "FULL_OPENCV", (20.0, 21.0, 7.7, 5.9, 0.1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))], [])
+    with pytest.raises(ValueError, match=r"cameras\.bin: camera 10: camera model FULL_OPENCV is not supported"):
         ColmapReader().open(root)
 
 

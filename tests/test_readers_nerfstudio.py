@@ -201,14 +201,35 @@ def test_masks_heldout_units_and_applied_transform(tmp_path):
         NerfstudioReader().open(root)
 
 
-@pytest.mark.parametrize("model", ["OPENCV_FISHEYE", "EQUIRECTANGULAR"])
-def test_unsupported_camera_model_names_file_and_frame(tmp_path, model):
+def test_unsupported_camera_model_names_file_and_frame(tmp_path):
     root = make_nerfstudio(tmp_path)
-    _edit(root, lambda document: document["frames"][2].__setitem__("camera_model", model))
-    with pytest.raises(ValueError, match=rf"transforms\.json: frames\[2\]: camera_model '{model}' is not supported"):
+    _edit(root, lambda document: document["frames"][2].__setitem__("camera_model", "EQUIRECTANGULAR"))
+    with pytest.raises(ValueError, match=r"transforms\.json: frames\[2\]: camera_model 'EQUIRECTANGULAR' is not supported"):
         NerfstudioReader().open(root)
     _edit(root, lambda document: (document["frames"][2].pop("camera_model"), document["frames"][2].__setitem__("k4", 0.1)))
     with pytest.raises(ValueError, match=r"transforms\.json: frames\[2\]: k4 = 0.1 is not supported"):
+        NerfstudioReader().open(root)
+
+
+def test_a_fisheye_frame_is_opencvs_fisheye_model(tmp_path):
+    root = make_nerfstudio(tmp_path)
+    lens = {"k1": 0.05, "k2": -0.02, "k3": 0.01, "k4": -0.002, "p1": 0.0, "p2": 0.0}
+    _edit(root, lambda document: document["frames"][2].update(camera_model="OPENCV_FISHEYE", **lens))
+    camera = NerfstudioReader().open(root).cameras[2]
+    expected = known_cameras()[2]
+    assert camera.fisheye and camera.distortion.tolist() == [0.05, -0.02, 0.01, -0.002]
+    x, y, z = expected.R @ POINT[0] + expected.t
+    radius = np.hypot(x / z, y / z)
+    theta = np.arctan(radius)
+    scale = theta * (1 + lens["k1"] * theta**2 + lens["k2"] * theta**4 + lens["k3"] * theta**6 + lens["k4"] * theta**8) / radius
+    np.testing.assert_allclose(camera.project(POINT)[0], expected.K[:2, :2] @ [x / z * scale, y / z * scale] + expected.K[:2, 2], atol=1e-6)
+    # mmcsplat's own export writes the same keys back
+    from mmcsplat.outputs.transforms_json import intrinsics
+
+    _edit(root, lambda document: document["frames"][2].update(intrinsics(camera)))
+    assert NerfstudioReader().open(root).cameras[2].distortion.tolist() == camera.distortion.tolist()
+    _edit(root, lambda document: document["frames"][2].update(p2=0.001))
+    with pytest.raises(ValueError, match=r"transforms\.json: frames\[2\]: p2 = 0.001 is not supported with OPENCV_FISHEYE"):
         NerfstudioReader().open(root)
 
 

@@ -42,10 +42,14 @@ def camera_to_world_gl(camera: Camera) -> np.ndarray:
 
 
 def intrinsics(camera: Camera) -> dict[str, Any]:
-    """nerfstudio's per-frame intrinsics and OpenCV distortion of ``camera``."""
+    """nerfstudio's per-frame intrinsics and OpenCV distortion of ``camera`` (a fisheye camera's with its own
+    ``camera_model``)."""
     entry: dict[str, Any] = {"fl_x": float(camera.K[0, 0]), "fl_y": float(camera.K[1, 1]),
                              "cx": float(camera.K[0, 2]) + PIXEL_CENTRE, "cy": float(camera.K[1, 2]) + PIXEL_CENTRE,
                              "w": camera.width, "h": camera.height}
+    if camera.fisheye:
+        lens = camera.fisheye_coefficients.ravel()
+        return {**entry, "camera_model": "OPENCV_FISHEYE", **{f"k{i + 1}": float(value) for i, value in enumerate(lens)}}
     distortion = [float(value) for value in camera.distortion] + [0.0] * (4 - len(camera.distortion))
     entry.update({"k1": distortion[0], "k2": distortion[1], "p1": distortion[2], "p2": distortion[3]})
     if len(distortion) > 4:
