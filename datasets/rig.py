@@ -61,6 +61,9 @@ def find_calibration(source: Path, calibration: Path | None) -> Path:
 #: The ``camera_map`` parameter of the readers that match files to calibrated cameras.
 CAMERA_MAP_PARAMETER = parameter(None, doc="calibration camera name → its file's or folder's name, where the names differ; or "
                                              "\"order\": the calibration's cameras, in its order, to the files in name order")
+#: The ``trial`` parameter of the readers (and keypoint sources) that match one file per camera by name.
+TRIAL_PARAMETER = parameter(None, doc="read only the files whose name starts with this: one trial of several side by side "
+                                      "(anipose's vid01-camA.avi beside vid02-camA.avi: trial=\"vid01\")")
 #: The ``cameras`` parameter of the readers that read a calibration: ingest's ``--cameras`` sets it, so a
 #: broken camera left out of the calibration (a copied table) is never read or checked.
 CAMERAS_PARAMETER = parameter(None, doc="only these calibrated cameras are read and checked (mmcsplat ingest/run --cameras sets it)",

@@ -25,6 +25,7 @@ from mmcsplat.datasets.rig import (
     CAMERAS_PARAMETER,
     MASKS_FOLDER,
     SIZE_MISMATCH_PARAMETER,
+    TRIAL_PARAMETER,
     RigRecording,
     common_length,
     find_calibration,
@@ -122,6 +123,7 @@ class VideoReader(Reader):
 
     size_mismatch: str = SIZE_MISMATCH_PARAMETER
     camera_map: Mapping[str, str] | str | None = CAMERA_MAP_PARAMETER
+    trial: str | None = TRIAL_PARAMETER
     cameras: tuple[str, ...] | None = CAMERAS_PARAMETER
     verify: bool = parameter(True, doc="decode each video once with ffmpeg first: a damaged one is an error naming the frame")
 
@@ -134,7 +136,7 @@ class VideoReader(Reader):
             raise NotAFolderError(f"videos source {source} is not a folder")
         calibration = find_calibration(source, calibration)
         calibrated = read_calibration(calibration, units, self.cameras)
-        matched = match_cameras(calibrated, video_files(source), "video", source, self.camera_map)
+        matched = match_cameras(calibrated, video_files(source), "video", source, self.camera_map, trial=self.trial)
         paths = {name: camera_video(path) for name, path in matched.items()}
         infos = {camera.name: probe(paths[camera.name]) for camera in calibrated}
         if self.verify:

@@ -126,8 +126,13 @@ def test_cameras_named_by_letter_match_files_as_anipose_names_them(tmp_path: Pat
     # a second trial beside the first (anipose keeps a session's trials in one folder): which one is asked for
     rig.write_videos(source / "videos-raw", cameras[:1], [3], stems=["2019-08-02-vid02-camA"])
     with pytest.raises(ValueError, match=r"camera 'A' matches several videos \(2019-08-02-vid01-camA.mp4, 2019-08-02-vid02-camA.mp4\); "
-                                         r"choose one with camera_map=\{A=\"FILE_STEM\"\} \(the reader's camera_map"):
+                                         r"choose one with camera_map=\{A=\"FILE_STEM\"\}, or every camera's with trial=\"NAME_START\" "
+                                         r"\(the reader's camera_map"):
         _ingest(source, tmp_path / "two.zarr")
+    rig.write_videos(source / "videos-raw", cameras[1:], [3], stems=["2019-08-02-vid02-camB"])
+    session = _ingest(source, tmp_path / "second.zarr", reader_options={"trial": "2019-08-02-vid02"})
+    assert session.provenance["reader"]["videos"]["A"].endswith("vid02-camA.mp4")
+    assert session.provenance["reader"]["videos"]["B"].endswith("vid02-camB.mp4")
 
 
 def test_size_mismatch_scales_K_with_a_warning(tmp_path: Path) -> None:

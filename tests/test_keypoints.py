@@ -5,6 +5,7 @@ and on the real Pose2Sim demo against its triangulated joints."""
 from __future__ import annotations
 
 import json
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -178,6 +179,13 @@ def test_a_camera_map_picks_one_trial_of_keypoint_files_side_by_side(scene, tmp_
     expected = _expected(list(FIGURE))
     expected[1, 1] = np.nan
     np.testing.assert_allclose(landmarks.positions, expected, atol=1e-6)
+    # the same with one word: the trial's name, without a warning about the other trial's files
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        by_trial = default_registry().create("landmarks", "deeplabcut", folder=str(tmp_path), trial="vid01").read(reader, range(FRAMES))
+    np.testing.assert_allclose(by_trial.positions, expected, atol=1e-6)
+    with pytest.raises(FileNotFoundError, match=r"no keypoint file of trial 'vid03' \(no name starts with it; found: vid01-cam_0, "):
+        default_registry().create("landmarks", "deeplabcut", folder=str(tmp_path), trial="vid03").read(reader, range(FRAMES))
 
 
 def _figure_pixels(camera, t: int, parts: list[str]) -> np.ndarray:

@@ -35,11 +35,16 @@ def renamed_capture(root: Path) -> Path:
     return capture
 
 
-def test_the_readers_camera_map_maps_the_keypoints_unless_they_are_given_their_own():
+def test_the_readers_camera_map_and_trial_name_the_keypoints_unless_they_are_given_their_own():
     source = {"name": "openpose", "folder": "/rig/pose_2d"}
     assert keypoints_with(source, {}, {"camera_map": RENAMED, "size_mismatch": "crop"}) == {**source, "camera_map": RENAMED}
     assert keypoints_with(source, {"camera_map": "order"}, {"camera_map": RENAMED}) == {**source, "camera_map": "order"}
     assert keypoints_with(source, {"min_confidence": 0.5}, {}) == {**source, "min_confidence": 0.5}
+    # anipose's pose-2d/vid01-camA.h5 are one trial's files, as videos-raw/vid01-camA.avi are; OpenPose's camera folders are not per trial
+    tables = {"name": "deeplabcut", "folder": "/rig/pose-2d"}
+    assert keypoints_with(tables, {}, {"trial": "vid01"}) == {**tables, "trial": "vid01"}
+    assert keypoints_with(tables, {"trial": "vid02"}, {"trial": "vid01"}) == {**tables, "trial": "vid02"}
+    assert keypoints_with(source, {}, {"trial": "vid01"}) == source
 
 
 class Stop(Exception):

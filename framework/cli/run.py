@@ -35,8 +35,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--keypoints", help="2D keypoints: a folder of OpenPose JSON folders per camera, or of SLEAP (.slp, .analysis.h5) or "
                         "DeepLabCut (.csv, .h5) files per camera, or one such file (default: CAPTURE/pose_2d, else Pose2Sim's pose-associated, pose-sync or pose, else anipose's pose-2d-filtered or pose-2d, when there is one)")
     add_settings(parser, "a parameter of the keypoints' source (`mmcsplat plugins --show landmarks:openpose`, sleap, deeplabcut), e.g. "
-                 "camera_map={cam_01=\"left\"} where the keypoints' names differ from the calibration's; the reader's camera_map "
-                 "(--reader-set) maps the keypoints too unless this gives theirs", dest="keypoint_options", flag="--keypoints-set")
+                 "camera_map={cam_01=\"left\"} where the keypoints' names differ from the calibration's; the reader's camera_map and "
+                 "trial (--reader-set) name the keypoints' files too unless this gives theirs", dest="keypoint_options", flag="--keypoints-set")
     parser.add_argument("--joints", help="TRC file of joints to carry as landmarks (default: the capture's single *.trc, else the single one in "
                         "Pose2Sim's pose-3d/, else a "
                         "synthetic capture's true joints from its ground_truth.zarr)")
@@ -46,7 +46,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", default=DEFAULT_CONFIG, help=f"configuration to fit with (default: {DEFAULT_CONFIG})")
     add_settings(parser, "override a configuration value (repeatable)")
     add_settings(parser, "a parameter of the capture's reader (`mmcsplat plugins --show reader:NAME`), as `mmcsplat ingest --set` takes "
-                 "it: size_mismatch=crop for videos coded larger than calibrated, camera_map=order", dest="reader_options", flag="--reader-set")
+                 "it: size_mismatch=crop for videos coded larger than calibrated, camera_map=order, trial=vid01 for one of several trials", dest="reader_options", flag="--reader-set")
     parser.add_argument("--backend", help="renderer backend by name, e.g. torch-cuda on a GPU (default: the configuration's [renderer]); "
                         "the later steps render with it too")
     parser.add_argument("--track-iterations", type=iterations_value, default=AUTO_STEPS, metavar="N",

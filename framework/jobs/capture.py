@@ -7,7 +7,7 @@ flow → flow-guided track → landmarks → evaluate → renders → report.
   (``--keypoints PATH``, default the capture's ``pose_2d/``, else Pose2Sim's ``pose-associated/``, ``pose-sync/``
   or ``pose/``, else anipose's ``pose-2d-filtered/`` or ``pose-2d/`` (:func:`keypoint_folder`): a folder of OpenPose camera folders,
   of SLEAP or of DeepLabCut files, or one such file; see :func:`keypoint_source`; their source's parameters
-  ``--keypoints-set``, its ``camera_map`` the reader's unless given: :func:`keypoints_with`) the skeleton-then-plate
+  ``--keypoints-set``, its ``camera_map`` and ``trial`` the reader's unless given: :func:`keypoints_with`) the skeleton-then-plate
   path of the ``keypoints`` segmenter; without, against the capture's recorded plates (``background``, method
   ``plate``) or, with nothing but videos and a calibration, the ``parallax`` segmenter (what the cameras
   agree stands off the floor: a still trunk too), refined against plates estimated with its masks held
@@ -49,6 +49,7 @@ from mmcsplat.pipeline.capture_session import DEFAULT_SCALE, joints_source, keyp
 from mmcsplat.pipeline.image_scale import AUTO_SCALE, resolve_scale
 from mmcsplat.pipeline.steps import BEFORE_FIELD, SettingsRecord, Step, StepTime, fit_complete, fresh, made_in_place, run_steps
 from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.plugin_api.parameters import describe_parameters
 from mmcsplat.storage.atomic import write_json_atomic
 from mmcsplat.storage.run import LANDMARKS_CSV, LANDMARKS_INFO, METRICS_FILE, MOVEMENT_JSON, RENDERS_DIR, REPORT_FILE, RUN_INFO, TRACK_INFO, TRACKS_DIR
 from mmcsplat.training.frame_steps import AUTO_STEPS, FEWEST_STEPS, STEPS_PER_SECOND, steps_per_frame
@@ -68,6 +69,8 @@ TRACK_LAMBDA_PARTS = 2.0
 #: reports 0.73 of their motion, and a fit that starts short does not close the gap, so the tracks lag and the lag
 #: adds up (docs/results.md, "The flow's shortfall").
 TRACK_FLOW_GAIN = 2.0
+#: The reader's parameters that say which file is whose: the keypoint source takes them too (:func:`keypoints_with`).
+NAMING_OPTIONS = ("camera_map", "trial")
 
 
 @attrs.frozen
@@ -118,10 +121,14 @@ def quoted_override(key: str, value: Any) -> str:
 
 def keypoints_with(source: dict[str, Any], options: dict[str, Any], reader_options: dict[str, Any]) -> dict[str, Any]:
     """The keypoint source ``source`` (:func:`~mmcsplat.pipeline.capture_session.keypoint_source`) with the
-    parameters ``options`` (``--keypoints-set``). The reader's ``camera_map`` (``--reader-set``) maps the keypoints
-    too unless ``options`` gives their own: a rig's keypoint folders and files are named after its videos (Pose2Sim's
-    ``pose_2d/cam01`` beside ``videos/cam01.mp4``, anipose's ``pose-2d/trial-cam1.csv`` beside ``trial-cam1.mp4``)."""
-    shared = {"camera_map": reader_options["camera_map"]} if "camera_map" in reader_options else {}
+    parameters ``options`` (``--keypoints-set``). The reader's :data:`NAMING_OPTIONS` (``--reader-set``) name the
+    keypoint files too, where the source takes them and ``options`` gives none of its own: a rig's keypoint folders
+    and files are named after its videos (Pose2Sim's ``pose_2d/cam01`` beside ``videos/cam01.mp4``, anipose's
+    ``pose-2d/vid01-camA.h5`` beside ``videos-raw/vid01-camA.avi``)."""
+    from mmcsplat.configuration.registry import default_registry
+
+    taken = {info.name for info in describe_parameters(default_registry().get("landmarks", source["name"]).load()) or ()}
+    shared = {key: reader_options[key] for key in NAMING_OPTIONS if key in reader_options and key in taken}
     return {**source, **shared, **options}
 
 

@@ -41,20 +41,28 @@ def _within(outer: tuple, inner: tuple) -> bool:
 
 #: The ``camera_map`` value that pairs the calibration's cameras, in its order, with the files in name order.
 BY_ORDER = "order"
-#: Where a reader's ``camera_map`` is set (videos, image and mask folders), for the errors' hints.
+#: Where a reader's ``camera_map`` (and ``trial``) is set (videos, image and mask folders), for the errors' hints.
 READER_CAMERA_MAP = "the reader's camera_map: mmcsplat ingest --set, mmcsplat run --reader-set"
-#: Where a keypoint source's ``camera_map`` is set, for the errors' hints.
+#: Where a keypoint source's ``camera_map`` (and ``trial``) is set, for the errors' hints.
 KEYPOINTS_CAMERA_MAP = "the keypoint source's camera_map: mmcsplat run --keypoints-set, mmcsplat landmarks --set or --keypoints-set"
 
 
 def match_cameras(cameras: Sequence[Camera], paths: Iterable[Path], what: str, where: Path,
-                  camera_map: Mapping[str, str] | str | None = None, set_by: str = READER_CAMERA_MAP) -> dict[str, Path]:
+                  camera_map: Mapping[str, str] | str | None = None, set_by: str = READER_CAMERA_MAP,
+                  trial: str | None = None) -> dict[str, Path]:
     """Camera name → its file: by ``camera_map`` (calibration name → file stem) where given, else by the
     module's name rules, in their order; an error naming any camera without one, or with several. Files that match no camera are ignored with a warning. ``camera_map`` :data:`BY_ORDER` pairs the
     cameras, in the calibration's order, with the files in natural name order, when their counts agree.
-    ``set_by`` says in the errors where ``camera_map`` is set for these files.
+    ``trial`` keeps only the files whose name starts with it (one recording of several side by side, as
+    anipose keeps ``vid01-camA.avi`` beside ``vid02-camA.avi``). ``set_by`` says in the errors where
+    ``camera_map`` and ``trial`` are set for these files.
     """
     paths = list(paths)
+    if trial is not None:
+        found = sorted({_label(path) for path in paths}, key=natural_key)
+        paths = [path for path in paths if _label(path).startswith(trial)]
+        if not paths:
+            raise MissingFileError(f"{where}: no {what} of trial {trial!r} (no name starts with it; found: {', '.join(found) or 'none'})")
     if isinstance(camera_map, str):
         if camera_map != BY_ORDER:
             raise InputError(f"{where}: camera_map must be a table (calibration name = file name) or {BY_ORDER!r}, got {camera_map!r}")
@@ -66,7 +74,7 @@ def match_cameras(cameras: Sequence[Camera], paths: Iterable[Path], what: str, w
     by_stem: dict[str, Path] = {}
     by_key: dict[tuple, list[Path]] = {}
     for path in paths:
-        label = path.stem if path.is_file() else path.name
+        label = _label(path)
         by_stem[label] = path
         by_key.setdefault(name_key(label), []).append(path)
     unknown = sorted(set(camera_map or {}) - {camera.name for camera in cameras})
@@ -94,7 +102,7 @@ def match_cameras(cameras: Sequence[Camera], paths: Iterable[Path], what: str, w
         if len(candidates) > 1:
             names = ", ".join(sorted(path.name for path in candidates))
             raise InputError(f"{where}: camera {camera.name!r} matches several {what}s ({names}); choose one with "
-                             f"camera_map={{{camera.name}=\"FILE_STEM\"}} ({set_by})")
+                             f"camera_map={{{camera.name}=\"FILE_STEM\"}}, or every camera's with trial=\"NAME_START\" ({set_by})")
         if not candidates:
             available = ", ".join(sorted(by_stem, key=natural_key)) or "none"
             raise MissingFileError(f"{where}: no {what} for calibrated camera {camera.name!r} (found: {available}); map names with "
@@ -111,3 +119,8 @@ def match_cameras(cameras: Sequence[Camera], paths: Iterable[Path], what: str, w
     if unused:
         warnings.warn(f"{where}: ignoring {what}s of no calibrated camera: {', '.join(p.name for p in unused)}", stacklevel=3)
     return matched
+
+
+def _label(path: Path) -> str:
+    """The name a file or folder is matched by: a file's stem, a folder's name."""
+    return path.stem if path.is_file() else path.name

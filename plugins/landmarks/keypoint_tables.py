@@ -36,6 +36,8 @@ class TableKeypoints(TriangulatedKeypoints):
     min_confidence: float = parameter(0.6, doc="detections of lower confidence are not used", validator=between(0, 1))
     camera_map: dict | str | None = parameter(None, doc="session camera name → its file's name (without the suffix), where the names "
                                                "differ; or \"order\": the cameras, in the calibration's order, to the files in name order")
+    trial: str | None = parameter(None, doc="read only the files whose name starts with this: one trial of several side by side "
+                                            "(anipose's pose-2d/vid01-camA.h5 beside vid02-camA.h5: trial=\"vid01\")")
 
     #: The file suffixes read, in order of preference: a folder's files of the first suffix it has are used.
     SUFFIXES: ClassVar[tuple[str, ...]] = ()
@@ -91,7 +93,7 @@ class TableKeypoints(TriangulatedKeypoints):
         # Matched by name: a stand-in path named after each file's label.
         folder, files = self.keypoint_files()
         matched = {name: files[path] for name, path in match_cameras(cameras, list(files), "keypoint file", folder, self.camera_map,
-                                                                   KEYPOINTS_CAMERA_MAP).items()}
+                                                                   KEYPOINTS_CAMERA_MAP, self.trial).items()}
         recorded = session.recorded_cameras()
         capture = session.capture_frames(frames)
         result, names = [], None
