@@ -71,6 +71,35 @@ def test_keypoints_triangulate_to_the_joints_they_came_from(scene):
     assert observed[0].confidence.max() == pytest.approx(0.9)  # the confident person, not the stranger
 
 
+def test_the_subject_is_the_person_the_cameras_agree_on_not_the_most_confident(scene, tmp_path):
+    """A bystander detected more confidently than the subject (a parent beside an infant), in one camera the
+    only person seen: the subject is the person nearest where the cameras look, followed from frame to frame,
+    and the camera that sees only the bystander gives no detections that frame."""
+    reader = SessionReader(scene[0])
+    folder = tmp_path / "pose_2d"
+    bystander_at = np.array([0.0, 0.35, 0.0])
+    for index, camera in enumerate(reader.cameras):
+        out = folder / camera.name
+        out.mkdir(parents=True)
+        for t in range(FRAMES):
+            joints = figure_at(t)
+            known = np.all(np.isfinite(joints), axis=1)
+            people = []
+            for offset, confidence in ((bystander_at, 0.9), (np.zeros(3), 0.5)):
+                pixels = camera.project(np.where(known[:, None], joints + offset, 0.0))
+                people.append({"pose_keypoints_2d": np.column_stack([pixels, np.where(known, confidence, 0.0)]).ravel().tolist()})
+            if index == 0 and t == 1:
+                people = people[:1]  # the subject hidden from this camera: only the bystander
+            (out / f"{camera.name}.{t:04d}.json").write_text(json.dumps({"people": people}))
+    source = default_registry().create("landmarks", "openpose", folder=str(folder))
+    observed = source.observations(reader, range(FRAMES))
+    assert observed[0].confidence[1].max() == 0.0  # not the bystander
+    assert all(o.confidence[t].max() == pytest.approx(0.5) for o in observed for t in range(FRAMES) if (o, t) != (observed[0], 1))
+    landmarks = source.read(reader, range(FRAMES))
+    for t in range(FRAMES):
+        np.testing.assert_allclose(landmarks.positions[t], figure_at(t), atol=1e-6)
+
+
 def test_skeleton_masks_cover_the_figure(scene, tmp_path):
     import shutil
 
@@ -133,6 +162,23 @@ def test_pose2sim_keypoints_triangulate_near_its_joints(tmp_path):
     # others differ by 3–7 cm, as Pose2Sim filters its joints and triangulates with outlier rejection.
     assert np.median([np.median(e) for e in errors.values()]) < 0.02
     assert sum(np.median(e) < 0.02 for e in errors.values()) >= 12
+
+
+@pytest.mark.skipif(not POSE2SIM.is_dir(), reason=f"Pose2Sim demo not found at {POSE2SIM}")
+def test_the_demos_bystander_is_not_taken_for_the_subject(tmp_path):
+    """At frame 37 OpenPose is, on average, more confident of a bystander at cam_01's left edge than of the
+    subject: the subject is still the person the four cameras agree on, as the TRC places it."""
+    session = tmp_path / "p2s.zarr"
+    assert main(["ingest", str(POSE2SIM), str(session), "--calibration", str(POSE2SIM / "Calib_qualisys.toml"), "--frames", "36:39",
+                 "--scale", "0.25", "--no-progress"]) == 0
+    reader = SessionReader(session)
+    observed = default_registry().create("landmarks", "openpose", folder=str(POSE2SIM / "pose_2d")).observations(reader, range(3))[0]
+    joints = read_trc(POSE2SIM / "joints_3d.trc")
+    for t in range(3):
+        seen = [observed.names.index(name) for name in joints.names if name in observed.names]
+        used = observed.confidence[t, seen] > 0
+        reference = reader.camera("cam_01").project(joints.positions[36 + t, [joints.names.index(observed.names[k]) for k in seen]])
+        assert np.median(np.linalg.norm(observed.pixels[t, seen][used] - reference[used], axis=1)) < 10, t  # the bystander is 140 px off
 
 
 def _write_deeplabcut_csvs(reader: SessionReader, folder: Path, trial: str, shift: float = 0.0) -> None:

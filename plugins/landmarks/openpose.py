@@ -7,8 +7,9 @@ keypoints.json``). Each file lists ``people``, each with ``pose_keypoints_2d`` =
 in the source video's pixels; the ``model`` names the K keypoints (BODY_25B, the model Pose2Sim's demo
 uses, or BODY_25). A frame missing a file or a person has no detections (confidence 0).
 
-Several people: the person whose keypoints are, on average, the most confident is taken in each frame
-(the subject in a clinical recording; a false detection or a bystander usually scores lower).
+Several people: the subject is the person the cameras agree on (:mod:`.subject`): the detections of one
+person triangulate consistently, followed from frame to frame, and a camera that sees only others gives no
+detections that frame.
 
 The detections are mapped into the stored images and triangulated by :mod:`.triangulation`.
 """
@@ -29,6 +30,7 @@ from mmcsplat.plugin_api.parameters import between, one_of, parameter
 from mmcsplat.storage.camera_names import KEYPOINTS_CAMERA_MAP, match_cameras, natural_key
 from mmcsplat.storage.session import SessionReader
 
+from .subject import choose_subject
 from .triangulation import TriangulatedKeypoints, to_session_pixels
 
 #: Keypoint names by index, per model (OpenPose's documented orders).
@@ -76,7 +78,7 @@ class OpenPoseKeypoints(TriangulatedKeypoints):
         return f"OpenPose keypoints {self.folder} ({self.model})"
 
     def observations(self, session: SessionReader, frames: Sequence[int]) -> list[KeypointObservations]:
-        """The most confident person's keypoints in every camera with a folder, in the stored images' pixels."""
+        """The subject's keypoints (:mod:`.subject`) in every camera with a folder, in the stored images' pixels."""
         folder = Path(self.folder)
         if not folder.is_dir():
             raise MissingFileError(f"openpose keypoints: folder {folder} does not exist")
@@ -88,23 +90,23 @@ class OpenPoseKeypoints(TriangulatedKeypoints):
         folders = {name: by_label[label] for name, label in matched.items()}
         recorded = session.recorded_cameras()
         capture = session.capture_frames(frames)
-        result = []
+        people = []  # [camera][frame]: [P, L, 3] in the stored images' pixels
         for camera in cameras:
             files = {frame_number(path): path for path in sorted(folders[camera.name].glob("*.json"), key=lambda p: natural_key(p.name))}
-            pixels = np.zeros((len(frames), len(names), 2))
-            confidence = np.zeros((len(frames), len(names)))
-            for k, number in enumerate(capture):
-                if int(number) not in files:
-                    continue
-                people = read_people(files[int(number)], len(names))
-                if len(people):
-                    best = people[np.argmax(people[:, :, 2].mean(axis=1))]
-                    pixels[k], confidence[k] = best[:, :2], best[:, 2]
             if not any(int(number) in files for number in capture):
                 raise MissingFileError(f"{folders[camera.name]}: no keypoint file numbered like the session's frames "
                                        f"{int(capture[0])}–{int(capture[-1])}")
+            seen = [read_people(files[int(number)], len(names)) if int(number) in files else np.zeros((0, len(names), 3)) for number in capture]
             if camera.name in recorded:
-                pixels = to_session_pixels(pixels, recorded[camera.name], camera)
-            confidence[confidence < self.min_confidence] = 0.0
-            result.append(KeypointObservations(camera.name, names, frames, pixels, confidence))
+                seen = [np.concatenate([to_session_pixels(p[..., :2], recorded[camera.name], camera), p[..., 2:]], axis=-1) for p in seen]
+            people.append(seen)
+        chosen = choose_subject(people, cameras, self.min_confidence)
+        result = []
+        for c, camera in enumerate(cameras):
+            subject = np.zeros((len(frames), len(names), 3))
+            for k, index in enumerate(chosen[c]):
+                if index is not None:
+                    subject[k] = people[c][k][index]
+            confidence = np.where(subject[..., 2] < self.min_confidence, 0.0, subject[..., 2])
+            result.append(KeypointObservations(camera.name, names, frames, subject[..., :2], confidence))
         return result

@@ -1,0 +1,142 @@
+"""Which of the people detected in each camera is the subject: the person the cameras agree on.
+
+A 2D detector reports everyone it sees: a parent's or a clinician's arms beside an infant, a bystander at the
+edge of two of the Pose2Sim demo's cameras. Each camera's most confident person, taken on its own, is whoever
+the detector sees best, which need not be the subject, nor the same person in every camera, nor in every
+frame. Here, in each frame:
+
+- two cameras' detections whose triangulation reprojects onto both within :data:`AGREEMENT` of the image's
+  diagonal (median over their common keypoints, at least :data:`FEWEST_KEYPOINTS`) are a person; every other
+  camera's detection that reprojects as closely joins them, and the person is triangulated again from all;
+- a detection belongs to one person at most: the people seen by more cameras, then the closer-agreeing, first;
+- the subject is the person nearest the subject of the frame before (the centroid of its keypoints), and in
+  its first frame the person nearest the point the cameras look at (:func:`rig_focus`);
+- a camera none of whose detections belongs to the subject gives none that frame;
+- a frame where no two cameras agree on anyone takes, in each camera, the detection nearest the subject's
+  last skeleton reprojected (within the same tolerance), and before any subject was found the most confident.
+
+Written here because no installed package associates people across calibrated views (Pose2Sim does it inside
+its own pipeline, not as a library call).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from itertools import combinations
+
+import numpy as np
+
+from mmcsplat.scene.camera import Camera
+from mmcsplat.scene.triangulation import triangulate
+
+#: How far a person's detection may lie from its triangulated skeleton reprojected, as a share of the image's
+#: diagonal (the median over its keypoints): 5 %, 27 px in a 270 × 480 image, where one person's detections
+#: in the Pose2Sim demo lie 2–5 px from their triangulation and its bystander a third of the image away.
+AGREEMENT = 0.05
+#: Keypoints two detections must share to be compared.
+FEWEST_KEYPOINTS = 3
+
+#: One camera's detections in one frame: [P, L, 3] (x, y, confidence) in the camera's pixels.
+Detections = np.ndarray
+
+
+def rig_focus(cameras: Sequence[Camera]) -> np.ndarray:
+    """The point nearest every camera's optical axis (least squares): where a ring of cameras looks."""
+    normal = np.zeros((3, 3))
+    target = np.zeros(3)
+    for camera in cameras:
+        axis = np.asarray(camera.R)[2]  # the optical axis in world coordinates
+        across = np.eye(3) - np.outer(axis, axis)
+        normal += across
+        target += across @ camera.center
+    return np.linalg.lstsq(normal, target, rcond=None)[0]
+
+
+def choose_subject(people: Sequence[Sequence[Detections]], cameras: Sequence[Camera], min_confidence: float) -> list[list[int | None]]:
+    """``chosen[c][t]``: the index of the subject among ``people[c][t]`` (camera c's detections at frame t,
+    keypoints under ``min_confidence`` unused), or None where camera c did not see it (module docstring)."""
+    tolerances = [AGREEMENT * float(np.hypot(camera.width, camera.height)) for camera in cameras]
+    agreement = _Agreement(cameras, tolerances, min_confidence)
+    focus = rig_focus(cameras)
+    frames = len(people[0]) if people else 0
+    chosen: list[list[int | None]] = [[None] * frames for _ in cameras]
+    last: np.ndarray | None = None
+    for t in range(frames):
+        frame = [people[c][t] for c in range(len(cameras))]
+        persons = agreement.persons(frame)
+        if persons:
+            reference = focus if last is None else _centroid(last)
+            members, skeleton = min(persons, key=lambda person: float(np.linalg.norm(_centroid(person[1]) - reference)))
+            last = skeleton
+            for c, index in members.items():
+                chosen[c][t] = index
+            continue
+        for c, detections in enumerate(frame):
+            if not len(detections):
+                continue
+            if last is None:
+                chosen[c][t] = int(np.argmax(detections[:, :, 2].mean(axis=1)))
+                continue
+            errors = [agreement.error(c, last, detection) for detection in detections]
+            if min(errors) <= tolerances[c]:
+                chosen[c][t] = int(np.argmin(errors))
+    return chosen
+
+
+def _centroid(skeleton: np.ndarray) -> np.ndarray:
+    return np.nanmean(skeleton, axis=0)
+
+
+class _Agreement:
+    """The people that one frame's detections in several cameras agree on."""
+
+    def __init__(self, cameras: Sequence[Camera], tolerances: Sequence[float], min_confidence: float) -> None:
+        self.cameras = list(cameras)
+        self.tolerances = list(tolerances)
+        self.min_confidence = min_confidence
+
+    def error(self, camera: int, skeleton: np.ndarray, detection: np.ndarray) -> float:
+        """The median distance (px) between ``detection`` and ``skeleton`` reprojected into ``camera``; inf
+        with fewer than :data:`FEWEST_KEYPOINTS` keypoints in common."""
+        common = np.isfinite(skeleton).all(axis=1) & (detection[:, 2] >= self.min_confidence)
+        if common.sum() < FEWEST_KEYPOINTS:
+            return float("inf")
+        reprojected = self.cameras[camera].project(skeleton[common])
+        return float(np.median(np.linalg.norm(reprojected - detection[common, :2], axis=1)))
+
+    def skeleton(self, frame: Sequence[Detections], members: dict[int, int]) -> np.ndarray:
+        """[L, 3] the members' detections triangulated, each keypoint weighted by its confidence."""
+        used = sorted(members)
+        detections = np.stack([frame[c][members[c]] for c in used])
+        weights = np.where(detections[:, :, 2] >= self.min_confidence, detections[:, :, 2], 0.0)
+        return triangulate([self.cameras[c] for c in used], detections[:, :, :2], weights)
+
+    def persons(self, frame: Sequence[Detections]) -> list[tuple[dict[int, int], np.ndarray]]:
+        """Every person two or more cameras agree on: (camera → its detection's index, [L, 3] skeleton),
+        each detection in one person at most."""
+        found: dict[frozenset, tuple[dict[int, int], np.ndarray, float]] = {}
+        for a, b in combinations(range(len(frame)), 2):
+            for i in range(len(frame[a])):
+                for j in range(len(frame[b])):
+                    pair = {a: i, b: j}
+                    skeleton = self.skeleton(frame, pair)
+                    if any(self.error(c, skeleton, frame[c][index]) > self.tolerances[c] for c, index in pair.items()):
+                        continue
+                    members = dict(pair)
+                    for c in range(len(frame)):
+                        if c in pair or not len(frame[c]):
+                            continue
+                        errors = [self.error(c, skeleton, detection) for detection in frame[c]]
+                        if min(errors) <= self.tolerances[c]:
+                            members[c] = int(np.argmin(errors))
+                    key = frozenset(members.items())
+                    if key not in found:
+                        skeleton = self.skeleton(frame, members)
+                        spread = float(np.mean([self.error(c, skeleton, frame[c][index]) / self.tolerances[c] for c, index in members.items()]))
+                        found[key] = (members, skeleton, spread)
+        persons, taken = [], set()
+        for members, skeleton, _ in sorted(found.values(), key=lambda person: (-len(person[0]), person[2])):
+            if taken.isdisjoint(members.items()):
+                persons.append((members, skeleton))
+                taken.update(members.items())
+        return persons
