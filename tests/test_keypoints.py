@@ -16,6 +16,7 @@ from mmcsplat.cli import main
 from mmcsplat.configuration.registry import default_registry
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugins.landmarks.openpose import MODELS
+from mmcsplat.plugins.landmarks.subject import choose_subject
 from mmcsplat.storage.landmark_formats import read_trc
 from mmcsplat.storage.session import SessionReader, SessionUpdater
 
@@ -78,6 +79,7 @@ def test_the_subject_is_the_person_the_cameras_agree_on_not_the_most_confident(s
     reader = SessionReader(scene[0])
     folder = tmp_path / "pose_2d"
     bystander_at = np.array([0.0, 0.35, 0.0])
+    detected = [[] for _ in reader.cameras]
     for index, camera in enumerate(reader.cameras):
         out = folder / camera.name
         out.mkdir(parents=True)
@@ -91,6 +93,7 @@ def test_the_subject_is_the_person_the_cameras_agree_on_not_the_most_confident(s
             if index == 0 and t == 1:
                 people = people[:1]  # the subject hidden from this camera: only the bystander
             (out / f"{camera.name}.{t:04d}.json").write_text(json.dumps({"people": people}))
+            detected[index].append(np.array([p["pose_keypoints_2d"] for p in people]).reshape(len(people), -1, 3))
     source = default_registry().create("landmarks", "openpose", folder=str(folder))
     observed = source.observations(reader, range(FRAMES))
     assert observed[0].confidence[1].max() == 0.0  # not the bystander
@@ -98,6 +101,15 @@ def test_the_subject_is_the_person_the_cameras_agree_on_not_the_most_confident(s
     landmarks = source.read(reader, range(FRAMES))
     for t in range(FRAMES):
         np.testing.assert_allclose(landmarks.positions[t], figure_at(t), atol=1e-6)
+    # a held-out camera does not judge: it takes the detection nearest the subject the others found
+    judges = [False] + [True] * (len(reader.cameras) - 1)
+    chosen = choose_subject(detected, reader.cameras, 0.3, judges)
+    assert chosen[0] == [1, None, 1] and all(c == [1, 1, 1] for c in chosen[1:])
+    # nor decides for them: where it is the only other camera that sees anyone, the one camera left takes its
+    # most confident person (the bystander), as it would alone
+    alone = [[frames[0]] if index < 2 else [frames[0][:0]] for index, frames in enumerate(detected)]
+    assert [c[0] for c in choose_subject(alone, reader.cameras, 0.3)][:2] == [1, 1]
+    assert [c[0] for c in choose_subject(alone, reader.cameras, 0.3, judges)][:2] == [0, 0]
 
 
 def test_skeleton_masks_cover_the_figure(scene, tmp_path):

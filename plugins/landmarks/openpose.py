@@ -100,7 +100,7 @@ class OpenPoseKeypoints(TriangulatedKeypoints):
             if camera.name in recorded:
                 seen = [np.concatenate([to_session_pixels(p[..., :2], recorded[camera.name], camera), p[..., 2:]], axis=-1) for p in seen]
             people.append(seen)
-        chosen = choose_subject(people, cameras, self.min_confidence)
+        chosen = choose_subject(people, cameras, self.min_confidence, [name not in session.heldout for name in session.camera_names])
         result = []
         for c, camera in enumerate(cameras):
             subject = np.zeros((len(frames), len(names), 3))

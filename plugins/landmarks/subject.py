@@ -11,7 +11,8 @@ frame. Here, in each frame:
 - a detection belongs to one person at most: the people seen by more cameras, then the closer-agreeing, first;
 - the subject is the person nearest the subject of the frame before (the centroid of its keypoints), and in
   its first frame the person nearest the point the cameras look at (:func:`rig_focus`);
-- a camera none of whose detections belongs to the subject gives none that frame;
+- a camera none of whose detections belongs to the subject gives none that frame; a camera that does not
+  judge (a held-out one) takes its detection nearest the subject's skeleton reprojected, within the tolerance;
 - a frame where no two cameras agree on anyone takes, in each camera, the detection nearest the subject's
   last skeleton reprojected (within the same tolerance), and before any subject was found the most confident.
 
@@ -52,28 +53,33 @@ def rig_focus(cameras: Sequence[Camera]) -> np.ndarray:
     return np.linalg.lstsq(normal, target, rcond=None)[0]
 
 
-def choose_subject(people: Sequence[Sequence[Detections]], cameras: Sequence[Camera], min_confidence: float) -> list[list[int | None]]:
+def choose_subject(people: Sequence[Sequence[Detections]], cameras: Sequence[Camera], min_confidence: float,
+                   judges: Sequence[bool] | None = None) -> list[list[int | None]]:
     """``chosen[c][t]``: the index of the subject among ``people[c][t]`` (camera c's detections at frame t,
-    keypoints under ``min_confidence`` unused), or None where camera c did not see it (module docstring)."""
+    keypoints under ``min_confidence`` unused), or None where camera c did not see it (module docstring).
+
+    Only the cameras ``judges`` marks (every camera by default) find the people; each other camera then takes
+    its detection nearest the subject's skeleton reprojected, within the same tolerance. The keypoint sources
+    pass the session's training cameras, so that a held-out camera never decides which detection another
+    camera gives."""
+    judges = [True] * len(cameras) if judges is None else list(judges)
     tolerances = [AGREEMENT * float(np.hypot(camera.width, camera.height)) for camera in cameras]
     agreement = _Agreement(cameras, tolerances, min_confidence)
-    focus = rig_focus(cameras)
+    focus = rig_focus([camera for camera, judging in zip(cameras, judges, strict=True) if judging] or cameras)
     frames = len(people[0]) if people else 0
     chosen: list[list[int | None]] = [[None] * frames for _ in cameras]
     last: np.ndarray | None = None
     for t in range(frames):
         frame = [people[c][t] for c in range(len(cameras))]
-        persons = agreement.persons(frame)
+        persons = agreement.persons([detections if judges[c] else detections[:0] for c, detections in enumerate(frame)])
         if persons:
             reference = focus if last is None else _centroid(last)
-            members, skeleton = min(persons, key=lambda person: float(np.linalg.norm(_centroid(person[1]) - reference)))
-            last = skeleton
+            members, last = min(persons, key=lambda person: float(np.linalg.norm(_centroid(person[1]) - reference)))
             for c, index in members.items():
                 chosen[c][t] = index
-            continue
         for c, detections in enumerate(frame):
-            if not len(detections):
-                continue
+            if chosen[c][t] is not None or not len(detections) or (persons and judges[c]):
+                continue  # a judging camera outside the subject's members sees only others
             if last is None:
                 chosen[c][t] = int(np.argmax(detections[:, :, 2].mean(axis=1)))
                 continue
