@@ -92,24 +92,29 @@ def test_the_subject_is_the_person_the_cameras_agree_on_not_the_most_confident(s
                 people.append({"pose_keypoints_2d": np.column_stack([pixels, np.where(known, confidence, 0.0)]).ravel().tolist()})
             if index == 0 and t == 1:
                 people = people[:1]  # the subject hidden from this camera: only the bystander
+            if index == 1 and t == 2:  # the subject split in two detections, its upper body and its legs
+                whole = np.array(people[1]["pose_keypoints_2d"]).reshape(-1, 3)
+                legs = np.isin(np.arange(len(whole)), [MODELS["BODY_25B"].index(n) for n in ("LHip", "RHip", "LKnee", "RKnee", "LAnkle", "RAnkle")])
+                people[1:] = [{"pose_keypoints_2d": np.where(part[:, None], whole, 0.0).ravel().tolist()} for part in (~legs, legs)]
             (out / f"{camera.name}.{t:04d}.json").write_text(json.dumps({"people": people}))
             detected[index].append(np.array([p["pose_keypoints_2d"] for p in people]).reshape(len(people), -1, 3))
     source = default_registry().create("landmarks", "openpose", folder=str(folder))
     observed = source.observations(reader, range(FRAMES))
     assert observed[0].confidence[1].max() == 0.0  # not the bystander
     assert all(o.confidence[t].max() == pytest.approx(0.5) for o in observed for t in range(FRAMES) if (o, t) != (observed[0], 1))
+    assert (observed[1].confidence[2] > 0).sum() == len(FIGURE)  # the split subject joined again
     landmarks = source.read(reader, range(FRAMES))
     for t in range(FRAMES):
         np.testing.assert_allclose(landmarks.positions[t], figure_at(t), atol=1e-6)
     # a held-out camera does not judge: it takes the detection nearest the subject the others found
     judges = [False] + [True] * (len(reader.cameras) - 1)
     chosen = choose_subject(detected, reader.cameras, 0.3, judges)
-    assert chosen[0] == [1, None, 1] and all(c == [1, 1, 1] for c in chosen[1:])
+    assert chosen[0] == [(1,), (), (1,)] and chosen[1][:2] == [(1,), (1,)] and sorted(chosen[1][2]) == [1, 2] and all(c == [(1,), (1,), (1,)] for c in chosen[2:])
     # nor decides for them: where it is the only other camera that sees anyone, the one camera left takes its
     # most confident person (the bystander), as it would alone
     alone = [[frames[0]] if index < 2 else [frames[0][:0]] for index, frames in enumerate(detected)]
-    assert [c[0] for c in choose_subject(alone, reader.cameras, 0.3)][:2] == [1, 1]
-    assert [c[0] for c in choose_subject(alone, reader.cameras, 0.3, judges)][:2] == [0, 0]
+    assert [c[0] for c in choose_subject(alone, reader.cameras, 0.3)][:2] == [(1,), (1,)]
+    assert [c[0] for c in choose_subject(alone, reader.cameras, 0.3, judges)][:2] == [(0,), (0,)]
 
 
 def test_skeleton_masks_cover_the_figure(scene, tmp_path):
@@ -179,7 +184,8 @@ def test_pose2sim_keypoints_triangulate_near_its_joints(tmp_path):
 @pytest.mark.skipif(not POSE2SIM.is_dir(), reason=f"Pose2Sim demo not found at {POSE2SIM}")
 def test_the_demos_bystander_is_not_taken_for_the_subject(tmp_path):
     """At frame 37 OpenPose is, on average, more confident of a bystander at cam_01's left edge than of the
-    subject: the subject is still the person the four cameras agree on, as the TRC places it."""
+    subject, which it splits in two there: the subject is still the person the four cameras agree on, as the
+    TRC places it, whole."""
     session = tmp_path / "p2s.zarr"
     assert main(["ingest", str(POSE2SIM), str(session), "--calibration", str(POSE2SIM / "Calib_qualisys.toml"), "--frames", "36:39",
                  "--scale", "0.25", "--no-progress"]) == 0
@@ -191,6 +197,7 @@ def test_the_demos_bystander_is_not_taken_for_the_subject(tmp_path):
         used = observed.confidence[t, seen] > 0
         reference = reader.camera("cam_01").project(joints.positions[36 + t, [joints.names.index(observed.names[k]) for k in seen]])
         assert np.median(np.linalg.norm(observed.pixels[t, seen][used] - reference[used], axis=1)) < 10, t  # the bystander is 140 px off
+    assert (observed.confidence[1] > 0).sum() >= 20  # OpenPose split the subject at frame 37: upper body (8 keypoints) and legs, joined
 
 
 def _write_deeplabcut_csvs(reader: SessionReader, folder: Path, trial: str, shift: float = 0.0) -> None:

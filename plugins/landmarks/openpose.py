@@ -30,7 +30,7 @@ from mmcsplat.plugin_api.parameters import between, one_of, parameter
 from mmcsplat.storage.camera_names import KEYPOINTS_CAMERA_MAP, match_cameras, natural_key
 from mmcsplat.storage.session import SessionReader
 
-from .subject import choose_subject
+from .subject import choose_subject, merge_detections
 from .triangulation import TriangulatedKeypoints, to_session_pixels
 
 #: Keypoint names by index, per model (OpenPose's documented orders).
@@ -103,10 +103,7 @@ class OpenPoseKeypoints(TriangulatedKeypoints):
         chosen = choose_subject(people, cameras, self.min_confidence, [name not in session.heldout for name in session.camera_names])
         result = []
         for c, camera in enumerate(cameras):
-            subject = np.zeros((len(frames), len(names), 3))
-            for k, index in enumerate(chosen[c]):
-                if index is not None:
-                    subject[k] = people[c][k][index]
+            subject = np.stack([merge_detections(people[c][k], chosen[c][k]) for k in range(len(frames))])
             confidence = np.where(subject[..., 2] < self.min_confidence, 0.0, subject[..., 2])
             result.append(KeypointObservations(camera.name, names, frames, subject[..., :2], confidence))
         return result

@@ -11,8 +11,11 @@ frame. Here, in each frame:
 - a detection belongs to one person at most: the people seen by more cameras, then the closer-agreeing, first;
 - the subject is the person nearest the subject of the frame before (the centroid of its keypoints), and in
   its first frame the person nearest the point the cameras look at (:func:`rig_focus`);
-- a camera none of whose detections belongs to the subject gives none that frame; a camera that does not
-  judge (a held-out one) takes its detection nearest the subject's skeleton reprojected, within the tolerance;
+- a camera none of whose detections belongs to the subject gives none that frame; in each other camera the
+  detections that agree with the subject's skeleton (within the tolerance, and no other person's) are the
+  subject's: a detector that split the subject in two (OpenPose at cam_01's frame 37 of the demo: the upper
+  body and the legs apart) has them joined, each keypoint from the part most confident of it; a camera that
+  does not judge (a held-out one) takes them too, but does not help find the people;
 - a frame where no two cameras agree on anyone takes, in each camera, the detection nearest the subject's
   last skeleton reprojected (within the same tolerance), and before any subject was found the most confident.
 
@@ -54,39 +57,53 @@ def rig_focus(cameras: Sequence[Camera]) -> np.ndarray:
 
 
 def choose_subject(people: Sequence[Sequence[Detections]], cameras: Sequence[Camera], min_confidence: float,
-                   judges: Sequence[bool] | None = None) -> list[list[int | None]]:
-    """``chosen[c][t]``: the index of the subject among ``people[c][t]`` (camera c's detections at frame t,
-    keypoints under ``min_confidence`` unused), or None where camera c did not see it (module docstring).
+                   judges: Sequence[bool] | None = None) -> list[list[tuple[int, ...]]]:
+    """``chosen[c][t]``: the indices of the subject's detections among ``people[c][t]`` (camera c's detections
+    at frame t, keypoints under ``min_confidence`` unused), empty where camera c did not see it (module
+    docstring): several where the detector split the subject in two (:func:`merge_detections` joins them).
 
     Only the cameras ``judges`` marks (every camera by default) find the people; each other camera then takes
-    its detection nearest the subject's skeleton reprojected, within the same tolerance. The keypoint sources
-    pass the session's training cameras, so that a held-out camera never decides which detection another
-    camera gives."""
+    its detections that agree with the subject's skeleton. The keypoint sources pass the session's training
+    cameras, so that a held-out camera never decides which detection another camera gives."""
     judges = [True] * len(cameras) if judges is None else list(judges)
     tolerances = [AGREEMENT * float(np.hypot(camera.width, camera.height)) for camera in cameras]
     agreement = _Agreement(cameras, tolerances, min_confidence)
     focus = rig_focus([camera for camera, judging in zip(cameras, judges, strict=True) if judging] or cameras)
     frames = len(people[0]) if people else 0
-    chosen: list[list[int | None]] = [[None] * frames for _ in cameras]
+    chosen: list[list[tuple[int, ...]]] = [[()] * frames for _ in cameras]
     last: np.ndarray | None = None
     for t in range(frames):
         frame = [people[c][t] for c in range(len(cameras))]
         persons = agreement.persons([detections if judges[c] else detections[:0] for c, detections in enumerate(frame)])
+        members: dict[int, int] = {}
+        others: set[tuple[int, int]] = set()
         if persons:
             reference = focus if last is None else _centroid(last)
-            members, last = min(persons, key=lambda person: float(np.linalg.norm(_centroid(person[1]) - reference)))
-            for c, index in members.items():
-                chosen[c][t] = index
+            subject = min(persons, key=lambda person: float(np.linalg.norm(_centroid(person[1]) - reference)))
+            members, last = subject
+            others = {pair for person in persons if person is not subject for pair in person[0].items()}
         for c, detections in enumerate(frame):
-            if chosen[c][t] is not None or not len(detections) or (persons and judges[c]):
+            if not len(detections) or (members and judges[c] and c not in members):
                 continue  # a judging camera outside the subject's members sees only others
             if last is None:
-                chosen[c][t] = int(np.argmax(detections[:, :, 2].mean(axis=1)))
+                chosen[c][t] = (int(np.argmax(detections[:, :, 2].mean(axis=1))),)
                 continue
             errors = [agreement.error(c, last, detection) for detection in detections]
-            if min(errors) <= tolerances[c]:
-                chosen[c][t] = int(np.argmin(errors))
+            agreeing = [int(k) for k in np.argsort(errors, kind="stable") if errors[k] <= tolerances[c] and (c, k) not in others]
+            if c in members and members[c] not in agreeing:  # a member whose error grew past the tolerance with the others' refit
+                agreeing.insert(0, members[c])
+            chosen[c][t] = tuple(agreeing)
     return chosen
+
+
+def merge_detections(detections: Detections, indices: Sequence[int]) -> np.ndarray:
+    """[L, 3] one person's keypoints from its detections ``indices`` of ``detections`` [P, L, 3]: each keypoint
+    from the detection most confident of it (zeros, undetected, when there are none)."""
+    if not indices:
+        return np.zeros(detections.shape[1:])
+    parts = detections[list(indices)]
+    best = np.argmax(parts[:, :, 2], axis=0)
+    return parts[best, np.arange(parts.shape[1])]
 
 
 def _centroid(skeleton: np.ndarray) -> np.ndarray:
