@@ -97,8 +97,10 @@ class OpenPoseKeypoints(TriangulatedKeypoints):
                 raise MissingFileError(f"{folders[camera.name]}: no keypoint file numbered like the session's frames "
                                        f"{int(capture[0])}–{int(capture[-1])}")
             seen = [read_people(files[int(number)], len(names)) if int(number) in files else np.zeros((0, len(names), 3)) for number in capture]
-            if camera.name in recorded:
-                seen = [np.concatenate([to_session_pixels(p[..., :2], recorded[camera.name], camera), p[..., 2:]], axis=-1) for p in seen]
+            if camera.name in recorded:  # every frame's people mapped in one call, then split back into frames
+                stacked = np.concatenate(seen)
+                stacked[..., :2] = to_session_pixels(stacked[..., :2], recorded[camera.name], camera)
+                seen = np.split(stacked, np.cumsum([len(p) for p in seen])[:-1])
             people.append(seen)
         chosen = choose_subject(people, cameras, self.min_confidence, [name not in session.heldout for name in session.camera_names])
         result = []
