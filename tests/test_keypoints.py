@@ -376,6 +376,65 @@ def test_sleap_slp_keypoints_prefer_user_labels_and_triangulate(scene, tmp_path)
     np.testing.assert_allclose(landmarks.positions, expected, atol=1e-6)
 
 
+#: Where a second animal stands, beside the subject (metres).
+NEIGHBOUR = np.array([0.35, 0.35, 0.0])
+
+
+def test_deeplabcut_multi_animal_files_give_the_animal_the_cameras_agree_on(scene, tmp_path):
+    """A multi-animal tracker names its animals per video: the subject is ``mouse1`` in half the cameras and
+    ``mouse2`` in the others, beside a more confident neighbour. The source reads the animal the cameras
+    agree on, not each file's first individual; DeepLabCut's ``single`` (unique body parts) is no animal."""
+    reader = SessionReader(scene[0])
+    parts = list(FIGURE)
+    for index, camera in enumerate(reader.cameras):
+        animals = [(np.zeros(3), 0.8), (NEIGHBOUR, 0.99)][:: 1 if index % 2 == 0 else -1]
+        header = [["scorer", *(["DLC_dlcrnet"] * (6 * len(parts) + 3))],
+                  ["individuals", *(who for who in ("mouse1", "mouse2") for _ in range(3 * len(parts))), "single", "single", "single"],
+                  ["bodyparts", *(p for _ in range(2) for p in parts for _ in range(3)), "arena", "arena", "arena"],
+                  ["coords", *(["x", "y", "likelihood"] * (2 * len(parts) + 1))]]
+        rows = [[t, *(value for offset, confidence in animals for x, y in _figure_pixels_at(camera, t, parts, offset) for value in (x, y, confidence)),
+                 10.0, 10.0, 1.0] for t in range(FRAMES)]
+        (tmp_path / f"trial-{camera.name}.csv").write_text("\n".join(",".join(map(str, row)) for row in header + rows))
+    landmarks = default_registry().create("landmarks", "deeplabcut", folder=str(tmp_path)).read(reader, range(FRAMES))
+    assert landmarks.names == tuple(parts)
+    np.testing.assert_allclose(landmarks.positions, _expected(parts), atol=1e-6)
+    observed = default_registry().create("landmarks", "deeplabcut", folder=str(tmp_path)).observations(reader, range(FRAMES))
+    for camera, seen in zip(reader.cameras, observed, strict=True):  # mouse2 where it is the subject, not each file's first
+        np.testing.assert_allclose(seen.pixels[1], _figure_pixels_at(camera, 1, parts, np.zeros(3)), atol=1e-6)
+    # One individual named: the cameras where it is the neighbour give nothing, rather than another animal.
+    named = default_registry().create("landmarks", "deeplabcut", folder=str(tmp_path), individual="mouse1")
+    assert [seen.confidence.max() for seen in named.observations(reader, range(FRAMES))] == pytest.approx([0.8, 0, 0.8, 0, 0.8])
+    np.testing.assert_allclose(named.read(reader, range(FRAMES)).positions, _expected(parts), atol=1e-6)
+    with pytest.raises(InputError, match=r"trial-cam_0\.csv: no individual 'mouse3' \(its individuals are mouse1, mouse2\)"):
+        default_registry().create("landmarks", "deeplabcut", folder=str(tmp_path), individual="mouse3").read(reader, range(FRAMES))
+
+
+def test_sleap_tracks_numbered_per_camera_give_the_animal_the_cameras_agree_on(scene, tmp_path):
+    """Tracks are numbered in each camera's file on its own: the subject on track 0 in half the cameras and on
+    track 1 in the others, beside a more confident neighbour. ``track`` reads one track alone: the cameras
+    where it is the neighbour then give nothing."""
+    reader = SessionReader(scene[0])
+    parts = list(FIGURE)
+    scores = np.full(len(parts), 0.8)
+    for index, camera in enumerate(reader.cameras):
+        subject, neighbour = (0, 1) if index % 2 == 0 else (1, 0)
+        labelled = {t: [(1, neighbour, _figure_pixels_at(camera, t, parts, NEIGHBOUR), scores + 0.1),
+                        (1, subject, _figure_pixels_at(camera, t, parts, np.zeros(3)), scores)] for t in range(FRAMES)}
+        write_slp(tmp_path / f"{camera.name}.slp", parts, labelled)
+    landmarks = default_registry().create("landmarks", "sleap", folder=str(tmp_path)).read(reader, range(FRAMES))
+    np.testing.assert_allclose(landmarks.positions, _expected(parts), atol=1e-6)
+    observed = default_registry().create("landmarks", "sleap", folder=str(tmp_path)).observations(reader, range(FRAMES))
+    for camera, seen in zip(reader.cameras, observed, strict=True):
+        np.testing.assert_allclose(seen.pixels[1], _figure_pixels_at(camera, 1, parts, np.zeros(3)), atol=1e-6)
+    one_track = default_registry().create("landmarks", "sleap", folder=str(tmp_path), track=0).observations(reader, range(FRAMES))
+    assert [seen.confidence.max() for seen in one_track] == pytest.approx([0.8, 0, 0.8, 0, 0.8])
+
+
+def _figure_pixels_at(camera, t: int, parts: list[str], offset: np.ndarray) -> np.ndarray:
+    """[L, 2] pixels of the figure's ``parts`` at frame ``t``, moved by ``offset`` (metres), in ``camera``."""
+    return camera.project(figure_at(t)[[MODELS["BODY_25B"].index(p) for p in parts]] + offset)
+
+
 #: A mouse-like skeleton that bends at a right angle (nose → spine → tail), in metres; SLEAP declares its edges.
 MOUSE = {"nose": (0.0, 0.0, 0.25), "spine": (0.0, 0.0, 0.0), "tail": (0.25, 0.1, 0.0)}
 MOUSE_EDGES = [("nose", "spine"), ("spine", "tail")]

@@ -4,9 +4,13 @@ triangulated in the session's cameras.
 Layout: one file per camera in ``folder`` (``vid-camA.csv`` or ``vid-camA.h5``; the CSVs when the folder
 has both), or named by ``files``, matched to the session's cameras by name like videos, or by ``camera_map``. Both hold one table:
 a column per (scorer, body part, coordinate) — ``x, y, likelihood`` per body part, with an
-``individuals`` level between scorer and body part in multi-animal files, read for their first
-individual — and a row per frame of the video, indexed by the frame number. Likelihoods below
-``min_confidence`` count as undetected.
+``individuals`` level between scorer and body part in multi-animal files — and a row per frame of the
+video, indexed by the frame number. Likelihoods below ``min_confidence`` count as undetected.
+
+Multi-animal files: every individual whose body parts are the animals' (the set most individuals share;
+DeepLabCut's ``single``, which holds the project's unique body parts, is no animal) is a candidate, and the
+subject is the animal the cameras agree on (:mod:`.keypoint_tables`); ``individual`` names one instead, for
+files whose identities are the same animal in every camera.
 
 - CSV: the column levels are the first header rows (``scorer``, [``individuals``,] ``bodyparts``,
   ``coords``), then one row per frame, its first cell the frame number.
@@ -43,23 +47,34 @@ COORDS = ("x", "y", "likelihood")
 HDF_KEY = "df_with_missing"
 
 
-def keypoint_table(path: Path, columns: Sequence[tuple[str, ...]], frames: Sequence[int], values: np.ndarray) -> KeypointTable:
-    """The first individual's (body parts, frame numbers, [T, L, 3] x, y, likelihood) of a DeepLabCut table
-    whose columns are (scorer, [individual,] body part, coordinate) labels and ``values`` [T, columns]."""
+def keypoint_table(path: Path, columns: Sequence[tuple[str, ...]], frames: Sequence[int], values: np.ndarray,
+                   individual: str | None = None) -> KeypointTable:
+    """(body parts, frame numbers, [T, P, L, 3] x, y, likelihood of P individuals) of a DeepLabCut table whose
+    columns are (scorer, [individual,] body part, coordinate) labels and ``values`` [T, columns]: every animal
+    (module docstring), or ``individual`` alone."""
     if not columns or any(len(label) != len(columns[0]) or len(label) not in (3, 4) for label in columns):
         raise InputError(f"{path}: not a DeepLabCut table (its columns need the levels scorer, [individuals,] bodyparts and coords)")
-    keep = [c for c, label in enumerate(columns) if len(label) == 3 or label[1] == columns[0][1]]
-    index = {(columns[c][-2], columns[c][-1]): c for c in keep}
-    names = tuple(dict.fromkeys(columns[c][-2] for c in keep))
-    missing = [(name, coord) for name in names for coord in COORDS if (name, coord) not in index]
+    owners = [label[1] if len(label) == 4 else "" for label in columns]
+    parts = {owner: tuple(dict.fromkeys(label[-2] for label, o in zip(columns, owners, strict=True) if o == owner)) for owner in owners}
+    names = max(parts.values(), key=list(parts.values()).count)
+    animals = [owner for owner, owned in parts.items() if owned == names]
+    if individual is not None:
+        if individual not in animals:
+            found = f"its individuals are {', '.join(animals)}" if animals != [""] else "it is a single-animal table"
+            raise InputError(f"{path}: no individual {individual!r} ({found})")
+        animals = [individual]
+    index = {(owner, label[-2], label[-1]): c for c, (label, owner) in enumerate(zip(columns, owners, strict=True))}
+    missing = [(owner, name, coord) for owner in animals for name in names for coord in COORDS if (owner, name, coord) not in index]
     if missing:
-        raise InputError(f"{path}: body part {missing[0][0]!r} lacks its {missing[0][1]!r} column")
-    table = np.stack([values[:, [index[(name, coord)] for coord in COORDS]] for name in names], axis=1)
+        raise InputError(f"{path}: body part {missing[0][1]!r} {'of ' + repr(missing[0][0]) + ' ' if missing[0][0] else ''}"
+                         f"lacks its {missing[0][2]!r} column")
+    table = np.stack([values[:, [[index[(owner, name, coord)] for coord in COORDS] for name in names]] for owner in animals], axis=1)
     return names, np.asarray(frames, dtype=np.int64), table.astype(np.float64)
 
 
-def read_deeplabcut_csv(path: Path) -> KeypointTable:
-    """(body part names, frame numbers [T], table [T, L, 3] of x, y, likelihood; NaN where empty)."""
+def read_deeplabcut_csv(path: Path, individual: str | None = None) -> KeypointTable:
+    """(body part names, frame numbers [T], table [T, P, L, 3] of x, y, likelihood; NaN where empty): see
+    :func:`keypoint_table`."""
     try:
         with open(path, newline="", encoding="utf-8-sig") as handle:
             rows = list(csv.reader(handle))
@@ -78,7 +93,7 @@ def read_deeplabcut_csv(path: Path) -> KeypointTable:
             values[k] = [float(cell) if cell.strip() else np.nan for cell in row[1 : 1 + len(columns)]]
         except (ValueError, IndexError):
             raise InputError(f"{path}: line {max(header.values()) + 2 + k} is not a row of numbers for every column") from None
-    return keypoint_table(path, columns, frames, values)
+    return keypoint_table(path, columns, frames, values, individual)
 
 
 class _PlainUnpickler(pickle.Unpickler):
@@ -88,7 +103,7 @@ class _PlainUnpickler(pickle.Unpickler):
         raise pickle.UnpicklingError(f"it refers to {module}.{name}")
 
 
-def read_deeplabcut_h5(path: Path) -> KeypointTable:
+def read_deeplabcut_h5(path: Path, individual: str | None = None) -> KeypointTable:
     """A DeepLabCut HDF5 file (pandas' table format) as :func:`read_deeplabcut_csv` reads a CSV."""
     import h5py
 
@@ -114,7 +129,7 @@ def read_deeplabcut_h5(path: Path) -> KeypointTable:
     values = np.asarray(records[blocks[0]], dtype=np.float64).reshape(len(records), -1)
     if values.shape[1] != len(columns):
         raise InputError(f"{path}: {values.shape[1]} values a row but {len(columns)} column labels")
-    return keypoint_table(path, columns, records["index"], values)
+    return keypoint_table(path, columns, records["index"], values, individual)
 
 
 @attrs.frozen
@@ -125,6 +140,8 @@ class DeepLabCutKeypoints(TableKeypoints):
     files: tuple[str, ...] | None = parameter(None, doc="the DeepLabCut files themselves, one per camera (instead of folder)")
     min_confidence: float = parameter(0.6, doc="detections of lower likelihood are not used (anipose's default score threshold)",
                                       validator=between(0, 1))
+    individual: str | None = parameter(None, doc="multi-animal files: the individual to read, where it is the same animal in every camera "
+                                                 "(default: the animal the cameras agree on)")
 
     SUFFIXES: ClassVar[tuple[str, ...]] = (".csv", ".h5")
 
@@ -133,4 +150,5 @@ class DeepLabCutKeypoints(TableKeypoints):
         return f"DeepLabCut keypoints {self.where}"
 
     def read_table(self, path: Path) -> KeypointTable:
-        return read_deeplabcut_csv(path) if path.suffix.lower() == ".csv" else read_deeplabcut_h5(path)
+        read = read_deeplabcut_csv if path.suffix.lower() == ".csv" else read_deeplabcut_h5
+        return read(path, self.individual)

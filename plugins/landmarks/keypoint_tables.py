@@ -1,7 +1,11 @@
 """What the keypoint sources that read one table per camera (``deeplabcut``, ``sleap``) share: the files
 of a folder (or the files named) matched to the session's cameras, each read as (names, frame numbers,
-[T, L, 3] table of x, y, confidence in the recorded video's pixels) and the skeleton edges it declares, and
-turned into observations in the stored images' pixels.
+[T, P, L, 3] table of x, y, confidence of P animals or people in the recorded video's pixels) and the
+skeleton edges it declares, and turned into the subject's observations in the stored images' pixels.
+
+Several animals in a file (DeepLabCut's multi-animal individuals, SLEAP's tracks): their identities are each
+camera's own (a tracker's ``individual1`` in one camera need not be the same animal in another), so the
+subject is chosen across cameras as for OpenPose's people (:mod:`.subject`), not by the identity's name.
 """
 
 from __future__ import annotations
@@ -20,9 +24,11 @@ from mmcsplat.plugin_api.parameters import between, parameter
 from mmcsplat.storage.camera_names import KEYPOINTS_CAMERA_MAP, match_cameras
 from mmcsplat.storage.session import SessionReader
 
-from .triangulation import TriangulatedKeypoints, to_session_pixels
+from .subject import subject_observations
+from .triangulation import TriangulatedKeypoints, people_to_session_pixels
 
-#: One camera's keypoints: (names, frame numbers [T], [T, L, 3] x, y, confidence; NaN where undetected).
+#: One camera's keypoints: (names, frame numbers [T], [T, P, L, 3] x, y, confidence of P animals or people;
+#: NaN where undetected).
 KeypointTable = tuple[tuple[str, ...], np.ndarray, np.ndarray]
 
 
@@ -88,7 +94,7 @@ class TableKeypoints(TriangulatedKeypoints):
         return folder, {}
 
     def observations(self, session: SessionReader, frames: Sequence[int]) -> list[KeypointObservations]:
-        """Every camera's detections at ``frames``, in the stored images' pixels."""
+        """The subject's detections (module docstring) in every camera at ``frames``, in the stored images' pixels."""
         cameras = [session.camera(name) for name in session.camera_names]
         # Matched by name: a stand-in path named after each file's label.
         folder, files = self.keypoint_files()
@@ -96,22 +102,20 @@ class TableKeypoints(TriangulatedKeypoints):
                                                                    KEYPOINTS_CAMERA_MAP, self.trial).items()}
         recorded = session.recorded_cameras()
         capture = session.capture_frames(frames)
-        result, names = [], None
+        people, edges, names = [], [], None  # people[camera][frame]: [P, L, 3] in the stored images' pixels
         for camera in cameras:
             parts, numbers, table = self.read_table(matched[camera.name])
             if names is not None and parts != names:
                 raise InputError(f"{matched[camera.name]}: keypoint names {list(parts)} differ from the other cameras' {list(names)}")
             names = parts
             rows = {int(number): k for k, number in enumerate(numbers)}
-            pixels = np.zeros((len(frames), len(parts), 2))
-            confidence = np.zeros((len(frames), len(parts)))
-            for k, number in enumerate(capture):
-                if int(number) in rows:
-                    found = table[rows[int(number)]]
-                    known = np.all(np.isfinite(found), axis=1)
-                    pixels[k, known], confidence[k, known] = found[known, :2], found[known, 2]
-            if camera.name in recorded:
-                pixels = to_session_pixels(pixels, recorded[camera.name], camera)
-            confidence[confidence < self.min_confidence] = 0.0
-            result.append(KeypointObservations(camera.name, parts, frames, pixels, confidence, self.read_edges(matched[camera.name])))
-        return result
+            seen = [_detected(table[rows[int(number)]]) if int(number) in rows else np.zeros((0, len(parts), 3)) for number in capture]
+            people.append(people_to_session_pixels(seen, recorded[camera.name], camera) if camera.name in recorded else seen)
+            edges.append(self.read_edges(matched[camera.name]))
+        return subject_observations(session, frames, people, names, self.min_confidence, edges)
+
+
+def _detected(found: np.ndarray) -> np.ndarray:
+    """[P', L, 3] the animals of ``found`` [P, L, 3] with any keypoint detected, undetected keypoints zero (confidence 0)."""
+    known = np.all(np.isfinite(found), axis=-1)
+    return np.where(known[..., None], found, 0.0)[known.any(axis=1)]

@@ -30,8 +30,8 @@ from mmcsplat.plugin_api.parameters import between, one_of, parameter
 from mmcsplat.storage.camera_names import KEYPOINTS_CAMERA_MAP, match_cameras, natural_key
 from mmcsplat.storage.session import SessionReader
 
-from .subject import choose_subject, merge_detections
-from .triangulation import TriangulatedKeypoints, to_session_pixels
+from .subject import subject_observations
+from .triangulation import TriangulatedKeypoints, people_to_session_pixels
 
 #: Keypoint names by index, per model (OpenPose's documented orders).
 MODELS = {
@@ -97,15 +97,5 @@ class OpenPoseKeypoints(TriangulatedKeypoints):
                 raise MissingFileError(f"{folders[camera.name]}: no keypoint file numbered like the session's frames "
                                        f"{int(capture[0])}–{int(capture[-1])}")
             seen = [read_people(files[int(number)], len(names)) if int(number) in files else np.zeros((0, len(names), 3)) for number in capture]
-            if camera.name in recorded:  # every frame's people mapped in one call, then split back into frames
-                stacked = np.concatenate(seen)
-                stacked[..., :2] = to_session_pixels(stacked[..., :2], recorded[camera.name], camera)
-                seen = np.split(stacked, np.cumsum([len(p) for p in seen])[:-1])
-            people.append(seen)
-        chosen = choose_subject(people, cameras, self.min_confidence, [name not in session.heldout for name in session.camera_names])
-        result = []
-        for c, camera in enumerate(cameras):
-            subject = np.stack([merge_detections(people[c][k], chosen[c][k]) for k in range(len(frames))])
-            confidence = np.where(subject[..., 2] < self.min_confidence, 0.0, subject[..., 2])
-            result.append(KeypointObservations(camera.name, names, frames, subject[..., :2], confidence))
-        return result
+            people.append(people_to_session_pixels(seen, recorded[camera.name], camera) if camera.name in recorded else seen)
+        return subject_observations(session, frames, people, names, self.min_confidence)

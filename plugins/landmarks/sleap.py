@@ -6,17 +6,22 @@ session's cameras by name (without ``.analysis.h5`` / ``.slp``) like videos, or 
 - ``.analysis.h5`` (SLEAP's analysis export): datasets stored column-major for MATLAB, so h5py reads them
   transposed: ``tracks`` [tracks, 2, nodes, frames] (x, y; NaN where absent), ``point_scores`` [tracks,
   nodes, frames] (optional), ``track_occupancy`` [frames, tracks] and ``node_names``. Row k is frame k of
-  the video (SLEAP exports from frame 0). The ``track`` parameter chooses the animal.
+  the video (SLEAP exports from frame 0).
 - ``.slp`` (SLEAP's labels file, an HDF5 file): the ``metadata`` group's ``json`` attribute holds the
   skeleton (its ``nodes`` list gives the node names; one skeleton only), ``frames`` the labelled frames
   (``frame_idx``, ``instance_id_start``, ``instance_id_end``; one video only), ``instances`` their
   instances (``instance_type`` 0 user-labelled, 1 predicted; ``track``; ``point_id_start``,
   ``point_id_end``), and ``points`` / ``pred_points`` their points (``x``, ``y``, ``visible``, and
-  ``score`` for predictions). Per frame the user-labelled instance is taken over a prediction (hand-checked
-  labels win), the one on track ``track`` where instances are tracked. Confidence: 1 for a visible
+  ``score`` for predictions). Per frame and track a user-labelled instance is taken over a prediction
+  (hand-checked labels win); of untracked instances, the user-labelled ones where there are any, else the
+  predictions. Confidence: 1 for a visible
   user-labelled point, the score for a predicted one, 0 where not visible. Files older than format 1.1
   put pixel centres at +0.5: their points are shifted by −0.5 to mmcsplat's (and OpenCV's) integer
   centres.
+
+Several animals (tracks, or untracked instances): the subject is the animal the cameras agree on
+(:mod:`.keypoint_tables`), since a track's number in one camera's file need not be the same animal in
+another's; ``track`` reads one track alone, for files tracked consistently across cameras.
 
 The skeleton's edges (for masks drawn from the keypoints, ``segmenters/keypoints.py``): an analysis
 file's ``edge_names`` [edges, 2] (source, destination node names); a labels file's skeleton ``links``
@@ -51,8 +56,9 @@ def _names(raw: np.ndarray) -> tuple[str, ...]:
     return tuple(name.decode() if isinstance(name, bytes) else str(name) for name in np.asarray(raw).ravel())
 
 
-def read_sleap_analysis(path: Path, track: int = 0) -> KeypointTable:
-    """(node names, frame numbers [T], [T, L, 3] x, y, score) of ``track`` in a SLEAP analysis HDF5 file."""
+def read_sleap_analysis(path: Path, track: int | None = None) -> KeypointTable:
+    """(node names, frame numbers [T], [T, P, L, 3] x, y, score) of every track (P) in a SLEAP analysis HDF5
+    file, or of ``track`` alone."""
     import h5py
 
     try:
@@ -67,16 +73,19 @@ def read_sleap_analysis(path: Path, track: int = 0) -> KeypointTable:
         raise InputError(f"{path}: not a readable HDF5 file ({error})") from None
     if tracks.ndim != 4 or tracks.shape[1] != 2 or tracks.shape[2] != len(names):
         raise InputError(f"{path}: 'tracks' has shape {tracks.shape}, expected [tracks, 2, {len(names)} nodes, frames] as SLEAP writes it")
-    if not 0 <= track < tracks.shape[0]:
+    if track is not None and not 0 <= track < tracks.shape[0]:
         raise InputError(f"{path}: no track {track} (the file has {tracks.shape[0]}); choose one with track=N")
-    xy = tracks[track].transpose(2, 1, 0)  # [frames, nodes, 2]
-    score = scores[track].T if scores is not None and scores.shape == (tracks.shape[0], len(names), tracks.shape[3]) else np.ones(xy.shape[:2])
+    chosen = slice(None) if track is None else slice(track, track + 1)
+    xy = tracks[chosen].transpose(3, 0, 2, 1)  # [frames, tracks, nodes, 2]
+    scored = scores is not None and scores.shape == (tracks.shape[0], len(names), tracks.shape[3])
+    score = scores[chosen].transpose(2, 0, 1) if scored else np.ones(xy.shape[:3])
     score = np.where(np.all(np.isfinite(xy), axis=-1), np.nan_to_num(score, nan=1.0), np.nan)
     return names, np.arange(xy.shape[0]), np.concatenate([xy, score[..., None]], axis=-1)
 
 
-def read_sleap_labels(path: Path, track: int = 0) -> KeypointTable:
-    """(node names, labelled frame numbers, [T, L, 3] x, y, confidence) of a SLEAP ``.slp`` file."""
+def read_sleap_labels(path: Path, track: int | None = None) -> KeypointTable:
+    """(node names, labelled frame numbers, [T, P, L, 3] x, y, confidence of every animal, or of ``track``
+    alone) of a SLEAP ``.slp`` file."""
     import h5py
 
     try:
@@ -100,18 +109,23 @@ def read_sleap_labels(path: Path, track: int = 0) -> KeypointTable:
     offset = 0.5 if version < CENTRED_FORMAT else 0.0
     numbers, table = [], []
     for frame in frames:
-        chosen = _instance(instances[frame["instance_id_start"] : frame["instance_id_end"]], track)
-        if chosen is None:
-            continue
-        user = chosen["instance_type"] == USER
-        rows = (points if user else predicted)[chosen["point_id_start"] : chosen["point_id_end"]]
-        if len(rows) != len(names):
-            raise InputError(f"{path}: frame {frame['frame_idx']}: an instance of {len(rows)} points, but the skeleton has {len(names)} nodes")
-        confidence = np.where(rows["visible"], 1.0 if user else rows["score"], np.nan)
-        xy = np.where(rows["visible"][:, None], np.column_stack([rows["x"], rows["y"]]) - offset, np.nan)
-        numbers.append(int(frame["frame_idx"]))
-        table.append(np.column_stack([xy, confidence]))
-    return names, np.asarray(numbers, dtype=np.int64), np.asarray(table, dtype=np.float64).reshape(len(numbers), len(names), 3)
+        animals = []
+        for chosen in _instances(instances[frame["instance_id_start"] : frame["instance_id_end"]], track):
+            user = chosen["instance_type"] == USER
+            rows = (points if user else predicted)[chosen["point_id_start"] : chosen["point_id_end"]]
+            if len(rows) != len(names):
+                raise InputError(f"{path}: frame {frame['frame_idx']}: an instance of {len(rows)} points, but the skeleton has {len(names)} nodes")
+            confidence = np.where(rows["visible"], 1.0 if user else rows["score"], np.nan)
+            xy = np.where(rows["visible"][:, None], np.column_stack([rows["x"], rows["y"]]) - offset, np.nan)
+            animals.append(np.column_stack([xy, confidence]))
+        if animals:
+            numbers.append(int(frame["frame_idx"]))
+            table.append(animals)
+    most = max((len(animals) for animals in table), default=1)
+    padded = np.full((len(table), most, len(names), 3), np.nan)
+    for k, animals in enumerate(table):
+        padded[k, : len(animals)] = animals
+    return names, np.asarray(numbers, dtype=np.int64), padded
 
 
 def read_sleap_edges(path: Path) -> tuple[tuple[str, str], ...]:
@@ -151,18 +165,27 @@ def _text(value) -> str:
     return value.decode() if isinstance(value, bytes) else str(value)
 
 
-def _instance(instances: np.ndarray, track: int):
-    """The frame's user-labelled instance if any, else its prediction; on ``track`` where instances are tracked."""
-    for kind in (USER, PREDICTED):
-        candidates = instances[instances["instance_type"] == kind]
-        if len(candidates) == 0:
-            continue
-        tracked = candidates[candidates["track"] == track]
-        if len(tracked):
-            return tracked[0]
-        if np.all(candidates["track"] < 0):
-            return candidates[0]
-    return None
+def _instances(instances: np.ndarray, track: int | None) -> list:
+    """A frame's instances to read: of ``track`` alone, its user-labelled instance if any, else its prediction
+    (any instance where none is tracked); of every animal (``track`` None), that for each track, and of the
+    untracked instances the user-labelled ones if any, else the predictions."""
+    if track is not None:
+        for kind in (USER, PREDICTED):
+            candidates = instances[instances["instance_type"] == kind]
+            tracked = candidates[candidates["track"] == track]
+            if len(tracked):
+                return [tracked[0]]
+            if len(candidates) and np.all(candidates["track"] < 0):
+                return [candidates[0]]
+        return []
+    chosen = []
+    for number in np.unique(instances["track"][instances["track"] >= 0]):
+        on_track = instances[instances["track"] == number]
+        users = on_track[on_track["instance_type"] == USER]
+        chosen.append(users[0] if len(users) else on_track[0])
+    untracked = instances[instances["track"] < 0]
+    users = untracked[untracked["instance_type"] == USER]
+    return chosen + list(users if len(users) else untracked)
 
 
 @attrs.frozen
@@ -173,7 +196,8 @@ class SleapKeypoints(TableKeypoints):
     files: tuple[str, ...] | None = parameter(None, doc="the SLEAP files themselves, one per camera (instead of folder)")
     min_confidence: float = parameter(0.3, doc="points of a lower score are not used (user-labelled visible points score 1)",
                                       validator=between(0, 1))
-    track: int = parameter(0, doc="the track (animal) to read, where the files are tracked")
+    track: int | None = parameter(None, doc="the track (animal) to read, where it is the same animal in every camera's file "
+                                           "(default: the animal the cameras agree on)")
 
     SUFFIXES: ClassVar[tuple[str, ...]] = (ANALYSIS_SUFFIX, LABELS_SUFFIX)
 

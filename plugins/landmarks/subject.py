@@ -30,8 +30,10 @@ from itertools import combinations
 
 import numpy as np
 
+from mmcsplat.plugin_api.interfaces import KeypointObservations
 from mmcsplat.scene.camera import Camera
 from mmcsplat.scene.triangulation import triangulate
+from mmcsplat.storage.session import SessionReader
 
 #: How far a person's detection may lie from its triangulated skeleton reprojected, as a share of the image's
 #: diagonal (the median over its keypoints): 5 %, 27 px in a 270 × 480 image, where one person's detections
@@ -94,6 +96,22 @@ def choose_subject(people: Sequence[Sequence[Detections]], cameras: Sequence[Cam
                 agreeing.insert(0, members[c])
             chosen[c][t] = tuple(agreeing)
     return chosen
+
+
+def subject_observations(session: SessionReader, frames: Sequence[int], people: Sequence[Sequence[Detections]], names: Sequence[str],
+                         min_confidence: float, edges: Sequence[tuple[tuple[str, str], ...]] | None = None) -> list[KeypointObservations]:
+    """The subject's keypoints in every camera of ``session`` (in its order), from ``people[c][k]``: camera c's
+    detections at ``frames[k]`` in the stored images' pixels (:func:`choose_subject`, judged by the training
+    cameras; :func:`merge_detections`). Confidences under ``min_confidence`` become 0; ``edges[c]`` are the
+    skeleton edges camera c's file declares."""
+    cameras = [session.camera(name) for name in session.camera_names]
+    chosen = choose_subject(people, cameras, min_confidence, [name not in session.heldout for name in session.camera_names])
+    result = []
+    for c, camera in enumerate(cameras):
+        subject = np.stack([merge_detections(people[c][k], chosen[c][k]) for k in range(len(frames))])
+        confidence = np.where(subject[..., 2] < min_confidence, 0.0, subject[..., 2])
+        result.append(KeypointObservations(camera.name, tuple(names), frames, subject[..., :2], confidence, edges[c] if edges else ()))
+    return result
 
 
 def merge_detections(detections: Detections, indices: Sequence[int]) -> np.ndarray:

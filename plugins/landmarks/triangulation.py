@@ -1,6 +1,6 @@
 """Landmarks from 2D keypoints detected in several calibrated cameras: the detections are mapped into the
-session's stored (undistorted, rescaled) images and triangulated — what the ``openpose`` and
-``deeplabcut`` sources share.
+session's stored (undistorted, rescaled) images and triangulated — what the ``openpose``,
+``deeplabcut`` and ``sleap`` sources share.
 
 Pixels: a keypoint at (x, y) of the source video is mapped into the stored image through the camera as
 recorded (its distortion and decoded size, kept in the session's provenance by ingest) and the stored,
@@ -28,6 +28,14 @@ from mmcsplat.storage.session import SessionReader
 def to_session_pixels(points: np.ndarray, recorded: Camera, stored: Camera) -> np.ndarray:
     """[..., 2] pixels of the recorded (distorted) camera → the stored (undistorted) camera's pixels."""
     return recorded.undistort(points, stored.K)
+
+
+def people_to_session_pixels(people: Sequence[np.ndarray], recorded: Camera, stored: Camera) -> list[np.ndarray]:
+    """Each frame's people [P, L, 3] (x, y, confidence) with their pixels mapped by :func:`to_session_pixels`,
+    every frame's in one call (undoing a lens iterates per point, not per call)."""
+    stacked = np.concatenate(people)
+    stacked[..., :2] = to_session_pixels(stacked[..., :2], recorded, stored)
+    return np.split(stacked, np.cumsum([len(frame) for frame in people])[:-1])
 
 
 class TriangulatedKeypoints(LandmarkSource):
