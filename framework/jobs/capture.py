@@ -45,7 +45,14 @@ from typing import Any
 
 import attrs
 
-from mmcsplat.pipeline.capture_session import DEFAULT_SCALE, joints_source, keypoint_folder, keypoint_source, prepare_capture_session
+from mmcsplat.pipeline.capture_session import (
+    DEFAULT_SCALE,
+    KEYPOINT_FOLDERS_NAMED,
+    joints_source,
+    keypoint_folder,
+    keypoint_source,
+    prepare_capture_session,
+)
 from mmcsplat.pipeline.image_scale import AUTO_SCALE, resolve_scale
 from mmcsplat.pipeline.steps import BEFORE_FIELD, SettingsRecord, Step, StepTime, fit_complete, fresh, made_in_place, run_steps
 from mmcsplat.plugin_api.errors import InputError
@@ -136,8 +143,8 @@ def guidance_overrides(weight: float, source: dict[str, Any] | None, capture: Pa
     """The tracking overrides that turn keypoint guidance on at ``weight`` from the keypoints ``source`` reads
     (:func:`~mmcsplat.pipeline.capture_session.keypoint_source`); an error when the capture has none."""
     if source is None:
-        raise InputError(f"--track-keypoints: {capture} has no 2D keypoints to guide the tracking with (no pose_2d/, pose/ or pose-2d/ "
-                         "folder): give --keypoints PATH, or leave --track-keypoints at 0")
+        raise InputError(f"--track-keypoints: {capture} has no 2D keypoints to guide the tracking with (none of "
+                         f"{KEYPOINT_FOLDERS_NAMED}): give --keypoints PATH, or leave --track-keypoints at 0")
     return [f"dynamics.lambda_keypoints={weight}", *(quoted_override(f"dynamics.keypoints.{key}", value) for key, value in source.items())]
 
 
@@ -177,8 +184,8 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     reader_options = apply_overrides({}, settings.reader_options, "--reader-set")
     keypoints = keypoint_folder(capture, settings.keypoints)
     if settings.keypoint_options and not keypoints:
-        raise InputError(f"--keypoints-set {' '.join(settings.keypoint_options)}: {capture} has no 2D keypoints (no pose_2d/, pose/ or "
-                         "pose-2d/ folder) for it to set: give --keypoints PATH")
+        raise InputError(f"--keypoints-set {' '.join(settings.keypoint_options)}: {capture} has no 2D keypoints (none of "
+                         f"{KEYPOINT_FOLDERS_NAMED}) for it to set: give --keypoints PATH")
     source = keypoints_with(keypoint_source(keypoints), apply_overrides({}, settings.keypoint_options, "--keypoints-set"),
                             reader_options) if keypoints else None
     # The keypoint source's parameters: checked here, and the ones its landmarks step scores with.
@@ -266,7 +273,7 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
             frames = SessionReader(session).num_frames
             raise InputError(f"{error} (the masks come from the subject's motion against plates estimated from these {frames} frames: where "
                              "they are nearly empty it barely moved; give more frames, a plates/ folder of the empty scene, or 2D keypoints "
-                             "in pose_2d/, pose/, pose-2d/ or --keypoints)") from error
+                             f"in one of {KEYPOINT_FOLDERS_NAMED} or --keypoints)") from error
 
     def landmarks() -> None:
         track_landmarks(run, joints["name"], {"path": joints["path"]}, keypoints=source["name"] if source else None,

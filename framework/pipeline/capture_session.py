@@ -43,6 +43,8 @@ def found(capture: Path, given: str | None, pattern: str, what: str) -> Path | N
 #: poses associated across cameras, synchronised, then as detected (the order its triangulation takes them in);
 #: anipose's filtered 2D poses (what it triangulates when its filter is on), then its raw ones.
 KEYPOINT_FOLDERS = ("pose_2d", "pose-associated", "pose-sync", "pose", "pose-2d-filtered", "pose-2d")
+#: :data:`KEYPOINT_FOLDERS` as an error message names them.
+KEYPOINT_FOLDERS_NAMED = ", ".join(f"{name}/" for name in KEYPOINT_FOLDERS)
 
 
 def keypoint_folder(capture: Path, given: str | None) -> Path | None:
