@@ -1,9 +1,11 @@
-"""The ``images`` format: one folder of images per calibrated camera plus an anipose or Pose2Sim calibration.
+"""The ``images`` format: one folder of images per calibrated camera plus an anipose or Pose2Sim calibration,
+or EasyMocap's ``intri.yml`` + ``extri.yml`` (ZJU-MoCap's layout: them beside ``images/<camera>/000000.jpg``).
 
 Layout: ``SOURCE/<camera>/*.{png,jpg,jpeg}`` or ``SOURCE/images/<camera>/…`` (the sub-folder wins when it
 has camera folders), matched to the calibration's cameras by name (see :mod:`mmcsplat.datasets.rig`);
 frame t of a camera is its t-th image in natural order (``frame2`` before ``frame10``). The calibration
-is found as for the ``videos`` format. Images carry no frame rate: ``fps`` gives it (30 by default, with a warning: :mod:`.frame_rate`).
+is found as for the ``videos`` format; a camera it states no image size for (EasyMocap's may not) takes
+its first image's. Images carry no frame rate: ``fps`` gives it (30 by default, with a warning: :mod:`.frame_rate`).
 
 Masks the capture brings: ``SOURCE/masks/<camera>/`` holds a mask image per frame with the frame image's
 stem (``masks/cam_01/frame0012.png`` for ``cam_01/frame0012.jpg``; a missing one is an error listing
@@ -23,11 +25,13 @@ import numpy as np
 from mmcsplat.datasets.frame_rate import FPS_PARAMETER, stated_or_assumed
 from mmcsplat.datasets.posed_images import ALPHA_THRESHOLD, MISSING_FRAMES_PARAMETER
 from mmcsplat.datasets.rig import (
+    CALIBRATION_FOLDERS,
     CAMERA_MAP_PARAMETER,
     CAMERAS_PARAMETER,
     MASKS_FOLDER,
     SIZE_MISMATCH_PARAMETER,
     RigRecording,
+    calibration_candidates,
     common_length,
     find_calibration,
     fit_camera,
@@ -36,7 +40,7 @@ from mmcsplat.datasets.rig import (
 from mmcsplat.plugin_api.errors import InputError, MissingFileError, NotAFolderError
 from mmcsplat.plugin_api.interfaces import Reader, RecordedFrame, Recording
 from mmcsplat.scene.camera import Camera
-from mmcsplat.storage.calibration import read_calibration
+from mmcsplat.storage.calibration import calibration_names, read_calibration
 from mmcsplat.storage.camera_names import match_cameras, natural_key
 from mmcsplat.storage.capture_files import PLATES_FOLDER, read_image
 
@@ -105,7 +109,7 @@ class ImageSequenceReader(Reader):
 
     def detect(self, source: Path) -> bool:
         source = Path(source)
-        calibrated = any(source.glob("*.toml")) or any((source / "calibration").glob("*.toml"))
+        calibrated = any(calibration_candidates(source / name) for name in CALIBRATION_FOLDERS)
         return source.is_dir() and calibrated and bool(camera_folders(source))
 
     def open(self, source: Path, calibration: Path | None = None, units: str = "m") -> Recording:
@@ -113,16 +117,19 @@ class ImageSequenceReader(Reader):
         if not source.is_dir():
             raise NotAFolderError(f"images source {source} is not a folder")
         calibration = find_calibration(source, calibration)
-        calibrated = read_calibration(calibration, units, self.cameras)
-        folders = match_cameras(calibrated, camera_folders(source), "image folder", source, self.camera_map)
+        # Matched by name first: a calibration stating no image size takes its images' (read_calibration's sizes).
+        names = calibration_names(calibration, self.cameras)
+        folders = match_cameras(names, camera_folders(source), "image folder", source, self.camera_map)
         files, num_frames = frames_by_number({name: image_files(folder) for name, folder in folders.items()}, self.missing_frames, source)
-        cameras, alpha = [], []
-        for camera in calibrated:
-            path = next(path for path in files[camera.name] if path is not None)
+        firsts = {name: next(path for path in files[name] if path is not None) for name in names}
+        sizes, alpha = {}, []
+        for name, path in firsts.items():
             first, first_alpha = read_image(path)
-            cameras.append(fit_camera(camera, first.shape[1], first.shape[0], self.size_mismatch, f"image {path}"))
+            sizes[name] = (first.shape[1], first.shape[0])
             if first_alpha is not None:
-                alpha.append(camera.name)
+                alpha.append(name)
+        calibrated = read_calibration(calibration, units, names, sizes)
+        cameras = [fit_camera(camera, *sizes[camera.name], self.size_mismatch, f"image {firsts[camera.name]}") for camera in calibrated]
         masks = _frame_masks(source, calibrated, files, self.camera_map)
         provenance = {
             "calibration": str(calibration),

@@ -10,9 +10,10 @@ def mmcsplat_readers() -> list[Registration]:
     return [
         Registration("videos", "mmcsplat.datasets.videos:VideoReader",
                      "per-camera videos in SOURCE/videos/ (Pose2Sim), SOURCE/videos-raw/ (anipose), SOURCE/ or one folder per camera, "
-                     "with an anipose/Pose2Sim calibration .toml in SOURCE/ or SOURCE/calibration/"),
+                     "with an anipose/Pose2Sim calibration .toml or EasyMocap intri.yml + extri.yml in SOURCE/ or SOURCE/calibration/"),
         Registration("images", "mmcsplat.datasets.images:ImageSequenceReader",
-                     "per-camera folders of images (in SOURCE/ or SOURCE/images/) with a calibration .toml in SOURCE/ or SOURCE/calibration/"),
+                     "per-camera folders of images (in SOURCE/ or SOURCE/images/) with a calibration .toml or EasyMocap intri.yml + "
+                     "extri.yml in SOURCE/ or SOURCE/calibration/"),
         Registration("d3dgs", "mmcsplat.datasets.d3dgs:D3DGSReader",
                      "Dynamic3DGaussians / CMU Panoptic (train_meta.json, ims/, seg/)"),
         Registration("dnerf", "mmcsplat.datasets.dnerf:DNeRFReader",

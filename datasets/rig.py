@@ -20,6 +20,7 @@ from mmcsplat.plugin_api.parameters import one_of, parameter
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.camera_names import match_cameras, natural_key
 from mmcsplat.storage.capture_files import read_mask
+from mmcsplat.storage.easymocap_calibration import easymocap_files
 from mmcsplat.storage.ground_truth import GROUND_TRUTH, GroundTruthReader
 
 #: How a decoded size that differs from the calibration's is reconciled (see :func:`fit_camera`).
@@ -31,31 +32,47 @@ MASKS_FOLDER = "masks"
 MASK_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 
 
-#: Where a rig's calibration is looked for, in order, under the source folder: the file, or the single
-#: ``*.toml`` of the folder. ``calibration/`` is where Pose2Sim (``Calib_*.toml``) and anipose
-#: (``calibration.toml``) projects keep it.
+#: Where a rig's calibration is looked for, in order, under the source folder (:func:`calibration_candidates`).
+#: ``calibration/`` is where Pose2Sim (``Calib_*.toml``) and anipose (``calibration.toml``) projects keep
+#: it; EasyMocap and ZJU-MoCap keep ``intri.yml`` and ``extri.yml`` at the capture's root.
 CALIBRATION_FOLDERS = (".", "calibration")
 
 
+def calibration_candidates(folder: Path) -> list[Path]:
+    """The calibrations ``folder`` holds: its ``calibration.toml`` alone if it has one, else its ``*.toml``
+    files and its EasyMocap pair (as the pair's ``intri.yml``)."""
+    default = folder / "calibration.toml"
+    if default.is_file():
+        return [default]
+    pair = easymocap_files(folder)
+    return sorted(folder.glob("*.toml")) + ([pair[0]] if pair and all(path.is_file() for path in pair) else [])
+
+
 def find_calibration(source: Path, calibration: Path | None) -> Path:
-    """``calibration`` when given, else ``calibration.toml`` or the single ``*.toml`` of ``source``, else of
-    ``source/calibration/``."""
-    if calibration is not None:
+    """``calibration`` when given (a folder: its one calibration; either EasyMocap file stands for the
+    pair, as its ``intri.yml``), else the one calibration of ``source``, else of ``source/calibration/``."""
+    if calibration is None:
+        folders = [source / name for name in CALIBRATION_FOLDERS]
+    else:
         calibration = Path(calibration)
-        if not calibration.is_file():
-            raise MissingFileError(f"calibration file {calibration} does not exist")
-        return calibration
-    for folder in (source / name for name in CALIBRATION_FOLDERS):
-        default = folder / "calibration.toml"
-        if default.is_file():
-            return default
-        candidates = sorted(folder.glob("*.toml"))
+        if not calibration.is_dir():
+            pair = easymocap_files(calibration)
+            for path in pair or (calibration,):
+                if not path.is_file():
+                    raise MissingFileError(f"calibration file {path} does not exist")
+            return pair[0] if pair else calibration
+        folders = [calibration]
+    for folder in folders:
+        candidates = calibration_candidates(folder)
         if len(candidates) == 1:
             return candidates[0]
         if candidates:
             names = ", ".join(path.name for path in candidates)
             raise InputError(f"{folder}: several calibration files ({names}); choose one with --calibration")
-    raise MissingFileError(f"{source}: no calibration.toml (or other single *.toml) in it or in its calibration/ folder; pass --calibration")
+    looked_for = "no calibration.toml, other single *.toml, or EasyMocap intri.yml + extri.yml"
+    if calibration is not None:
+        raise MissingFileError(f"calibration folder {calibration}: {looked_for} in it")
+    raise MissingFileError(f"{source}: {looked_for} in it or in its calibration/ folder; pass --calibration")
 
 
 #: The ``camera_map`` parameter of the readers that match files to calibrated cameras.

@@ -1,8 +1,11 @@
-"""The ``videos`` format: one video per calibrated camera plus an anipose or Pose2Sim calibration.
+"""The ``videos`` format: one video per calibrated camera plus an anipose or Pose2Sim calibration, or
+EasyMocap's ``intri.yml`` + ``extri.yml``.
 
 Layout: ``SOURCE/*.{mp4,avi,mov,mkv}`` or ``SOURCE/videos/*.{…}`` (the sub-folder wins when it has
 videos), matched to the calibration's cameras by name (see :mod:`mmcsplat.datasets.rig`). The calibration
-is the ``calibration`` argument, else ``SOURCE/calibration.toml``, else the single ``SOURCE/*.toml``. A
+is the ``calibration`` argument, else ``SOURCE/calibration.toml``, else the single ``SOURCE/*.toml`` or
+EasyMocap pair, else the same in ``SOURCE/calibration/`` (:func:`~mmcsplat.datasets.rig.find_calibration`);
+a camera it states no image size for (EasyMocap's may not) takes its video's. A
 ``SOURCE/ground_truth.zarr`` (written by ``mmcsplat synth``) adds per-frame masks and depth. Masks the
 capture brings: ``SOURCE/masks/<camera>/`` holds one mask image per frame, the k-th in natural order
 (``0000.png``, ``0001.png``, …) being frame k; a camera with fewer masks than frames is an error.
@@ -36,7 +39,7 @@ from mmcsplat.plugin_api.errors import InputError, NotAFolderError
 from mmcsplat.plugin_api.interfaces import Reader, RecordedFrame, Recording
 from mmcsplat.plugin_api.parameters import parameter
 from mmcsplat.scene.camera import Camera
-from mmcsplat.storage.calibration import read_calibration
+from mmcsplat.storage.calibration import calibration_names, read_calibration
 from mmcsplat.storage.camera_names import match_cameras
 
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv")
@@ -135,10 +138,12 @@ class VideoReader(Reader):
         if not source.is_dir():
             raise NotAFolderError(f"videos source {source} is not a folder")
         calibration = find_calibration(source, calibration)
-        calibrated = read_calibration(calibration, units, self.cameras)
-        matched = match_cameras(calibrated, video_files(source), "video", source, self.camera_map, trial=self.trial)
+        # Matched by name first: a calibration stating no image size takes its videos' (read_calibration's sizes).
+        names = calibration_names(calibration, self.cameras)
+        matched = match_cameras(names, video_files(source), "video", source, self.camera_map, trial=self.trial)
         paths = {name: camera_video(path) for name, path in matched.items()}
-        infos = {camera.name: probe(paths[camera.name]) for camera in calibrated}
+        infos = {name: probe(paths[name]) for name in names}
+        calibrated = read_calibration(calibration, units, names, {name: (info.width, info.height) for name, info in infos.items()})
         if self.verify:
             for camera in calibrated:
                 check_decodes(paths[camera.name])

@@ -1,4 +1,5 @@
-"""Read and write anipose ``calibration.toml`` files, and read Pose2Sim's variant of them.
+"""Read and write anipose ``calibration.toml`` files, and read Pose2Sim's variant of them and EasyMocap's
+``intri.yml`` + ``extri.yml`` (parsed by :mod:`.easymocap_calibration`).
 
 anipose (``CameraGroup.dump``) writes one ``[cam_N]`` table per camera with ``name``, ``size = [w, h]``,
 ``matrix`` (3×3 K), ``distortions`` (k1, k2, p1, p2, k3), ``rotation`` (a Rodrigues vector, world to
@@ -15,7 +16,7 @@ from __future__ import annotations
 
 import re
 import tomllib
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -24,6 +25,7 @@ import numpy as np
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.atomic import write_text_atomic
+from mmcsplat.storage.easymocap_calibration import easymocap_files, easymocap_names, read_easymocap
 
 #: Metres per unit of a calibration file's translations.
 UNITS = {"m": 1.0, "mm": 1e-3}
@@ -46,15 +48,44 @@ def metres_per_unit(units: str) -> float:
         raise InputError(f"unknown calibration units {units!r}; choose one of {', '.join(UNITS)}") from None
 
 
-def read_calibration(path: Path, units: str = "m", cameras: Sequence[str] | None = None) -> list[Camera]:
-    """The cameras of an anipose or Pose2Sim ``calibration.toml``, in metres.
+def read_calibration(path: Path, units: str = "m", cameras: Sequence[str] | None = None,
+                     sizes: Mapping[str, tuple[int, int]] | None = None) -> list[Camera]:
+    """The cameras of an anipose or Pose2Sim ``calibration.toml``, or of EasyMocap's ``intri.yml`` and
+    ``extri.yml`` (``path`` either of them or their folder: :mod:`.easymocap_calibration`), in metres.
 
     ``units`` is the unit of the file's translations. ``cameras`` (names) keeps only those, in the file's
     order, and checks only them: a broken camera left out (a copied table) does not stop the others.
-    Errors name the file and the table at fault.
+    ``sizes`` (name → width, height) gives the image size of a camera whose file states none (EasyMocap's
+    may not): the readers pass their decoded frames' sizes; a stated size wins. Errors name the file and
+    the table or camera at fault.
     """
     path = Path(path)
     scale = metres_per_unit(units)
+    pair = easymocap_files(path)
+    if pair:
+        where = f"calibration {pair[0]} and {pair[1].name}"
+        read = read_easymocap(*pair, calibration_names(path, cameras), sizes)
+    else:
+        where = f"calibration {path}"
+        tables = _tables(path)
+        names = _select(path, [name for name, _, _ in tables], cameras)
+        read = [_camera(path, name, section, table) for name, section, table in tables if name in names]
+    read = [camera.with_units(scale) for camera in read]
+    check_rig(read, where, units)
+    return read
+
+
+def calibration_names(path: Path, cameras: Sequence[str] | None = None) -> list[str]:
+    """The names of the calibration's cameras (only ``cameras``, an error naming any it lacks), in its
+    order, without reading the cameras: what the readers match files to before the files' images give the
+    sizes :func:`read_calibration` may need."""
+    path = Path(path)
+    pair = easymocap_files(path)
+    return _select(path, easymocap_names(pair[0]) if pair else [name for name, _, _ in _tables(path)], cameras)
+
+
+def _tables(path: Path) -> list[tuple[str, str, dict[str, Any]]]:
+    """A TOML calibration's camera tables as (name, section, table), ``cam_N`` by N, others in the file's order."""
     try:
         with path.open("rb") as file:
             document = tomllib.load(file)
@@ -72,20 +103,25 @@ def read_calibration(path: Path, units: str = "m", cameras: Sequence[str] | None
     numbers = [_ANIPOSE_SECTION.fullmatch(key) for key in sections]
     if all(numbers):
         sections = [key for _, key in sorted(zip((int(m.group(1)) for m in numbers), sections))]
-    wanted = None if cameras is None else list(cameras)
-    if wanted is not None:
-        names = {key: document[key].get("name", key) for key in sections}
-        unknown = [name for name in wanted if name not in names.values()]
+    tables = [(document[key].get("name", key), key, document[key]) for key in sections]
+    for name, key, _ in tables:
+        if not isinstance(name, str):
+            raise InputError(f"calibration {path}, [{key}]: name must be a string, got {name!r}")
+    return tables
+
+
+def _select(path: Path, names: list[str], cameras: Sequence[str] | None) -> list[str]:
+    """``names`` that are in ``cameras`` (all when None), in the file's order; an error naming any camera the
+    file lacks, or any chosen name it gives twice."""
+    if cameras is not None:
+        unknown = [name for name in cameras if name not in names]
         if unknown:
-            raise InputError(f"calibration {path}: no camera named {', '.join(map(repr, unknown))}; cameras are {', '.join(map(str, names.values()))}")
-        sections = [key for key in sections if names[key] in wanted]
-    read = [_camera(path, key, document[key]).with_units(scale) for key in sections]
-    names = [camera.name for camera in read]
+            raise InputError(f"calibration {path}: no camera named {', '.join(map(repr, unknown))}; cameras are {', '.join(names)}")
+        names = [name for name in names if name in cameras]
     duplicates = sorted({name for name in names if names.count(name) > 1})
     if duplicates:
         raise InputError(f"calibration {path}: camera names {duplicates} appear more than once")
-    check_rig(read, f"calibration {path}", units)
-    return read
+    return names
 
 
 def check_distortion(camera: Camera, where: str) -> None:
@@ -168,8 +204,8 @@ def check_rig(cameras: Sequence[Camera], where: str, units: str) -> None:
                          f"of any real rig{hint}")
 
 
-def _camera(path: Path, section: str, table: dict[str, Any]) -> Camera:
-    """One camera from its table, in the file's units."""
+def _camera(path: Path, name: str, section: str, table: dict[str, Any]) -> Camera:
+    """Camera ``name`` from its table, in the file's units."""
     where = f"calibration {path}, [{section}]"
     missing = [key for key in _REQUIRED if key not in table]
     if missing:
@@ -177,9 +213,6 @@ def _camera(path: Path, section: str, table: dict[str, Any]) -> Camera:
     fisheye = table.get("fisheye", False)
     if not isinstance(fisheye, bool):
         raise InputError(f"{where}: fisheye must be true or false, got {fisheye!r}")
-    name = table.get("name", section)
-    if not isinstance(name, str):
-        raise InputError(f"{where}: name must be a string, got {name!r}")
     size = _array(where, "size", table["size"], (2,))
     if np.any(size != np.round(size)) or np.any(size <= 0):
         raise InputError(f"{where}: size must be two positive whole numbers [width, height], got {table['size']}")

@@ -47,16 +47,17 @@ READER_CAMERA_MAP = "the reader's camera_map: mmcsplat ingest --set, mmcsplat ru
 KEYPOINTS_CAMERA_MAP = "the keypoint source's camera_map: mmcsplat run --keypoints-set, mmcsplat landmarks --set or --keypoints-set"
 
 
-def match_cameras(cameras: Sequence[Camera], paths: Iterable[Path], what: str, where: Path,
+def match_cameras(cameras: Sequence[Camera | str], paths: Iterable[Path], what: str, where: Path,
                   camera_map: Mapping[str, str] | str | None = None, set_by: str = READER_CAMERA_MAP,
                   trial: str | None = None) -> dict[str, Path]:
-    """Camera name → its file: by ``camera_map`` (calibration name → file stem) where given, else by the
-    module's name rules, in their order; an error naming any camera without one, or with several. Files that match no camera are ignored with a warning. ``camera_map`` :data:`BY_ORDER` pairs the
+    """Camera name → its file, for ``cameras`` (or their names): by ``camera_map`` (calibration name → file
+    stem) where given, else by the module's name rules, in their order; an error naming any camera without one, or with several. Files that match no camera are ignored with a warning. ``camera_map`` :data:`BY_ORDER` pairs the
     cameras, in the calibration's order, with the files in natural name order, when their counts agree.
     ``trial`` keeps only the files whose name starts with it (one recording of several side by side, as
     anipose keeps ``vid01-camA.avi`` beside ``vid02-camA.avi``). ``set_by`` says in the errors where
     ``camera_map`` and ``trial`` are set for these files.
     """
+    names = [camera if isinstance(camera, str) else camera.name for camera in cameras]
     paths = list(paths)
     if trial is not None:
         found = sorted({_label(path) for path in paths}, key=natural_key)
@@ -67,47 +68,46 @@ def match_cameras(cameras: Sequence[Camera], paths: Iterable[Path], what: str, w
         if camera_map != BY_ORDER:
             raise InputError(f"{where}: camera_map must be a table (calibration name = file name) or {BY_ORDER!r}, got {camera_map!r}")
         ordered = sorted(paths, key=lambda path: natural_key(path.name))
-        if len(ordered) != len(cameras):
+        if len(ordered) != len(names):
             raise InputError(f"{where}: camera_map = {BY_ORDER!r} pairs cameras and {what}s in order, but the calibration has "
-                             f"{len(cameras)} cameras and there are {len(ordered)} {what}s ({', '.join(p.name for p in ordered) or 'none'})")
-        return {camera.name: path for camera, path in zip(cameras, ordered, strict=True)}
+                             f"{len(names)} cameras and there are {len(ordered)} {what}s ({', '.join(p.name for p in ordered) or 'none'})")
+        return dict(zip(names, ordered, strict=True))
     by_stem: dict[str, Path] = {}
     by_key: dict[tuple, list[Path]] = {}
     for path in paths:
         label = _label(path)
         by_stem[label] = path
         by_key.setdefault(name_key(label), []).append(path)
-    unknown = sorted(set(camera_map or {}) - {camera.name for camera in cameras})
+    unknown = sorted(set(camera_map or {}) - set(names))
     if unknown:
-        raise InputError(f"{where}: camera_map names {', '.join(map(repr, unknown))}, not calibrated cameras "
-                         f"({', '.join(camera.name for camera in cameras)})")
+        raise InputError(f"{where}: camera_map names {', '.join(map(repr, unknown))}, not calibrated cameras ({', '.join(names)})")
     matched: dict[str, Path] = {}
-    for camera in cameras:
-        if camera_map and camera.name in camera_map:
-            if camera_map[camera.name] not in by_stem:
-                raise MissingFileError(f"{where}: camera_map gives {camera_map[camera.name]!r} for camera {camera.name!r}, but no {what} "
+    for name in names:
+        if camera_map and name in camera_map:
+            if camera_map[name] not in by_stem:
+                raise MissingFileError(f"{where}: camera_map gives {camera_map[name]!r} for camera {name!r}, but no {what} "
                                        f"is called so (found: {', '.join(sorted(by_stem, key=natural_key)) or 'none'})")
-            matched[camera.name] = by_stem[camera_map[camera.name]]
+            matched[name] = by_stem[camera_map[name]]
             continue
-        if camera.name in by_stem:
-            matched[camera.name] = by_stem[camera.name]
+        if name in by_stem:
+            matched[name] = by_stem[name]
             continue
-        candidates = by_key.get(name_key(camera.name), [])
+        candidates = by_key.get(name_key(name), [])
         if not candidates:
-            candidates = [path for key, found in by_key.items() if _within(name_key(camera.name), key) for path in found]
+            candidates = [path for key, found in by_key.items() if _within(name_key(name), key) for path in found]
         if not candidates:  # the camera's name inside the file's: anipose's and DeepLabCut's trial-cam1.mp4, …-cam1.csv
-            candidates = [path for key, found in by_key.items() if _within(key, name_key(camera.name)) for path in found]
-        if not candidates and camera.name.isalpha():  # anipose's default cam_regex, -cam([A-Z])$: camera A's files end in camA
-            candidates = [path for key, found in by_key.items() if key and key[-1] == f"cam{camera.name.lower()}" for path in found]
+            candidates = [path for key, found in by_key.items() if _within(key, name_key(name)) for path in found]
+        if not candidates and name.isalpha():  # anipose's default cam_regex, -cam([A-Z])$: camera A's files end in camA
+            candidates = [path for key, found in by_key.items() if key and key[-1] == f"cam{name.lower()}" for path in found]
         if len(candidates) > 1:
-            names = ", ".join(sorted(path.name for path in candidates))
-            raise InputError(f"{where}: camera {camera.name!r} matches several {what}s ({names}); choose one with "
-                             f"camera_map={{{camera.name}=\"FILE_STEM\"}}, or every camera's with trial=\"NAME_START\" ({set_by})")
+            listed = ", ".join(sorted(path.name for path in candidates))
+            raise InputError(f"{where}: camera {name!r} matches several {what}s ({listed}); choose one with "
+                             f"camera_map={{{name}=\"FILE_STEM\"}}, or every camera's with trial=\"NAME_START\" ({set_by})")
         if not candidates:
             available = ", ".join(sorted(by_stem, key=natural_key)) or "none"
-            raise MissingFileError(f"{where}: no {what} for calibrated camera {camera.name!r} (found: {available}); map names with "
-                                   f"camera_map={{{camera.name}=\"FILE_STEM\"}} ({set_by})")
-        matched[camera.name] = candidates[0]
+            raise MissingFileError(f"{where}: no {what} for calibrated camera {name!r} (found: {available}); map names with "
+                                   f"camera_map={{{name}=\"FILE_STEM\"}} ({set_by})")
+        matched[name] = candidates[0]
     owners: dict[Path, list[str]] = {}
     for name, path in matched.items():
         owners.setdefault(path, []).append(name)
