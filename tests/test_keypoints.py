@@ -226,6 +226,8 @@ def test_deeplabcut_csv_keypoints_triangulate_too(scene, tmp_path):
     expected = np.stack([figure_at(t)[[MODELS["BODY_25B"].index(p) for p in parts]] for t in range(FRAMES)])
     expected[1, 1] = np.nan
     np.testing.assert_allclose(landmarks.positions, expected, atol=1e-6)
+    with pytest.raises(InputError, match=r"trial-cam_0\.csv: no individual 'mouse1' \(it is a single-animal table\)"):
+        default_registry().create("landmarks", "deeplabcut", folder=str(tmp_path), individual="mouse1").read(reader, range(FRAMES))
     (tmp_path / "trial-cam_0.csv").write_text("scorer,x\nbodyparts,nose\n")
     with pytest.raises(Exception, match="not a DeepLabCut CSV"):
         default_registry().create("landmarks", "deeplabcut", folder=str(tmp_path)).read(reader, range(FRAMES))
