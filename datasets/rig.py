@@ -123,7 +123,8 @@ def mask_folders(source: Path, cameras: Sequence[Camera], camera_map: Mapping[st
     root = source / MASKS_FOLDER
     if not root.is_dir():
         return {}
-    folders = match_cameras(cameras, sorted(path for path in root.iterdir() if path.is_dir()), "mask folder", root, camera_map)
+    folders = match_cameras([camera.name for camera in cameras], sorted(path for path in root.iterdir() if path.is_dir()), "mask folder", root,
+                            camera_map)
     return {name: sorted((path for path in folder.iterdir() if path.is_file() and path.suffix.lower() in MASK_SUFFIXES),
                          key=lambda path: natural_key(path.name)) for name, folder in folders.items()}
 

@@ -19,7 +19,6 @@ from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 
 from mmcsplat.plugin_api.errors import InputError, MissingFileError
-from mmcsplat.scene.camera import Camera
 
 
 def natural_key(text: str) -> tuple:
@@ -47,17 +46,16 @@ READER_CAMERA_MAP = "the reader's camera_map: mmcsplat ingest --set, mmcsplat ru
 KEYPOINTS_CAMERA_MAP = "the keypoint source's camera_map: mmcsplat run --keypoints-set, mmcsplat landmarks --set or --keypoints-set"
 
 
-def match_cameras(cameras: Sequence[Camera | str], paths: Iterable[Path], what: str, where: Path,
+def match_cameras(names: Sequence[str], paths: Iterable[Path], what: str, where: Path,
                   camera_map: Mapping[str, str] | str | None = None, set_by: str = READER_CAMERA_MAP,
                   trial: str | None = None) -> dict[str, Path]:
-    """Camera name → its file, for ``cameras`` (or their names): by ``camera_map`` (calibration name → file
+    """Camera name → its file, for the cameras ``names``: by ``camera_map`` (calibration name → file
     stem) where given, else by the module's name rules, in their order; an error naming any camera without one, or with several. Files that match no camera are ignored with a warning. ``camera_map`` :data:`BY_ORDER` pairs the
     cameras, in the calibration's order, with the files in natural name order, when their counts agree.
     ``trial`` keeps only the files whose name starts with it (one recording of several side by side, as
     anipose keeps ``vid01-camA.avi`` beside ``vid02-camA.avi``). ``set_by`` says in the errors where
     ``camera_map`` and ``trial`` are set for these files.
     """
-    names = [camera if isinstance(camera, str) else camera.name for camera in cameras]
     paths = list(paths)
     if trial is not None:
         found = sorted({_label(path) for path in paths}, key=natural_key)

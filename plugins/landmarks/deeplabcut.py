@@ -55,7 +55,7 @@ def keypoint_table(path: Path, columns: Sequence[tuple[str, ...]], frames: Seque
     if not columns or any(len(label) != len(columns[0]) or len(label) not in (3, 4) for label in columns):
         raise InputError(f"{path}: not a DeepLabCut table (its columns need the levels scorer, [individuals,] bodyparts and coords)")
     owners = [label[1] if len(label) == 4 else "" for label in columns]
-    parts = {owner: tuple(dict.fromkeys(label[-2] for label, o in zip(columns, owners, strict=True) if o == owner)) for owner in owners}
+    parts = {owner: tuple(dict.fromkeys(label[-2] for label, o in zip(columns, owners, strict=True) if o == owner)) for owner in dict.fromkeys(owners)}
     names = max(parts.values(), key=list(parts.values()).count)
     animals = [owner for owner, owned in parts.items() if owned == names]
     if individual is not None:

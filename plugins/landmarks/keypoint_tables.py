@@ -98,7 +98,7 @@ class TableKeypoints(TriangulatedKeypoints):
         cameras = [session.camera(name) for name in session.camera_names]
         # Matched by name: a stand-in path named after each file's label.
         folder, files = self.keypoint_files()
-        matched = {name: files[path] for name, path in match_cameras(cameras, list(files), "keypoint file", folder, self.camera_map,
+        matched = {name: files[path] for name, path in match_cameras(session.camera_names, list(files), "keypoint file", folder, self.camera_map,
                                                                    KEYPOINTS_CAMERA_MAP, self.trial).items()}
         recorded = session.recorded_cameras()
         capture = session.capture_frames(frames)
@@ -110,7 +110,7 @@ class TableKeypoints(TriangulatedKeypoints):
             names = parts
             rows = {int(number): k for k, number in enumerate(numbers)}
             seen = [_detected(table[rows[int(number)]]) if int(number) in rows else np.zeros((0, len(parts), 3)) for number in capture]
-            people.append(people_to_session_pixels(seen, recorded[camera.name], camera) if camera.name in recorded else seen)
+            people.append(people_to_session_pixels(seen, recorded.get(camera.name), camera))
             edges.append(self.read_edges(matched[camera.name]))
         return subject_observations(session, frames, people, names, self.min_confidence, edges)
 

@@ -86,7 +86,7 @@ class OpenPoseKeypoints(TriangulatedKeypoints):
         cameras = [session.camera(name) for name in session.camera_names]
         # OpenPose and older Pose2Sim name a camera's folder CAMERA_json: the suffix is not part of the name.
         by_label = {folder / re.sub(r"_json$", "", path.name): path for path in folder.iterdir() if path.is_dir()}
-        matched = match_cameras(cameras, list(by_label), "keypoint folder", folder, self.camera_map, KEYPOINTS_CAMERA_MAP)
+        matched = match_cameras(session.camera_names, list(by_label), "keypoint folder", folder, self.camera_map, KEYPOINTS_CAMERA_MAP)
         folders = {name: by_label[label] for name, label in matched.items()}
         recorded = session.recorded_cameras()
         capture = session.capture_frames(frames)
@@ -97,5 +97,5 @@ class OpenPoseKeypoints(TriangulatedKeypoints):
                 raise MissingFileError(f"{folders[camera.name]}: no keypoint file numbered like the session's frames "
                                        f"{int(capture[0])}–{int(capture[-1])}")
             seen = [read_people(files[int(number)], len(names)) if int(number) in files else np.zeros((0, len(names), 3)) for number in capture]
-            people.append(people_to_session_pixels(seen, recorded[camera.name], camera) if camera.name in recorded else seen)
+            people.append(people_to_session_pixels(seen, recorded.get(camera.name), camera))
         return subject_observations(session, frames, people, names, self.min_confidence)

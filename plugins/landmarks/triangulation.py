@@ -30,9 +30,12 @@ def to_session_pixels(points: np.ndarray, recorded: Camera, stored: Camera) -> n
     return recorded.undistort(points, stored.K)
 
 
-def people_to_session_pixels(people: Sequence[np.ndarray], recorded: Camera, stored: Camera) -> list[np.ndarray]:
+def people_to_session_pixels(people: Sequence[np.ndarray], recorded: Camera | None, stored: Camera) -> list[np.ndarray]:
     """Each frame's people [P, L, 3] (x, y, confidence) with their pixels mapped by :func:`to_session_pixels`,
-    every frame's in one call (undoing a lens iterates per point, not per call)."""
+    every frame's in one call (undoing a lens iterates per point, not per call); unchanged where the session
+    keeps no camera as recorded (``recorded`` None: a session ingested before mmcsplat kept them)."""
+    if recorded is None:
+        return list(people)
     stacked = np.concatenate(people)
     stacked[..., :2] = to_session_pixels(stacked[..., :2], recorded, stored)
     return np.split(stacked, np.cumsum([len(frame) for frame in people])[:-1])
