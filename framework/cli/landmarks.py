@@ -64,9 +64,15 @@ def run(args: argparse.Namespace) -> int:
         moving = (f"; where they moved > 1 cm: {accuracy['moving_median_mm']:.1f} mm against {accuracy['still_moving_median_mm']:.1f} mm held still"
                   if accuracy["moving_median_mm"] is not None else "")
         print(f"3D error against {args.source}: median {accuracy['median_mm']:.1f} mm, 90th percentile {accuracy['p90_mm']:.1f} mm{moving}")
+    floor = info.get("reference_floor")
+    if floor:
+        print(f"the source's own floor: a body with its bones at the bind frames' lengths, placed nearest it in every frame, is "
+              f"{floor['median_mm']:.1f} mm from it (90th percentile {floor['p90_mm']:.1f}); the carried landmarks are {floor['carried_median_mm']:.1f} mm "
+              f"from that body")
     for camera, scores in info.get("accuracy_2d", {}).items():
         if scores["carried_median_px"] is not None:
+            body = f", that body {scores['floor_median_source_px']:.1f} px" if scores.get("floor_median_source_px") is not None else ""
             print(f"2D error in {camera}{' (held out)' if scores['heldout'] else ''}: carried {scores['carried_median_source_px']:.1f} px, "
-                  f"the source's own landmarks {scores['reference_median_source_px']:.1f} px (median over {scores['detections']} detections, "
+                  f"the source's own landmarks {scores['reference_median_source_px']:.1f} px{body} (median over {scores['detections']} detections, "
                   f"pixels of the recorded video)")
     return 0

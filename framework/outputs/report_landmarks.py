@@ -164,7 +164,7 @@ def _mm(value: float | None) -> str:
 
 
 def accuracy_rows(info: dict[str, Any]) -> list[tuple[str, str]]:
-    """The landmarks' accuracy as (measure, value) rows: 3D and joint angles against the source, 2D per camera."""
+    """The landmarks' accuracy as (measure, value) rows: 3D against the source and its floor, joint angles, 2D per camera."""
     rows: list[tuple[str, str]] = []
     accuracy = info.get("accuracy_3d")
     if accuracy:
@@ -172,12 +172,17 @@ def accuracy_rows(info: dict[str, Any]) -> list[tuple[str, str]]:
                  ("3D error, 90th percentile (mm)", _mm(accuracy["p90_mm"])),
                  ("3D error where the landmark moved > 1 cm (mm)", _mm(accuracy["moving_median_mm"])),
                  ("… if the landmarks had been held still (mm)", _mm(accuracy["still_moving_median_mm"]))]
+    floor = info.get("reference_floor")
+    if floor:
+        rows += [("the source's floor: a body of fixed bones placed nearest it, median (mm)", _mm(floor["median_mm"])),
+                 ("… the carried landmarks from that body, median (mm)", _mm(floor["carried_median_mm"]))]
     angles = info.get("accuracy_joint_angles")
     if angles:
         rows += [("joint angle error, median (°)", _mm(angles["median_deg"])), ("joint angle error, 90th percentile (°)", _mm(angles["p90_deg"]))]
     for camera, scores in (info.get("accuracy_2d") or {}).items():
-        rows.append((f"2D error in {camera}{' (held out)' if scores['heldout'] else ''}, carried / source's own (px)",
-                     f"{_mm(scores['carried_median_px'])} / {_mm(scores['reference_median_px'])}"))
+        body = scores.get("floor_median_px")
+        rows.append((f"2D error in {camera}{' (held out)' if scores['heldout'] else ''}, carried / source's own{' / that body' if body is not None else ''} (px)",
+                     f"{_mm(scores['carried_median_px'])} / {_mm(scores['reference_median_px'])}" + (f" / {_mm(body)}" if body is not None else "")))
     return rows
 
 

@@ -7,7 +7,8 @@ in all, so that one frame's error in the source is outvoted) are bound to the su
 (:mod:`mmcsplat.scene.landmark_anchors`). Where the source also knows the landmarks at the frames after those,
 the carried ones are scored against them (3D, mm); where a keypoint source gives 2D detections,
 the carried landmarks are projected into each camera and scored against them (px), beside the detector's
-own disagreement with the source's 3D landmarks. Every frame, each landmark is judged against the training
+own disagreement with the source's 3D landmarks. A source of human joints that is not exact also gets its
+floor: how near one body of fixed bones can come to it (:mod:`mmcsplat.analysis.reference_floor`). Every frame, each landmark is judged against the training
 cameras' subject masks and, where the session has optical flow, against the images' motion, and the
 frames where the tracks lost it are recorded (:mod:`mmcsplat.analysis.lost_landmarks`).
 """
@@ -27,6 +28,7 @@ import numpy as np
 from mmcsplat.analysis.landmark_binding import confidence, landmark_accuracy
 from mmcsplat.analysis.lost_landmarks import LostRule, lost_record, neighbourhoods, off_at_frame, slipped
 from mmcsplat.analysis.movement import joint_angle_accuracy, movement_rows, movement_summary
+from mmcsplat.analysis.reference_floor import reference_floor
 from mmcsplat.configuration.registry import Registry, default_registry
 from mmcsplat.pipeline.run_frames import RunStates
 from mmcsplat.plugin_api.errors import InputError
@@ -45,14 +47,16 @@ MIN_KEYPOINT_CONFIDENCE = 0.3  # detections below it are not scored (OpenPose's 
 
 
 def pixel_errors(camera: Camera, carried: np.ndarray, reference: np.ndarray, observed: KeypointObservations,
-                 source_scale: float = 1.0) -> dict[str, Any]:
+                 source_scale: float = 1.0, floor: np.ndarray | None = None) -> dict[str, Any]:
     """Median and 90th-percentile 2D distances (px of the stored images) in ``camera`` of the carried
     landmarks and of the reference landmarks to the confident detections ``observed`` (both [T, L, 3], the
-    observations' frames and names); ``*_source_px`` the same in the recorded video's pixels
+    observations' frames and names), and of the reference's ``floor`` body where given
+    (:mod:`~mmcsplat.analysis.reference_floor`); ``*_source_px`` the same in the recorded video's pixels
     (``source_scale`` of them per stored pixel), which detectors' figures are quoted in."""
     result: dict[str, Any] = {"source_scale": source_scale}
     confident = observed.confidence >= MIN_KEYPOINT_CONFIDENCE
-    for key, points in (("carried_median_px", carried), ("reference_median_px", reference)):
+    scored = [("carried_median_px", carried), ("reference_median_px", reference)] + ([("floor_median_px", floor)] if floor is not None else [])
+    for key, points in scored:
         known = confident & np.all(np.isfinite(points), axis=-1)
         pixels = camera.project(np.where(np.isfinite(points), points, 0.0).reshape(-1, 3)).reshape(*points.shape[:2], 2)
         distance = np.linalg.norm(pixels - observed.pixels, axis=-1)[known]
@@ -146,12 +150,15 @@ def track_landmarks(run: str | Path, source: str, params: dict[str, Any] | None 
         }
         info["lost"] = lost_record(reference.names, binding.bound, frames, off, judged, rule,
                                    {camera.name: rule.tolerance_px(camera) for camera in states.train_cameras}, slips)
+        body = None
         if len(frames) > bind_frames and np.isfinite(reference.positions[bind_frames:]).any():
             info["accuracy_3d"] = attrs.asdict(landmark_accuracy(reference.names, carried, reference.positions, bind_frames))
             info["accuracy_joint_angles"] = joint_angle_accuracy(reference.names, carried, reference.positions, bind_frames)
+            if not plugin.exact and (floor := reference_floor(reference.names, carried, reference.positions, bind_frames)) is not None:
+                info["reference_floor"], body = floor
         if keypoints is not None:
             info["accuracy_2d"] = _accuracy_2d(registry, keypoints, keypoint_params, session, set(states.info.heldout_cameras), frames,
-                                               reference, carried, slice(bind_frames if len(frames) > bind_frames else 0, None))
+                                               reference, carried, slice(bind_frames if len(frames) > bind_frames else 0, None), body)
         write_json_atomic(run / LANDMARKS_INFO, info)
         movement = movement_summary(reference.names, times, carried) | {"incomplete": bool(unfinished), "unfinished": unfinished}
         write_movement(run, movement)
@@ -175,9 +182,9 @@ def recorded_lost(run: str | Path) -> dict[str, Any] | None:
 
 
 def _accuracy_2d(registry: Registry, name: str, params: dict[str, Any] | None, session: SessionReader, heldout: set[str],
-                 frames: np.ndarray, reference: Landmarks, carried: np.ndarray, scored: slice) -> dict[str, Any]:
-    """Per camera, the 2D errors of the carried and reference landmarks against the detections of ``name``, over
-    the ``scored`` frames."""
+                 frames: np.ndarray, reference: Landmarks, carried: np.ndarray, scored: slice, floor: np.ndarray | None = None) -> dict[str, Any]:
+    """Per camera, the 2D errors of the carried and reference landmarks (and the reference's ``floor`` body)
+    against the detections of ``name``, over the ``scored`` frames."""
     detector: LandmarkSource = registry.create("landmarks", name, **(params or {}))
     recorded_focal = {name: float(camera.K[0, 0]) for name, camera in session.recorded_cameras().items()}
     result = {}
@@ -193,7 +200,8 @@ def _accuracy_2d(registry: Registry, name: str, params: dict[str, Any] | None, s
         recorded = recorded_focal.get(observed.camera)
         result[observed.camera] = {"heldout": observed.camera in heldout,
                                    **pixel_errors(stored, carried[scored, mine], reference.positions[scored, mine], subset,
-                                                  recorded / float(stored.K[0, 0]) if recorded else 1.0)}
+                                                  recorded / float(stored.K[0, 0]) if recorded else 1.0,
+                                                  None if floor is None else floor[scored, mine])}
     if not result:
         raise InputError(f"landmarks {name!r} gives no 2D detections to score against (--keypoints needs a keypoint source, e.g. openpose)")
     return result

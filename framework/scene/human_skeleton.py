@@ -20,6 +20,18 @@ TORSO: tuple[str, ...] = ("LShoulder", "RShoulder", "RHip", "LHip")
 HEAD: tuple[str, ...] = ("Head", "Nose", "LEye", "REye", "LEar", "REar")
 
 
+def fixed_bones(names: tuple[str, ...] | list[str]) -> list[tuple[str, str]]:
+    """The pairs among ``names`` whose distance no pose changes: the limbs' long bones, each ankle to its
+    heel and toes, hip to hip, the neck to each shoulder (the collarbones), the neck to the head, and the
+    head's points among themselves. The torso's diagonals, the neck to the nose and toe to toe are left out:
+    the spine, the neck and the toes bend."""
+    present = set(names)
+    head = [name for name in HEAD if name in present]
+    pairs = [*LIMB_BONES, *((foot[0], point) for foot in FEET for point in foot[1:]), ("LHip", "RHip"), ("Neck", "LShoulder"),
+             ("Neck", "RShoulder"), ("Neck", "Head"), *((a, b) for i, a in enumerate(head) for b in head[i + 1:])]
+    return [(a, b) for a, b in dict.fromkeys(pairs) if a in present and b in present]
+
+
 def torso_length(point: Callable[[str], np.ndarray]) -> np.ndarray:
     """Mid-shoulders to mid-hips, ``point(name)`` giving each corner's position ([..., D] arrays, any
     leading shape): the body's size that widths and reaches are taken in proportion to."""
