@@ -31,6 +31,7 @@ def test_pose2sim_demo_runs_with_one_command(tmp_path):
     with redirect_stdout(StringIO()) as printed:
         assert main(command) == 0
     assert "mmcsplat run finished" in printed.getvalue() and "joints: median 3D error" in printed.getvalue()
+    assert "for a body of fixed bones placed nearest it, the reference's floor" in printed.getvalue()
     assert f"run: keypoints: openpose from {POSE2SIM / 'pose_2d'}" in printed.getvalue()  # found in the capture, and said which
     reader = SessionReader(out / "session.zarr")
     coverage = [reader.frame(0, name).mask.mean() for name in reader.camera_names]

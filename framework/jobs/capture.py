@@ -359,8 +359,10 @@ def summary(result: CaptureResult) -> str:
              f"{metrics['num_gaussians']} Gaussians"]
     accuracy = result.landmarks.get("accuracy_3d") or {}
     if accuracy.get("median_mm") is not None:
+        floor = result.landmarks.get("reference_floor")
         lines.append(f"  joints: median 3D error {accuracy['median_mm']:.1f} mm against the {result.landmarks['described']} "
-                     f"({accuracy['still_median_mm']:.1f} mm if held still)")
+                     f"({accuracy['still_median_mm']:.1f} mm if held still"
+                     + (f"; {floor['median_mm']:.1f} mm for a body of fixed bones placed nearest it, the reference's floor)" if floor else ")"))
     lines += [f"  warning: {warning}" for warning in metrics.get("warnings", [])]
     lines += [f"    {step.name:<24} {step.seconds:7.1f} s{'  (already done)' if step.reused else ''}" for step in result.steps]
     return "\n".join(lines)
