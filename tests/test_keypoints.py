@@ -182,6 +182,38 @@ def test_pose2sim_keypoints_triangulate_near_its_joints(tmp_path):
 
 
 @pytest.mark.skipif(not POSE2SIM.is_dir(), reason=f"Pose2Sim demo not found at {POSE2SIM}")
+def test_a_pixel_on_the_subject_picks_it_over_the_person_nearer_the_rigs_centre(scene, tmp_path):
+    """Two people seen whole by every camera: by default the one nearer where the cameras look is the subject;
+    ``subject="CAMERA:X,Y"``, a pixel on the other in one camera at the first frame, makes the other the subject
+    in every camera and frame. A camera the session lacks, or a pixel that is not X,Y, is refused by name."""
+    reader = SessionReader(scene[0])
+    folder = tmp_path / "pose_2d"
+    other_at = np.array([0.0, 0.35, 0.0])
+    for camera in reader.cameras:
+        out = folder / camera.name
+        out.mkdir(parents=True)
+        for t in range(FRAMES):
+            joints = figure_at(t)
+            known = np.all(np.isfinite(joints), axis=1)
+            people = [{"pose_keypoints_2d": np.column_stack([camera.project(np.where(known[:, None], joints + offset, 0.0)),
+                                                             np.where(known, confidence, 0.0)]).ravel().tolist()}
+                      for offset, confidence in ((other_at, 0.9), (np.zeros(3), 0.5))]
+            (out / f"{camera.name}.{t:04d}.json").write_text(json.dumps({"people": people}))
+    default = default_registry().create("landmarks", "openpose", folder=str(folder))
+    assert all(o.confidence[t].max() == pytest.approx(0.5) for o in default.observations(reader, range(FRAMES)) for t in range(FRAMES))
+    camera = reader.cameras[2]
+    known = np.all(np.isfinite(figure_at(0)), axis=1)
+    x, y = camera.project(figure_at(0)[known] + other_at).mean(axis=0)  # on the other person, as a user would point at it
+    hinted = default_registry().create("landmarks", "openpose", folder=str(folder), subject=f"{camera.name}:{x:.1f},{y:.1f}")
+    assert all(o.confidence[t].max() == pytest.approx(0.9) for o in hinted.observations(reader, range(FRAMES)) for t in range(FRAMES))
+    landmarks = hinted.read(reader, range(FRAMES))
+    for t in range(FRAMES):
+        np.testing.assert_allclose(landmarks.positions[t], figure_at(t) + other_at, atol=1e-6)  # followed from the first frame on
+    for subject, message in (("cam_9:10,10", "has no camera 'cam_9'"), (f"{camera.name}:10", "give CAMERA:X,Y")):
+        with pytest.raises(InputError, match=message):
+            default_registry().create("landmarks", "openpose", folder=str(folder), subject=subject).observations(reader, range(FRAMES))
+
+
 def test_the_demos_bystander_is_not_taken_for_the_subject(tmp_path):
     """At frame 37 OpenPose is, on average, more confident of a bystander at cam_01's left edge than of the
     subject, which it splits in two there: the subject is still the person the four cameras agree on, as the

@@ -24,7 +24,7 @@ from mmcsplat.plugin_api.parameters import between, parameter
 from mmcsplat.storage.camera_names import KEYPOINTS_CAMERA_MAP, match_cameras
 from mmcsplat.storage.session import SessionReader
 
-from .subject import subject_observations
+from .subject import SUBJECT_DOC, subject_observations
 from .triangulation import TriangulatedKeypoints, people_to_session_pixels
 
 #: One camera's keypoints: (names, frame numbers [T], [T, P, L, 3] x, y, confidence of P animals or people;
@@ -44,6 +44,7 @@ class TableKeypoints(TriangulatedKeypoints):
                                                "differ; or \"order\": the cameras, in the calibration's order, to the files in name order")
     trial: str | None = parameter(None, doc="read only the files whose name starts with this: one trial of several side by side "
                                             "(anipose's pose-2d/vid01-camA.h5 beside vid02-camA.h5: trial=\"vid01\")")
+    subject: str | None = parameter(None, doc=SUBJECT_DOC)
 
     #: The file suffixes read, in order of preference: a folder's files of the first suffix it has are used.
     SUFFIXES: ClassVar[tuple[str, ...]] = ()
@@ -112,7 +113,7 @@ class TableKeypoints(TriangulatedKeypoints):
             seen = [_detected(table[rows[int(number)]]) if int(number) in rows else np.zeros((0, len(parts), 3)) for number in capture]
             people.append(people_to_session_pixels(seen, recorded.get(camera.name), camera))
             edges.append(self.read_edges(matched[camera.name]))
-        return subject_observations(session, frames, people, names, self.min_confidence, edges)
+        return subject_observations(session, frames, people, names, self.min_confidence, edges, self.subject)
 
 
 def _detected(found: np.ndarray) -> np.ndarray:

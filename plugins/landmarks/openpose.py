@@ -30,7 +30,7 @@ from mmcsplat.plugin_api.parameters import between, one_of, parameter
 from mmcsplat.storage.camera_names import KEYPOINTS_CAMERA_MAP, match_cameras, natural_key
 from mmcsplat.storage.session import SessionReader
 
-from .subject import subject_observations
+from .subject import SUBJECT_DOC, subject_observations
 from .triangulation import TriangulatedKeypoints, people_to_session_pixels
 
 #: Keypoint names by index, per model (OpenPose's documented orders).
@@ -72,6 +72,7 @@ class OpenPoseKeypoints(TriangulatedKeypoints):
     min_confidence: float = parameter(0.3, doc="detections below this confidence are not used", validator=between(0, 1))
     camera_map: dict | str | None = parameter(None, doc="session camera name → its keypoint folder's name, where the names differ; or "
                                                "\"order\": the cameras, in the calibration's order, to the folders in name order")
+    subject: str | None = parameter(None, doc=SUBJECT_DOC)
 
     @property
     def described(self) -> str:
@@ -98,4 +99,4 @@ class OpenPoseKeypoints(TriangulatedKeypoints):
                                        f"{int(capture[0])}–{int(capture[-1])}")
             seen = [read_people(files[int(number)], len(names)) if int(number) in files else np.zeros((0, len(names), 3)) for number in capture]
             people.append(people_to_session_pixels(seen, recorded.get(camera.name), camera))
-        return subject_observations(session, frames, people, names, self.min_confidence)
+        return subject_observations(session, frames, people, names, self.min_confidence, subject=self.subject)

@@ -10,7 +10,9 @@ frame. Here, in each frame:
   camera's detection that reprojects as closely joins them, and the person is triangulated again from all;
 - a detection belongs to one person at most: the people seen by more cameras, then the closer-agreeing, first;
 - the subject is the person nearest the subject of the frame before (the centroid of its keypoints), and in
-  its first frame the person nearest the point the cameras look at (:func:`rig_focus`);
+  its first frame the person nearest the point the cameras look at (:func:`rig_focus`), or, given a pixel on
+  the subject in one camera (a source's ``subject``: :func:`subject_hint`), the person whose centroid
+  projects nearest that pixel — a parent nearer the rig's centre than the infant, two people in one room;
 - a camera none of whose detections belongs to the subject gives none that frame; in each other camera the
   detections that agree with the subject's skeleton (within the tolerance, and no other person's) are the
   subject's: a detector that split the subject in two (OpenPose at cam_01's frame 37 of the demo: the upper
@@ -30,10 +32,13 @@ from itertools import combinations
 
 import numpy as np
 
+from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.interfaces import KeypointObservations
 from mmcsplat.scene.camera import Camera
 from mmcsplat.scene.triangulation import triangulate
 from mmcsplat.storage.session import SessionReader
+
+from .triangulation import to_session_pixels
 
 #: How far a person's detection may lie from its triangulated skeleton reprojected, as a share of the image's
 #: diagonal (the median over its keypoints): 5 %, 27 px in a 270 × 480 image, where one person's detections
@@ -58,15 +63,42 @@ def rig_focus(cameras: Sequence[Camera]) -> np.ndarray:
     return np.linalg.lstsq(normal, target, rcond=None)[0]
 
 
+#: The keypoint sources' ``subject`` parameter, documented once.
+SUBJECT_DOC = ("which person (or animal) is the subject where several are detected: \"CAMERA:X,Y\", a pixel of CAMERA's video that "
+               "lies on the subject at the first frame (default: the one nearest the point the cameras look at)")
+#: A pixel on the subject in one camera: (the camera's index among the cameras, [2] pixel of the stored image).
+SubjectHint = tuple[int, np.ndarray]
+
+
+def subject_hint(session: SessionReader, subject: str | None) -> SubjectHint | None:
+    """A source's ``subject`` parameter, ``"CAMERA:X,Y"`` (a pixel of CAMERA's recorded video that lies on the
+    subject at the first frame), as a :data:`SubjectHint` in the session's stored pixels; None for None."""
+    if subject is None:
+        return None
+    camera, _, pixel = str(subject).partition(":")
+    try:
+        x, y = (float(value) for value in pixel.split(","))
+    except ValueError:
+        raise InputError(f"keypoints subject {subject!r}: give CAMERA:X,Y, a pixel of the camera's video that lies on the subject at the "
+                         f"first frame (e.g. {session.camera_names[0]}:540,960)") from None
+    if camera not in session.camera_names:
+        raise InputError(f"keypoints subject {subject!r}: the session has no camera {camera!r} (it has {', '.join(session.camera_names)})")
+    stored = session.camera(camera)
+    recorded = session.recorded_cameras().get(camera)
+    point = np.array([[x, y]])
+    return session.camera_names.index(camera), (to_session_pixels(point, recorded, stored) if recorded is not None else point)[0]
+
+
 def choose_subject(people: Sequence[Sequence[Detections]], cameras: Sequence[Camera], min_confidence: float,
-                   judges: Sequence[bool] | None = None) -> list[list[tuple[int, ...]]]:
+                   judges: Sequence[bool] | None = None, hint: SubjectHint | None = None) -> list[list[tuple[int, ...]]]:
     """``chosen[c][t]``: the indices of the subject's detections among ``people[c][t]`` (camera c's detections
     at frame t, keypoints under ``min_confidence`` unused), empty where camera c did not see it (module
     docstring): several where the detector split the subject in two (:func:`merge_detections` joins them).
 
     Only the cameras ``judges`` marks (every camera by default) find the people; each other camera then takes
     its detections that agree with the subject's skeleton. The keypoint sources pass the session's training
-    cameras, so that a held-out camera never decides which detection another camera gives."""
+    cameras, so that a held-out camera never decides which detection another camera gives. A ``hint`` picks
+    the first frame's subject instead of the rig's focus."""
     judges = [True] * len(cameras) if judges is None else list(judges)
     tolerances = [AGREEMENT * float(np.hypot(camera.width, camera.height)) for camera in cameras]
     agreement = _Agreement(cameras, tolerances, min_confidence)
@@ -80,8 +112,12 @@ def choose_subject(people: Sequence[Sequence[Detections]], cameras: Sequence[Cam
         members: dict[int, int] = {}
         others: set[tuple[int, int]] = set()
         if persons:
-            reference = focus if last is None else _centroid(last)
-            subject = min(persons, key=lambda person: float(np.linalg.norm(_centroid(person[1]) - reference)))
+            if last is None and hint is not None:
+                camera, pixel = cameras[hint[0]], hint[1]
+                subject = min(persons, key=lambda person: float(np.linalg.norm(camera.project(_centroid(person[1])[None])[0] - pixel)))
+            else:
+                reference = focus if last is None else _centroid(last)
+                subject = min(persons, key=lambda person: float(np.linalg.norm(_centroid(person[1]) - reference)))
             members, last = subject
             others = {pair for person in persons if person is not subject for pair in person[0].items()}
         for c, detections in enumerate(frame):
@@ -99,13 +135,16 @@ def choose_subject(people: Sequence[Sequence[Detections]], cameras: Sequence[Cam
 
 
 def subject_observations(session: SessionReader, frames: Sequence[int], people: Sequence[Sequence[Detections]], names: Sequence[str],
-                         min_confidence: float, edges: Sequence[tuple[tuple[str, str], ...]] | None = None) -> list[KeypointObservations]:
+                         min_confidence: float, edges: Sequence[tuple[tuple[str, str], ...]] | None = None,
+                         subject: str | None = None) -> list[KeypointObservations]:
     """The subject's keypoints in every camera of ``session`` (in its order), from ``people[c][k]``: camera c's
     detections at ``frames[k]`` in the stored images' pixels (:func:`choose_subject`, judged by the training
-    cameras; :func:`merge_detections`). Confidences under ``min_confidence`` become 0; ``edges[c]`` are the
-    skeleton edges camera c's file declares."""
+    cameras, the first frame's subject picked by the ``subject`` pixel where given: :func:`subject_hint`;
+    :func:`merge_detections`). Confidences under ``min_confidence`` become 0; ``edges[c]`` are the skeleton
+    edges camera c's file declares."""
     cameras = [session.camera(name) for name in session.camera_names]
-    chosen = choose_subject(people, cameras, min_confidence, [name not in session.heldout for name in session.camera_names])
+    chosen = choose_subject(people, cameras, min_confidence, [name not in session.heldout for name in session.camera_names],
+                            subject_hint(session, subject))
     result = []
     for c, camera in enumerate(cameras):
         subject = np.stack([merge_detections(people[c][k], chosen[c][k]) for k in range(len(frames))])
