@@ -23,7 +23,7 @@ import numpy as np
 from mmcsplat.scene.human_skeleton import fixed_bones
 
 #: How much a bone's length error (m) weighs against a landmark's displacement (m): 1 mm of bone costs as
-#: much as 10 cm of displacement, so the lengths hold to about a micrometre.
+#: much as 10 cm of displacement, so the lengths hold to about 10 µm on the Pose2Sim demo.
 BONE_WEIGHT = 100.0
 STEPS = 500  # at most; the Pose2Sim demo's frames converge in 60–200
 CHUNK = 256  # frames solved at once: a [CHUNK, 3L, 3L] system
@@ -40,6 +40,8 @@ def nearest_body(reference: np.ndarray, bones: np.ndarray, lengths: np.ndarray, 
 
 
 def _solve(reference: np.ndarray, bones: np.ndarray, lengths: np.ndarray, steps: int) -> np.ndarray:
+    """:func:`nearest_body` for one chunk of frames: damped Newton steps from the reference itself, each frame
+    accepting a step only where it lowers that frame's cost."""
     known = np.all(np.isfinite(reference), axis=-1)  # [T, L]
     target = np.where(known[..., None], reference, 0.0)
     held = known[:, bones[:, 0]] & known[:, bones[:, 1]] & np.isfinite(lengths)  # [T, B]
@@ -71,7 +73,7 @@ def _cost(points: np.ndarray, target: np.ndarray, bones: np.ndarray, rest: np.nd
 
 
 def _newton_step(points: np.ndarray, target: np.ndarray, bones: np.ndarray, rest: np.ndarray, held: np.ndarray,
-                       damping: np.ndarray) -> np.ndarray:
+                 damping: np.ndarray) -> np.ndarray:
     """[T, L, 3]: the damped Newton step of :func:`_cost` (subtract it)."""
     count, joints = points.shape[:2]
     offset = points[:, bones[:, 0]] - points[:, bones[:, 1]]  # [T, B, 3]
