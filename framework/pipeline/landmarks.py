@@ -8,9 +8,10 @@ in all, so that one frame's error in the source is outvoted) are bound to the su
 the carried ones are scored against them (3D, mm); where a keypoint source gives 2D detections,
 the carried landmarks are projected into each camera and scored against them (px), beside the detector's
 own disagreement with the source's 3D landmarks. A source of human joints that is not exact also gets its
-floor: how near one body of fixed bones can come to it (:mod:`mmcsplat.analysis.reference_floor`). Every frame, each landmark is judged against the training
-cameras' subject masks and, where the session has optical flow, against the images' motion, and the
-frames where the tracks lost it are recorded (:mod:`mmcsplat.analysis.lost_landmarks`).
+floor: how near one body of fixed bones can come to it (:mod:`mmcsplat.analysis.reference_floor`). Every
+frame, each landmark is judged against the training cameras' subject masks and, where the session has
+optical flow, against the images' motion, and the frames where the tracks lost it are recorded
+(:mod:`mmcsplat.analysis.lost_landmarks`).
 """
 
 from __future__ import annotations
