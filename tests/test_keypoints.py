@@ -181,7 +181,6 @@ def test_pose2sim_keypoints_triangulate_near_its_joints(tmp_path):
     assert sum(np.median(e) < 0.02 for e in errors.values()) >= 12
 
 
-@pytest.mark.skipif(not POSE2SIM.is_dir(), reason=f"Pose2Sim demo not found at {POSE2SIM}")
 def test_a_pixel_on_the_subject_picks_it_over_the_person_nearer_the_rigs_centre(scene, tmp_path):
     """Two people seen whole by every camera: by default the one nearer where the cameras look is the subject;
     ``subject="CAMERA:X,Y"``, a pixel on the other in one camera at the first frame, makes the other the subject
@@ -214,6 +213,7 @@ def test_a_pixel_on_the_subject_picks_it_over_the_person_nearer_the_rigs_centre(
             default_registry().create("landmarks", "openpose", folder=str(folder), subject=subject).observations(reader, range(FRAMES))
 
 
+@pytest.mark.skipif(not POSE2SIM.is_dir(), reason=f"Pose2Sim demo not found at {POSE2SIM}")
 def test_the_demos_bystander_is_not_taken_for_the_subject(tmp_path):
     """At frame 37 OpenPose is, on average, more confident of a bystander at cam_01's left edge than of the
     subject, which it splits in two there: the subject is still the person the four cameras agree on, as the
