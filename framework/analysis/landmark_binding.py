@@ -39,7 +39,8 @@ class LandmarkAccuracy:
     per_frame_median_mm: list[float | None]
 
 
-def _stat(values: np.ndarray, q: float) -> float | None:
+def percentile_mm(values: np.ndarray, q: float) -> float | None:
+    """The ``q``-th percentile of distances ``values`` (metres) in millimetres; None for none."""
     return float(np.percentile(values, q) * 1000) if len(values) else None
 
 
@@ -51,10 +52,10 @@ def landmark_accuracy(names: tuple[str, ...], carried: np.ndarray, reference: np
     still = np.linalg.norm(carried[:1] - reference, axis=-1)[bound_from:]
     known = np.isfinite(error) & np.isfinite(still)
     moving = known & (still > MOVED)
-    per_landmark = {name: _stat(error[known[:, j], j], 50) for j, name in enumerate(names)}
-    per_frame = [_stat(error[k][known[k]], 50) for k in range(len(error))]
+    per_landmark = {name: percentile_mm(error[known[:, j], j], 50) for j, name in enumerate(names)}
+    per_frame = [percentile_mm(error[k][known[k]], 50) for k in range(len(error))]
     return LandmarkAccuracy(
-        median_mm=_stat(error[known], 50), p90_mm=_stat(error[known], 90),
-        moving_median_mm=_stat(error[moving], 50), moving_p90_mm=_stat(error[moving], 90),
-        still_median_mm=_stat(still[known], 50), still_moving_median_mm=_stat(still[moving], 50),
+        median_mm=percentile_mm(error[known], 50), p90_mm=percentile_mm(error[known], 90),
+        moving_median_mm=percentile_mm(error[moving], 50), moving_p90_mm=percentile_mm(error[moving], 90),
+        still_median_mm=percentile_mm(still[known], 50), still_moving_median_mm=percentile_mm(still[moving], 50),
         pairs=int(known.sum()), moving_pairs=int(moving.sum()), per_landmark_median_mm=per_landmark, per_frame_median_mm=[None] * bound_from + per_frame)

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from mmcsplat.analysis.landmark_binding import percentile_mm
 from mmcsplat.scene.human_skeleton import fixed_bones
 
 #: How much a bone's length error (m) weighs against a landmark's displacement (m): 1 mm of bone costs as
@@ -127,12 +128,8 @@ def reference_floor(names: Sequence[str], carried: np.ndarray, reference: np.nda
     record = {
         "bones": [f"{a}-{b}" for (a, b), length in zip(pairs, lengths, strict=True) if np.isfinite(length)],
         "lengths_from_frames": int(bound_from),
-        "median_mm": _mm(np.median(floor[known])), "p90_mm": _mm(np.percentile(floor[known], 90)),
-        "per_landmark_median_mm": {name: _mm(np.median(floor[known[:, j], j])) if known[:, j].any() else None for j, name in enumerate(names)},
-        "carried_median_mm": _mm(np.median(tracks[known])), "carried_p90_mm": _mm(np.percentile(tracks[known], 90)),
+        "median_mm": percentile_mm(floor[known], 50), "p90_mm": percentile_mm(floor[known], 90),
+        "per_landmark_median_mm": {name: percentile_mm(floor[known[:, j], j], 50) for j, name in enumerate(names)},
+        "carried_median_mm": percentile_mm(tracks[known], 50), "carried_p90_mm": percentile_mm(tracks[known], 90),
     }
     return record, body
-
-
-def _mm(metres: float) -> float:
-    return round(float(metres) * 1000, 3)

@@ -29,7 +29,7 @@ def fixed_bones(names: tuple[str, ...] | list[str]) -> list[tuple[str, str]]:
     head = [name for name in HEAD if name in present]
     pairs = [*LIMB_BONES, *((foot[0], point) for foot in FEET for point in foot[1:]), ("LHip", "RHip"), ("Neck", "LShoulder"),
              ("Neck", "RShoulder"), ("Neck", "Head"), *((a, b) for i, a in enumerate(head) for b in head[i + 1:])]
-    return [(a, b) for a, b in dict.fromkeys(pairs) if a in present and b in present]
+    return [(a, b) for a, b in pairs if a in present and b in present]
 
 
 def torso_length(point: Callable[[str], np.ndarray]) -> np.ndarray:
