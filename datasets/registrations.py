@@ -10,7 +10,7 @@ def mmcsplat_readers() -> list[Registration]:
     return [
         Registration("videos", "mmcsplat.datasets.videos:VideoReader",
                      "per-camera videos in SOURCE/videos/ (Pose2Sim), SOURCE/videos-raw/ (anipose), SOURCE/ or one folder per camera, "
-                     "with an anipose/Pose2Sim calibration .toml or EasyMocap intri.yml + extri.yml in SOURCE/ or SOURCE/calibration/"),
+                     "with an anipose/Pose2Sim/Caliscope calibration .toml or EasyMocap intri.yml + extri.yml in SOURCE/ or SOURCE/calibration/"),
         Registration("images", "mmcsplat.datasets.images:ImageSequenceReader",
                      "per-camera folders of images (in SOURCE/ or SOURCE/images/) with a calibration .toml or EasyMocap intri.yml + "
                      "extri.yml in SOURCE/ or SOURCE/calibration/"),

@@ -225,3 +225,47 @@ def test_a_bad_value_names_the_file_and_table_once(tmp_path: Path) -> None:
     with pytest.raises(ValueError) as caught:
         read_calibration(path)
     assert str(caught.value).count(str(path)) == 1 and "matrix must have shape [3, 3]" in str(caught.value)
+
+
+def _caliscope_table(camera: Camera, number: int, rotation: str) -> dict:
+    """Camera ``camera`` as Caliscope's camera_array.toml holds it: ``rotation`` "rodrigues" (what it writes
+    now) or "matrix" (what it wrote before), with the workspace fields it adds."""
+    distortion = np.zeros(5)
+    distortion[: camera.distortion.size] = camera.distortion
+    return {"cam_id": number, "size": [camera.width, camera.height], "rotation_count": 1, "error": 0.3,
+            "matrix": camera.K.tolist(), "distortions": distortion.tolist(), "translation": camera.t.tolist(),
+            "rotation": camera.rvec.tolist() if rotation == "rodrigues" else camera.R.tolist(), "exposure": -6, "grid_count": 20}
+
+
+@pytest.mark.parametrize("rotation", ["rodrigues", "matrix"])
+def test_caliscope_camera_array_read_by_number_leaving_out_unplaced_and_ignored_cameras(tmp_path: Path, rotation: str) -> None:
+    cameras = _cameras()
+    tables = {str(number): _caliscope_table(camera, number, rotation) for number, camera in zip((10, 2, 7), cameras)}
+    tables["3"] = {**_caliscope_table(cameras[0], 3, rotation), "rotation": "null", "translation": "null"}  # written before: "null"
+    tables["4"] = {key: value for key, value in _caliscope_table(cameras[1], 4, rotation).items() if key != "rotation"}
+    tables["5"] = {**_caliscope_table(cameras[2], 5, rotation), "ignore": True}
+    path = tmp_path / "camera_array.toml"
+    path.write_text(tomli_w.dumps({"cameras": tables}))
+    read = read_calibration(path)
+    assert [camera.name for camera in read] == ["cam_2", "cam_7", "cam_10"]  # by number, not text: 10 after 7
+    for original, camera in zip((cameras[1], cameras[2], cameras[0]), read):
+        np.testing.assert_allclose(camera.K, original.K)
+        np.testing.assert_allclose(camera.R, original.R, atol=1e-12)
+        np.testing.assert_allclose(camera.t, original.t)
+    assert [camera.name for camera in read_calibration(path, cameras=["cam_7"])] == ["cam_7"]
+    with pytest.raises(ValueError, match=r"no camera named 'cam_3'"):
+        read_calibration(path, cameras=["cam_3"])
+
+
+def test_caliscope_files_without_placed_cameras_or_with_unnumbered_tables_are_refused(tmp_path: Path) -> None:
+    path = tmp_path / "camera_array.toml"
+    unplaced = {key: value for key, value in _caliscope_table(_cameras()[0], 0, "rodrigues").items() if key not in ("rotation", "translation")}
+    path.write_text(tomli_w.dumps({"cameras": {"0": unplaced}}))
+    with pytest.raises(ValueError, match=r"camera_array.toml: Caliscope has placed none of its cameras"):
+        read_calibration(path)
+    path.write_text(tomli_w.dumps({"cameras": {"left": _caliscope_table(_cameras()[0], 0, "rodrigues")}}))
+    with pytest.raises(ValueError, match=r"\[cameras.left\]: Caliscope's camera tables are numbered"):
+        read_calibration(path)
+    path.write_text(tomli_w.dumps({"cameras": {"0": {**_caliscope_table(_cameras()[0], 0, "rodrigues"), "rotation": [1.0, 2.0]}}}))
+    with pytest.raises(ValueError, match=r"\[cameras.0\]: rotation must be a Rodrigues vector \[3\] or a matrix \[3, 3\]"):
+        read_calibration(path)

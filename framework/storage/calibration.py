@@ -1,11 +1,17 @@
-"""Read and write anipose ``calibration.toml`` files, and read Pose2Sim's variant of them and EasyMocap's
-``intri.yml`` + ``extri.yml`` (parsed by :mod:`.easymocap_calibration`).
+"""Read and write anipose ``calibration.toml`` files, and read Pose2Sim's variant of them, Caliscope's
+``camera_array.toml`` and EasyMocap's ``intri.yml`` + ``extri.yml`` (parsed by :mod:`.easymocap_calibration`).
 
 anipose (``CameraGroup.dump``) writes one ``[cam_N]`` table per camera with ``name``, ``size = [w, h]``,
 ``matrix`` (3×3 K), ``distortions`` (k1, k2, p1, p2, k3), ``rotation`` (a Rodrigues vector, world to
 camera) and ``translation``, plus a ``[metadata]`` table; a fisheye camera (``FisheyeCamera``) adds
 ``fisheye = true`` and has 4 distortion values, OpenCV's fisheye (k1, k2, k3, k4). Pose2Sim names its tables
 after the cameras, writes sizes as floats, 4 distortion values and ``fisheye = false``.
+
+Caliscope's ``camera_array.toml`` holds the same keys in one ``[cameras.N]`` table per camera (N its
+integer id), with the rotation a Rodrigues vector or, in files it wrote before, a 3×3 matrix, in metres;
+its cameras are named ``cam_N``, as it names their videos (``cam_N.mp4``). Cameras marked ``ignore`` and
+those it has not placed (no rotation or translation; files it wrote before write the string ``"null"`` for
+a missing value) are left out, as Caliscope's own export to anipose leaves them out.
 
 Translations in a file are in the calibration board's unit (``"m"`` or ``"mm"``); the cameras returned
 are always in metres. Tables named ``cam_N`` are ordered by N (``cam_10`` after ``cam_9``); a file whose
@@ -50,7 +56,7 @@ def metres_per_unit(units: str) -> float:
 
 def read_calibration(path: Path, units: str = "m", cameras: Sequence[str] | None = None,
                      sizes: Mapping[str, tuple[int, int]] | None = None) -> list[Camera]:
-    """The cameras of an anipose or Pose2Sim ``calibration.toml``, or of EasyMocap's ``intri.yml`` and
+    """The cameras of an anipose or Pose2Sim ``calibration.toml``, of Caliscope's ``camera_array.toml``, or of EasyMocap's ``intri.yml`` and
     ``extri.yml`` (``path`` either of them or their folder: :mod:`.easymocap_calibration`), in metres.
 
     ``units`` is the unit of the file's translations. ``cameras`` (names) keeps only those, in the file's
@@ -91,6 +97,9 @@ def _tables(path: Path) -> list[tuple[str, str, dict[str, Any]]]:
             document = tomllib.load(file)
     except tomllib.TOMLDecodeError as error:
         raise InputError(f"calibration {path}: not valid TOML: {error}") from error
+    caliscope = document.get("cameras")
+    if isinstance(caliscope, dict) and caliscope and all(isinstance(value, dict) for value in caliscope.values()):
+        return _caliscope_tables(path, caliscope)
     sections = []
     for key, value in document.items():
         if key == "metadata":
@@ -108,6 +117,21 @@ def _tables(path: Path) -> list[tuple[str, str, dict[str, Any]]]:
         if not isinstance(name, str):
             raise InputError(f"calibration {path}, [{key}]: name must be a string, got {name!r}")
     return tables
+
+
+def _caliscope_tables(path: Path, cameras: dict[str, dict[str, Any]]) -> list[tuple[str, str, dict[str, Any]]]:
+    """Caliscope's placed, not ignored ``[cameras.N]`` tables as (``cam_N``, section, table), by N."""
+    tables = []
+    for key, table in cameras.items():
+        if not key.isdigit():
+            raise InputError(f"calibration {path}, [cameras.{key}]: Caliscope's camera tables are numbered ([cameras.0], [cameras.1], …)")
+        table = {name: value for name, value in table.items() if value != "null"}
+        if table.get("ignore") is not True and "rotation" in table and "translation" in table:
+            tables.append((int(key), (f"cam_{key}", f"cameras.{key}", table)))
+    if not tables:
+        raise InputError(f"calibration {path}: Caliscope has placed none of its cameras (none has a rotation and translation "
+                         "that is not ignored): calibrate the extrinsics first")
+    return [entry for _, entry in sorted(tables)]
 
 
 def _select(path: Path, names: list[str], cameras: Sequence[str] | None) -> list[str]:
@@ -222,7 +246,9 @@ def _camera(path: Path, name: str, section: str, table: dict[str, Any]) -> Camer
     if distortion.size not in (4, 5):
         raise InputError(f"{where}: distortions must hold 4 (k1 k2 p1 p2) or 5 (… k3) values, got {distortion.size}")
     K = _array(where, "matrix", table["matrix"], (3, 3))
-    R = _array(where, "rotation", table["rotation"], (3,))
+    R = _array(where, "rotation", table["rotation"], None)
+    if R.shape not in ((3,), (3, 3)):
+        raise InputError(f"{where}: rotation must be a Rodrigues vector [3] or a matrix [3, 3], got shape {list(R.shape)}")
     t = _array(where, "translation", table["translation"], (3,))
     try:  # the Camera's own checks name the camera, not the file: add it (once)
         return Camera(name=name, width=int(size[0]), height=int(size[1]), K=K, R=R, t=t, distortion=distortion, fisheye=fisheye)
