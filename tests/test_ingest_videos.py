@@ -133,6 +133,11 @@ def test_cameras_named_by_letter_match_files_as_anipose_names_them(tmp_path: Pat
     session = _ingest(source, tmp_path / "second.zarr", reader_options={"trial": "2019-08-02-vid02"})
     assert session.provenance["reader"]["videos"]["A"].endswith("vid02-camA.mp4")
     assert session.provenance["reader"]["videos"]["B"].endswith("vid02-camB.mp4")
+    # a trial whose name starts another's (vid1 and vid10) is still one trial: the name must not go on with its digits
+    for trial in ("vid1", "vid10"):
+        rig.write_videos(source / "videos-raw", cameras, [3, 3], stems=[f"{trial}-camA", f"{trial}-camB"])
+    session = _ingest(source, tmp_path / "vid1.zarr", reader_options={"trial": "vid1"})
+    assert session.provenance["reader"]["videos"]["A"].endswith("/vid1-camA.mp4")
 
 
 def test_size_mismatch_scales_K_with_a_warning(tmp_path: Path) -> None:

@@ -53,13 +53,13 @@ def match_cameras(names: Sequence[str], paths: Iterable[Path], what: str, where:
     stem) where given, else by the module's name rules, in their order; an error naming any camera without one, or with several. Files that match no camera are ignored with a warning. ``camera_map`` :data:`BY_ORDER` pairs the
     cameras, in the calibration's order, with the files in natural name order, when their counts agree.
     ``trial`` keeps only the files whose name starts with it (one recording of several side by side, as
-    anipose keeps ``vid01-camA.avi`` beside ``vid02-camA.avi``). ``set_by`` says in the errors where
+    anipose keeps ``vid01-camA.avi`` beside ``vid02-camA.avi``; :func:`in_trial`). ``set_by`` says in the errors where
     ``camera_map`` and ``trial`` are set for these files.
     """
     paths = list(paths)
     if trial is not None:
         found = sorted({_label(path) for path in paths}, key=natural_key)
-        paths = [path for path in paths if _label(path).startswith(trial)]
+        paths = [path for path in paths if in_trial(_label(path), trial)]
         if not paths:
             raise MissingFileError(f"{where}: no {what} of trial {trial!r} (no name starts with it; found: {', '.join(found) or 'none'})")
     if isinstance(camera_map, str):
@@ -117,6 +117,15 @@ def match_cameras(names: Sequence[str], paths: Iterable[Path], what: str, where:
     if unused:
         warnings.warn(f"{where}: ignoring {what}s of no calibrated camera: {', '.join(p.name for p in unused)}", stacklevel=3)
     return matched
+
+
+def in_trial(label: str, trial: str) -> bool:
+    """Whether a file named ``label`` belongs to ``trial``: the name starts with it, and does not go on with
+    the trial's last run of digits or letters (``vid1`` is not the start of ``vid10-camA``, ``vid`` is)."""
+    if not label.startswith(trial) or len(label) == len(trial) or not trial:
+        return label.startswith(trial)
+    last, following = trial[-1], label[len(trial)]
+    return not ((last.isdigit() and following.isdigit()) or (last.isalpha() and following.isalpha()))
 
 
 def _label(path: Path) -> str:
