@@ -122,8 +122,10 @@ def match_cameras(names: Sequence[str], paths: Iterable[Path], what: str, where:
 def in_trial(label: str, trial: str) -> bool:
     """Whether a file named ``label`` belongs to ``trial``: the name starts with it, and does not go on with
     the trial's last run of digits or letters (``vid1`` is not the start of ``vid10-camA``, ``vid`` is)."""
-    if not label.startswith(trial) or len(label) == len(trial) or not trial:
-        return label.startswith(trial)
+    if not label.startswith(trial):
+        return False
+    if not trial or len(label) == len(trial):
+        return True
     last, following = trial[-1], label[len(trial)]
     return not ((last.isdigit() and following.isdigit()) or (last.isalpha() and following.isalpha()))
 
