@@ -10,6 +10,9 @@ a camera it states no image size for (EasyMocap's may not) takes its video's. A
 capture brings: ``SOURCE/masks/<camera>/`` holds one mask image per frame, the k-th in natural order
 (``0000.png``, ``0001.png``, …) being frame k; a camera with fewer masks than frames is an error.
 
+Caliscope's ``timestamps.csv`` beside ``cam_N`` videos is checked: a camera that missed a moment the
+others hold is refused (:mod:`mmcsplat.datasets.caliscope_timing`), since frame by frame it would be out of sync.
+
 Frames are decoded lazily with OpenCV, one camera's decoder open at a time.
 """
 
@@ -22,6 +25,7 @@ from pathlib import Path
 import attrs
 import numpy as np
 
+from mmcsplat.datasets.caliscope_timing import check_caliscope_timing
 from mmcsplat.datasets.frame_rate import DEFAULT_FPS
 from mmcsplat.datasets.rig import (
     CAMERA_MAP_PARAMETER,
@@ -143,6 +147,7 @@ class VideoReader(Reader):
         matched = match_cameras(names, video_files(source), "video", source, self.camera_map, trial=self.trial)
         paths = {name: camera_video(path) for name, path in matched.items()}
         infos = {name: probe(paths[name]) for name in names}
+        check_caliscope_timing(paths, {name: info.frames for name, info in infos.items()})
         calibrated = read_calibration(calibration, units, names, {name: (info.width, info.height) for name, info in infos.items()})
         if self.verify:
             for camera in calibrated:

@@ -479,3 +479,32 @@ def test_skip_missing_on_videos_says_there_is_nothing_to_skip(tmp_path: Path, ca
     rig.make_capture(tmp_path / "capture", frames=2)
     assert main(["ingest", str(tmp_path / "capture"), str(tmp_path / "out.zarr"), "--skip-missing", "--no-progress"]) == 2
     assert "--skip-missing: the videos reader has no missing_frames option" in capsys.readouterr().err
+
+
+def _caliscope_capture(tmp_path: Path, frames: list[int], moments: dict[int, list[int]]) -> Path:
+    """Videos cam_0.mp4 and cam_1.mp4 as Caliscope records them, with ``frames`` each, and its timestamps.csv
+    listing camera N at the sync indices ``moments[N]``."""
+    tmp_path.mkdir()
+    source, _ = _capture(tmp_path, ["cam_0", "cam_1"], "videos", frames, ["cam_0", "cam_1"])
+    rows = ["sync_index,cam_id,frame_time"] + [f"{index},{cam},{100 + index / 30 + cam / 1000:.5f}"
+                                                for cam, indices in moments.items() for index in indices]
+    (source / "videos" / "timestamps.csv").write_text("\n".join(rows) + "\n")
+    return source
+
+
+def test_caliscope_timestamps_refuse_a_camera_that_missed_a_moment(tmp_path: Path) -> None:
+    # every moment in both cameras: frame k is one moment, the recording ingests
+    source = _caliscope_capture(tmp_path / "whole", [3, 3], {0: [416, 417, 418], 1: [416, 417, 418]})
+    assert _ingest(source, tmp_path / "whole.zarr").num_frames == 3
+    # cam_1 missed moment 417: its second frame is moment 418, one behind cam_0's from there
+    source = _caliscope_capture(tmp_path / "gap", [3, 2], {0: [416, 417, 418], 1: [416, 418]})
+    with pytest.raises(InputError, match=r"timestamps.csv: camera cam_1 has no frame at sync index 417, "
+                                         r"so from there frame k of its video is another moment"):
+        _ingest(source, tmp_path / "gap.zarr")
+    assert not (tmp_path / "gap.zarr").exists()
+    source = _caliscope_capture(tmp_path / "other", [3, 3], {0: [416, 417], 1: [416, 417]})
+    with pytest.raises(InputError, match=r"2 frames of camera cam_0, but its video cam_0.mp4 holds 3: the timestamps are not this recording's"):
+        _ingest(source, tmp_path / "other.zarr")
+    source = _caliscope_capture(tmp_path / "twice", [2, 2], {0: [416, 416], 1: [416, 417]})
+    with pytest.raises(InputError, match=r"line 3: camera cam_0 has sync index 416 twice"):
+        _ingest(source, tmp_path / "twice.zarr")
