@@ -58,5 +58,4 @@ def check_caliscope_timing(videos: Mapping[str, Path], frames: Mapping[str, int]
         if missing := sorted(every - own):
             later = f" and {len(missing) - 1} later one{'s' if len(missing) > 2 else ''}" if len(missing) > 1 else ""
             raise InputError(f"{path}: camera {name} has no frame at sync index {missing[0]}{later}, so "
-                             "from there frame k of its video is another moment than the other cameras' frame k; ingest the cameras "
-                             "that hold every moment with --cameras, or re-export the recording synchronised")
+                             "from there frame k of its video is another moment than the other cameras' frame k; leave it out with --cameras")
