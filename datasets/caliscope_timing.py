@@ -1,19 +1,22 @@
-"""Caliscope's frame timing beside its videos: frame k of every camera's video must be one moment.
+"""Caliscope's frame timing beside its videos: which moment each frame of each camera's video is.
 
 Caliscope's recorder writes ``timestamps.csv`` (``sync_index,cam_id,frame_time``) beside ``cam_N.mp4``:
 one row per frame of camera N, the rows of one moment sharing a ``sync_index``; its player takes camera
-N's k-th frame as the k-th of its times in the file. Frame k of every video is then one moment exactly
-when each sync index holds a row of every camera. A camera that missed a moment is a frame behind the
-others from there on, and ingest, which pairs the videos frame by frame, cannot see it in the images: so
-such a recording is refused, naming the camera and the first moment it lacks, as are a file whose rows
-of a camera do not count its video's frames and one that lists a camera's moment twice. The file is read
-only where every video is named ``cam_N`` as Caliscope names them; other files of that name are left alone.
+N's k-th frame as the k-th of its times in the file. Frame k of every video is one moment exactly when
+each sync index holds a row of every camera. A camera that missed a moment is a frame behind the others
+from there on, which ingest, pairing the videos frame by frame, could not see in the images. So the
+recording's frames are its moments (every sync index, in order), and each camera's video frames are
+placed at theirs: a moment a camera missed is absent for it, or, by default, an error naming the camera
+and the first moment it lacks. A file whose rows of a camera do not count its video's frames, or that
+lists a camera's moment twice, is refused. The file is read only where every video is named ``cam_N`` as
+Caliscope names them; other files of that name are left alone.
 """
 
 from __future__ import annotations
 
 import csv
 import re
+import warnings
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -24,21 +27,22 @@ HEADER = ("sync_index", "cam_id", "frame_time")
 _VIDEO_STEM = re.compile(r"cam_(\d+)")
 
 
-def check_caliscope_timing(videos: Mapping[str, Path], frames: Mapping[str, int]) -> None:
-    """Refuse a Caliscope recording whose videos (camera name → path, all in one folder) are not frame by
-    frame one moment per its ``timestamps.csv`` (module docstring); ``frames`` holds each video's frame count.
-    Nothing is checked without that file beside the videos, or when a video is not named ``cam_N``."""
+def caliscope_frames(videos: Mapping[str, Path], frames: Mapping[str, int], missing_frames: str = "error") -> dict[str, list[int | None]] | None:
+    """Each camera's video frame at each moment of a Caliscope recording (``None`` where it missed one), or
+    ``None`` where no ``timestamps.csv`` applies (module docstring). ``videos`` maps camera names to their
+    videos (all in one folder), ``frames`` to their frame counts; a missed moment is an error unless
+    ``missing_frames`` is ``"absent"``, then a warning counting them."""
     folders = {path.parent for path in videos.values()}
     ids = {name: _VIDEO_STEM.fullmatch(path.stem) for name, path in videos.items()}
     if len(folders) != 1 or not all(ids.values()):
-        return
+        return None
     path = folders.pop() / TIMESTAMPS_FILE
     if not path.is_file():
-        return
+        return None
     with path.open(newline="") as file:
         rows = list(csv.reader(file))
     if not rows or tuple(cell.strip() for cell in rows[0]) != HEADER:
-        return
+        return None
     moments: dict[int, set[int]] = {int(match.group(1)): set() for match in ids.values()}
     for line, row in enumerate(rows[1:], start=2):
         try:
@@ -49,13 +53,25 @@ def check_caliscope_timing(videos: Mapping[str, Path], frames: Mapping[str, int]
             if sync_index in moments[cam_id]:
                 raise InputError(f"{path}, line {line}: camera cam_{cam_id} has sync index {sync_index} twice")
             moments[cam_id].add(sync_index)
-    every = set().union(*moments.values())
+    every = sorted(set().union(*moments.values()))
+    placed: dict[str, list[int | None]] = {}
+    gaps: dict[str, list[int]] = {}
     for name, match in ids.items():
         own = moments[int(match.group(1))]
         if len(own) != frames[name]:
             raise InputError(f"{path}: {len(own)} frames of camera {name}, but its video {videos[name].name} holds {frames[name]}: "
                              "the timestamps are not this recording's")
-        if missing := sorted(every - own):
-            later = f" and {len(missing) - 1} later one{'s' if len(missing) > 2 else ''}" if len(missing) > 1 else ""
-            raise InputError(f"{path}: camera {name} has no frame at sync index {missing[0]}{later}, so "
-                             "from there frame k of its video is another moment than the other cameras' frame k; leave it out with --cameras")
+        frame_of = {index: k for k, index in enumerate(sorted(own))}
+        placed[name] = [frame_of.get(index) for index in every]
+        if missing := [index for index in every if index not in frame_of]:
+            gaps[name] = missing
+    if gaps and missing_frames == "error":
+        name, missing = next(iter(gaps.items()))
+        later = f" and {len(missing) - 1} later one{'s' if len(missing) > 2 else ''}" if len(missing) > 1 else ""
+        raise InputError(f"{path}: camera {name} has no frame at sync index {missing[0]}{later}, so from there frame k of its video "
+                         "is another moment than the other cameras' frame k; pass --skip-missing to mmcsplat ingest (the reader "
+                         "option missing_frames=absent) to ingest it with those moments absent, or leave it out with --cameras")
+    if gaps:
+        detail = "; ".join(f"{name} lacks {len(missing)} (first sync index {missing[0]})" for name, missing in gaps.items())
+        warnings.warn(f"{path}: of {len(every)} moments, {detail}: those frames are absent", stacklevel=3)
+    return placed

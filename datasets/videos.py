@@ -10,8 +10,10 @@ a camera it states no image size for (EasyMocap's may not) takes its video's. A
 capture brings: ``SOURCE/masks/<camera>/`` holds one mask image per frame, the k-th in natural order
 (``0000.png``, ``0001.png``, …) being frame k; a camera with fewer masks than frames is an error.
 
-Caliscope's ``timestamps.csv`` beside ``cam_N`` videos is checked: a camera that missed a moment the
-others hold is refused (:mod:`mmcsplat.datasets.caliscope_timing`), since frame by frame it would be out of sync.
+Caliscope's ``timestamps.csv`` beside ``cam_N`` videos places each video's frames at their moments
+(:mod:`mmcsplat.datasets.caliscope_timing`): a camera that missed a moment the others hold would be out of
+sync frame by frame, so it is refused, or with ``missing_frames="absent"`` (``mmcsplat ingest
+--skip-missing``) lacks that frame while the rest stay in sync.
 
 Frames are decoded lazily with OpenCV, one camera's decoder open at a time.
 """
@@ -25,8 +27,9 @@ from pathlib import Path
 import attrs
 import numpy as np
 
-from mmcsplat.datasets.caliscope_timing import check_caliscope_timing
+from mmcsplat.datasets.caliscope_timing import caliscope_frames
 from mmcsplat.datasets.frame_rate import DEFAULT_FPS
+from mmcsplat.datasets.posed_images import MISSING_FRAMES_POLICIES
 from mmcsplat.datasets.rig import (
     CAMERA_MAP_PARAMETER,
     CAMERAS_PARAMETER,
@@ -41,7 +44,7 @@ from mmcsplat.datasets.rig import (
 )
 from mmcsplat.plugin_api.errors import InputError, NotAFolderError
 from mmcsplat.plugin_api.interfaces import Reader, RecordedFrame, Recording
-from mmcsplat.plugin_api.parameters import parameter
+from mmcsplat.plugin_api.parameters import one_of, parameter
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.calibration import calibration_names, read_calibration
 from mmcsplat.storage.camera_names import match_cameras
@@ -106,10 +109,12 @@ def probe(path: Path) -> VideoInfo:
         capture.release()
 
 
-def check_decodes(path: Path) -> None:
-    """Decode the whole video once with ffmpeg, stopping at the first decoder error, and refuse a damaged
-    one naming its file and the frame it breaks at. OpenCV conceals decoder errors (a video corrupted in
-    its middle decodes to smeared frames without a word), so this is the only place they show."""
+def decoded_frames(path: Path) -> int:
+    """Decode the whole video once with ffmpeg and return its frame count, stopping at the first decoder
+    error: a damaged video is refused naming its file and the frame it breaks at. OpenCV conceals decoder
+    errors (a video corrupted in its middle decodes to smeared frames without a word), so this is the only
+    place they show; and the count is the frames themselves, where the count a container states (what
+    :func:`probe` reads) may be an estimate from its duration, as Matroska's is."""
     import subprocess
 
     import imageio_ffmpeg
@@ -117,11 +122,12 @@ def check_decodes(path: Path) -> None:
     command = [imageio_ffmpeg.get_ffmpeg_exe(), "-nostdin", "-v", "error", "-xerror", "-threads", "1", "-i", str(path),
                "-map", "0:v:0", "-f", "framecrc", "-"]
     result = subprocess.run(command, capture_output=True, text=True)
+    decoded = sum(1 for line in result.stdout.splitlines() if line and not line.startswith("#"))
     if result.returncode != 0:
-        decoded = sum(1 for line in result.stdout.splitlines() if line and not line.startswith("#"))
         cause = next((line.strip() for line in result.stderr.splitlines() if line.strip()), f"ffmpeg exit status {result.returncode}")
         raise InputError(f"video {path}: damaged at frame {decoded} (the decoder reports: {cause}); re-export or re-copy it, "
                          f"or ingest the frames before it with --frames 0:{decoded}")
+    return decoded
 
 
 @attrs.frozen
@@ -132,7 +138,9 @@ class VideoReader(Reader):
     camera_map: Mapping[str, str] | str | None = CAMERA_MAP_PARAMETER
     trial: str | None = TRIAL_PARAMETER
     cameras: tuple[str, ...] | None = CAMERAS_PARAMETER
-    verify: bool = parameter(True, doc="decode each video once with ffmpeg first: a damaged one is an error naming the frame")
+    verify: bool = parameter(True, doc="decode each video once with ffmpeg first: a damaged one is an error naming the frame; its frames counted, not the container's estimate")
+    missing_frames: str = parameter("error", doc="a moment a camera missed (Caliscope's timestamps.csv): error, or absent (that camera "
+                                                 "lacks the frame, the others keep it)", validator=one_of(*MISSING_FRAMES_POLICIES))
 
     def detect(self, source: Path) -> bool:
         return Path(source).is_dir() and bool(video_files(Path(source)))
@@ -147,18 +155,20 @@ class VideoReader(Reader):
         matched = match_cameras(names, video_files(source), "video", source, self.camera_map, trial=self.trial)
         paths = {name: camera_video(path) for name, path in matched.items()}
         infos = {name: probe(paths[name]) for name in names}
-        check_caliscope_timing(paths, {name: info.frames for name, info in infos.items()})
         calibrated = read_calibration(calibration, units, names, {name: (info.width, info.height) for name, info in infos.items()})
         if self.verify:
-            for camera in calibrated:
-                check_decodes(paths[camera.name])
+            infos = {name: attrs.evolve(info, frames=decoded_frames(info.path)) for name, info in infos.items()}
+        placed = caliscope_frames(paths, {name: info.frames for name, info in infos.items()}, self.missing_frames)
         cameras = [fit_camera(c, infos[c.name].width, infos[c.name].height, self.size_mismatch, f"video {paths[c.name]}") for c in calibrated]
-        num_frames = common_length({name: info.frames for name, info in infos.items()}, "video", source)
+        # Without Caliscope's timing frame k of every video is moment k.
+        num_frames = len(next(iter(placed.values()))) if placed else common_length({name: info.frames for name, info in infos.items()}, "video", source)
+        placed = placed or {name: list(range(num_frames)) for name in names}
         masks = mask_folders(source, calibrated, self.camera_map)
-        short = {name: len(files) for name, files in masks.items() if len(files) < num_frames}
+        needed = {name: 1 + max((k for k in placed[name] if k is not None), default=-1) for name in masks}
+        short = {name: len(files) for name, files in masks.items() if len(files) < needed[name]}
         if short:
-            detail = ", ".join(f"{name}: {count}" for name, count in short.items())
-            raise InputError(f"{source / MASKS_FOLDER}: fewer mask images than the {num_frames} frames ({detail}); give one per frame, in frame order")
+            detail = ", ".join(f"{name}: {count} of {needed[name]}" for name, count in short.items())
+            raise InputError(f"{source / MASKS_FOLDER}: fewer mask images than the frames ingested ({detail}); give one per frame, in frame order")
         provenance = {
             "calibration": str(calibration),
             "units": units,
@@ -166,8 +176,8 @@ class VideoReader(Reader):
             "size_mismatch": self.size_mismatch,
             "masks": str(source / MASKS_FOLDER) if masks else None,
         }
-        return VideoRecording(source, cameras, _frame_rate(infos, source), num_frames, provenance, paths,
-                              {name: files[:num_frames] for name, files in masks.items()})
+        return VideoRecording(source, cameras, _frame_rate(infos, source), num_frames, provenance, paths, placed,
+                              {name: [None if k is None else files[k] for k in placed[name]] for name, files in masks.items()})
 
 
 def _frame_rate(infos: Mapping[str, VideoInfo], source: Path) -> float:
@@ -188,33 +198,40 @@ def _frame_rate(infos: Mapping[str, VideoInfo], source: Path) -> float:
 
 
 class VideoRecording(RigRecording):
-    """Per-camera videos, decoded on demand."""
+    """Per-camera videos, decoded on demand; ``placed[camera][t]`` is the video frame of moment ``t``
+    (``None`` where the camera missed it)."""
 
     def __init__(self, source: Path, cameras: Sequence[Camera], fps: float, num_frames: int, provenance: dict, paths: dict[str, Path],
-                 masks: dict[str, list[Path]] | None = None) -> None:
+                 placed: Mapping[str, Sequence[int | None]], masks: dict[str, list[Path | None]] | None = None) -> None:
         super().__init__(source, cameras, fps, num_frames, provenance, masks)
         self._paths = paths
+        self._placed = placed
+
+    def present(self, camera: str) -> np.ndarray:
+        """The moments this camera's video holds a frame of (all, unless Caliscope's timing says it missed some)."""
+        return np.array([k is not None for k in self._placed[camera]], dtype=bool)
 
     def _decode(self, camera: str, indices: range) -> Iterator[RecordedFrame]:
         import cv2
 
-        if not indices:
+        wanted = [(t, self._placed[camera][t]) for t in indices if self._placed[camera][t] is not None]
+        if not wanted:
             return
         path = self._paths[camera]
         capture = cv2.VideoCapture(str(path))
         try:
-            if indices.start > 0:
-                capture.set(cv2.CAP_PROP_POS_FRAMES, indices.start)
-            position = indices.start
-            for t in indices:
-                while position < t:  # skip frames between steps without converting them
+            position = wanted[0][1]
+            if position > 0:
+                capture.set(cv2.CAP_PROP_POS_FRAMES, position)
+            for t, k in wanted:
+                while position < k:  # skip frames between steps without converting them
                     if not capture.grab():
-                        raise InputError(f"video {path}: ends before frame {t}")
+                        raise InputError(f"video {path}: ends before frame {k}")
                     position += 1
                 ok, image = capture.read()
                 position += 1
                 if not ok or image is None:
-                    raise InputError(f"video {path}: cannot decode frame {t}")
+                    raise InputError(f"video {path}: cannot decode frame {k}")
                 yield RecordedFrame(t=t, rgb=cv2.cvtColor(image, cv2.COLOR_BGR2RGB))
         finally:
             capture.release()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import subprocess
 import warnings
 from pathlib import Path
 
@@ -471,14 +472,8 @@ def test_a_masks_folder_per_camera_is_ingested_as_the_captures_masks(tmp_path: P
     tops = [np.flatnonzero(session.frame(t, "cam_a").mask.any(axis=1))[0] for t in range(3)]
     assert tops[1] - tops[0] == pytest.approx(5, abs=1) and tops[2] - tops[1] == pytest.approx(5, abs=1)
     (source / "masks" / "cam_b" / "0002.png").unlink()
-    with pytest.raises(ValueError, match=r"masks: fewer mask images than the 3 frames \(cam_b: 2\)"):
+    with pytest.raises(ValueError, match=r"masks: fewer mask images than the frames ingested \(cam_b: 2 of 3\)"):
         _ingest(source, tmp_path / "other.zarr")
-
-
-def test_skip_missing_on_videos_says_there_is_nothing_to_skip(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
-    rig.make_capture(tmp_path / "capture", frames=2)
-    assert main(["ingest", str(tmp_path / "capture"), str(tmp_path / "out.zarr"), "--skip-missing", "--no-progress"]) == 2
-    assert "--skip-missing: the videos reader has no missing_frames option" in capsys.readouterr().err
 
 
 def _caliscope_capture(tmp_path: Path, frames: list[int], moments: dict[int, list[int]]) -> Path:
@@ -499,7 +494,7 @@ def test_caliscope_timestamps_refuse_a_camera_that_missed_a_moment(tmp_path: Pat
     # cam_1 missed moment 417: its second frame is moment 418, one behind cam_0's from there
     source = _caliscope_capture(tmp_path / "gap", [3, 2], {0: [416, 417, 418], 1: [416, 418]})
     with pytest.raises(InputError, match=r"timestamps.csv: camera cam_1 has no frame at sync index 417, "
-                                         r"so from there frame k of its video is another moment"):
+                                         r"so from there frame k of its video is another moment.*pass --skip-missing"):
         _ingest(source, tmp_path / "gap.zarr")
     assert not (tmp_path / "gap.zarr").exists()
     source = _caliscope_capture(tmp_path / "other", [3, 3], {0: [416, 417], 1: [416, 417]})
@@ -508,3 +503,42 @@ def test_caliscope_timestamps_refuse_a_camera_that_missed_a_moment(tmp_path: Pat
     source = _caliscope_capture(tmp_path / "twice", [2, 2], {0: [416, 416], 1: [416, 417]})
     with pytest.raises(InputError, match=r"line 3: camera cam_0 has sync index 416 twice"):
         _ingest(source, tmp_path / "twice.zarr")
+
+
+def test_caliscope_moments_a_camera_missed_are_absent_with_skip_missing(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    whole = _ingest(_caliscope_capture(tmp_path / "whole", [3, 3], {0: [416, 417, 418], 1: [416, 417, 418]}), tmp_path / "whole.zarr")
+    # cam_1 missed moment 417 and cam_0 moment 419: each video's frames are placed at their own moments
+    source = _caliscope_capture(tmp_path / "gap", [3, 3], {0: [416, 417, 418], 1: [416, 418, 419]})
+    with pytest.warns(UserWarning, match=r"of 4 moments, cam_0 lacks 1 \(first sync index 419\); cam_1 lacks 1 \(first sync index 417\)"):
+        session = _ingest(source, tmp_path / "gap.zarr", skip_missing=True)
+    assert session.num_frames == 4
+    assert session.present("cam_0").tolist() == [True, True, True, False]
+    assert session.present("cam_1").tolist() == [True, False, True, True]
+    # cam_1's second video frame is moment 418, the recording's third, beside cam_0's third video frame
+    np.testing.assert_array_equal(session.frame(2, "cam_1").rgb, whole.frame(1, "cam_1").rgb)
+    np.testing.assert_array_equal(session.frame(2, "cam_0").rgb, whole.frame(2, "cam_0").rgb)
+    # a stride steps over the moments, not over each video's frames
+    strided = _ingest(source, tmp_path / "strided.zarr", skip_missing=True, frames=slice(1, 4, 2))
+    assert strided.present("cam_1").tolist() == [False, True] and strided.present("cam_0").tolist() == [True, False]
+    np.testing.assert_array_equal(strided.frame(1, "cam_1").rgb, whole.frame(2, "cam_1").rgb)
+    # the same from the command line
+    assert main(["ingest", str(source), str(tmp_path / "cli.zarr"), "--skip-missing", "--no-progress"]) == 0
+    assert SessionReader(tmp_path / "cli.zarr").present("cam_1").tolist() == [True, False, True, True]
+
+
+def test_caliscope_video_whose_container_overstates_its_frames(tmp_path: Path) -> None:
+    """A camera's dropped frame cut from a Matroska video: its container still states the duration's three
+    frames, the timestamps two; the frames decoded are what counts."""
+    import imageio_ffmpeg
+
+    whole = _ingest(_caliscope_capture(tmp_path / "whole", [3, 3], {0: [416, 417, 418], 1: [416, 417, 418]}), tmp_path / "whole.zarr")
+    source = _caliscope_capture(tmp_path / "cut", [3, 3], {0: [416, 417, 418], 1: [416, 418]})
+    video = source / "videos" / "cam_1.mp4"
+    subprocess.run([imageio_ffmpeg.get_ffmpeg_exe(), "-v", "error", "-i", str(video), "-vf", "select=not(eq(n\\,1))", "-fps_mode", "passthrough",
+                    "-c:v", "ffv1", str(video.with_suffix(".mkv"))], check=True)
+    video.unlink()
+    assert cv2.VideoCapture(str(video.with_suffix(".mkv"))).get(cv2.CAP_PROP_FRAME_COUNT) == 3
+    with pytest.warns(UserWarning, match=r"cam_1 lacks 1 \(first sync index 417\)"):
+        session = _ingest(source, tmp_path / "cut.zarr", skip_missing=True)
+    assert session.present("cam_1").tolist() == [True, False, True]
+    np.testing.assert_allclose(session.frame(2, "cam_1").rgb, whole.frame(2, "cam_1").rgb, atol=2)

@@ -31,7 +31,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_settings(parser, "a reader parameter (`mmcsplat plugins --show FORMAT`), read as TOML when it can be: fps=25, missing_frames=absent",
                  dest="options")
     parser.add_argument("--skip-missing", action="store_true",
-                        help="ingest without the images the capture lists but lacks, saying how many (the reader option missing_frames=absent)")
+                        help="ingest without the images the capture lists but lacks, or the moments a Caliscope camera missed, saying how many "
+                             "(the reader option missing_frames=absent)")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing session at OUT (never anything but a session)")
 
 
