@@ -18,10 +18,12 @@ from mmcsplat.plugin_api.errors import InputError, MissingFileError
 from mmcsplat.plugin_api.interfaces import RecordedFrame, Recording
 from mmcsplat.plugin_api.parameters import one_of, parameter
 from mmcsplat.scene.camera import Camera
+from mmcsplat.storage.calibration import is_camera_toml
 from mmcsplat.storage.camera_names import match_cameras, natural_key
 from mmcsplat.storage.capture_files import read_mask
 from mmcsplat.storage.easymocap_calibration import easymocap_files
 from mmcsplat.storage.ground_truth import GROUND_TRUTH, GroundTruthReader
+from mmcsplat.storage.qualisys_calibration import is_qualisys
 
 #: How a decoded size that differs from the calibration's is reconciled (see :func:`fit_camera`).
 SIZE_MISMATCH_POLICIES = ("scale", "crop", "error")
@@ -40,12 +42,14 @@ CALIBRATION_FOLDERS = (".", "calibration")
 
 def calibration_candidates(folder: Path) -> list[Path]:
     """The calibrations ``folder`` holds: its ``calibration.toml`` alone if it has one, else its ``*.toml``
-    files and its EasyMocap pair (as the pair's ``intri.yml``)."""
+    files that hold cameras (not a Pose2Sim project's ``Config.toml``), its Qualisys ``*.qca.txt`` files and
+    its EasyMocap pair (as the pair's ``intri.yml``)."""
     default = folder / "calibration.toml"
     if default.is_file():
         return [default]
     pair = easymocap_files(folder)
-    return sorted(folder.glob("*.toml")) + ([pair[0]] if pair and all(path.is_file() for path in pair) else [])
+    found = [path for path in folder.glob("*.toml") if is_camera_toml(path)] + [path for path in folder.glob("*") if is_qualisys(path)]
+    return sorted(found) + ([pair[0]] if pair and all(path.is_file() for path in pair) else [])
 
 
 def find_calibration(source: Path, calibration: Path | None) -> Path:
@@ -69,7 +73,7 @@ def find_calibration(source: Path, calibration: Path | None) -> Path:
         if candidates:
             names = ", ".join(path.name for path in candidates)
             raise InputError(f"{folder}: several calibration files ({names}); choose one with --calibration")
-    looked_for = "no calibration.toml, other single *.toml, or EasyMocap intri.yml + extri.yml"
+    looked_for = "no calibration.toml, other single *.toml of cameras, Qualisys *.qca.txt, or EasyMocap intri.yml + extri.yml"
     if calibration is not None:
         raise MissingFileError(f"calibration folder {calibration}: {looked_for} in it")
     raise MissingFileError(f"{source}: {looked_for} in it or in its calibration/ folder; pass --calibration")

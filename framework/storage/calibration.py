@@ -1,5 +1,6 @@
 """Read and write anipose ``calibration.toml`` files, and read Pose2Sim's variant of them, Caliscope's
-``camera_array.toml`` and EasyMocap's ``intri.yml`` + ``extri.yml`` (parsed by :mod:`.easymocap_calibration`).
+``camera_array.toml``, EasyMocap's ``intri.yml`` + ``extri.yml`` (parsed by :mod:`.easymocap_calibration`)
+and Qualisys Track Manager's ``.qca.txt`` (parsed by :mod:`.qualisys_calibration`).
 
 anipose (``CameraGroup.dump``) writes one ``[cam_N]`` table per camera with ``name``, ``size = [w, h]``,
 ``matrix`` (3×3 K), ``distortions`` (k1, k2, p1, p2, k3), ``rotation`` (a Rodrigues vector, world to
@@ -13,8 +14,8 @@ its cameras are named ``cam_N``, as it names their videos (``cam_N.mp4``). Camer
 those it has not placed (no rotation or translation; files it wrote before write the string ``"null"`` for
 a missing value) are left out, as Caliscope's own export to anipose leaves them out.
 
-Translations in a file are in the calibration board's unit (``"m"`` or ``"mm"``); the cameras returned
-are always in metres. Tables named ``cam_N`` are ordered by N (``cam_10`` after ``cam_9``); a file whose
+Translations in a file are in the calibration board's unit (``"m"`` or ``"mm"``; a Qualisys file's
+always millimetres); the cameras returned are always in metres. Tables named ``cam_N`` are ordered by N (``cam_10`` after ``cam_9``); a file whose
 tables are named otherwise keeps the file's order.
 """
 
@@ -32,6 +33,7 @@ from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.atomic import write_text_atomic
 from mmcsplat.storage.easymocap_calibration import easymocap_files, easymocap_names, read_easymocap
+from mmcsplat.storage.qualisys_calibration import is_qualisys, qualisys_tables
 
 #: Metres per unit of a calibration file's translations.
 UNITS = {"m": 1.0, "mm": 1e-3}
@@ -56,10 +58,10 @@ def metres_per_unit(units: str) -> float:
 
 def read_calibration(path: Path, units: str = "m", cameras: Sequence[str] | None = None,
                      sizes: Mapping[str, tuple[int, int]] | None = None) -> list[Camera]:
-    """The cameras of an anipose or Pose2Sim ``calibration.toml``, of Caliscope's ``camera_array.toml``, or of EasyMocap's ``intri.yml`` and
-    ``extri.yml`` (``path`` either of them or their folder: :mod:`.easymocap_calibration`), in metres.
+    """The cameras of an anipose or Pose2Sim ``calibration.toml``, of Caliscope's ``camera_array.toml``, of EasyMocap's ``intri.yml`` and
+    ``extri.yml`` (``path`` either of them or their folder: :mod:`.easymocap_calibration`), or of Qualisys's ``.qca.txt``, in metres.
 
-    ``units`` is the unit of the file's translations. ``cameras`` (names) keeps only those, in the file's
+    ``units`` is the unit of the file's translations (a Qualisys file's are millimetres whatever it says). ``cameras`` (names) keeps only those, in the file's
     order, and checks only them: a broken camera left out (a copied table) does not stop the others.
     ``sizes`` (name → width, height) gives the image size of a camera whose file states none (EasyMocap's
     may not): the readers pass their decoded frames' sizes; a stated size wins. Errors name the file and
@@ -67,6 +69,8 @@ def read_calibration(path: Path, units: str = "m", cameras: Sequence[str] | None
     """
     path = Path(path)
     scale = metres_per_unit(units)
+    if is_qualisys(path):
+        scale, units = UNITS["mm"], "mm"
     pair = easymocap_files(path)
     if pair:
         where = f"calibration {pair[0]} and {pair[1].name}"
@@ -90,8 +94,27 @@ def calibration_names(path: Path, cameras: Sequence[str] | None = None) -> list[
     return _select(path, easymocap_names(pair[0]) if pair else [name for name, _, _ in _tables(path)], cameras)
 
 
+def is_camera_toml(path: Path) -> bool:
+    """Whether a ``.toml`` file may be a calibration: not one that parses and holds no camera table (a
+    Pose2Sim project's ``Config.toml`` beside its videos). A file that does not parse counts, so that
+    reading it says what is wrong."""
+    try:
+        with Path(path).open("rb") as file:
+            document = tomllib.load(file)
+    except (OSError, tomllib.TOMLDecodeError):
+        return True
+    tables = [value for key, value in document.items() if key != "metadata" and isinstance(value, dict)]
+    cameras = document.get("cameras")
+    if isinstance(cameras, dict):
+        tables += [value for value in cameras.values() if isinstance(value, dict)]
+    return any("matrix" in table for table in tables)
+
+
 def _tables(path: Path) -> list[tuple[str, str, dict[str, Any]]]:
-    """A TOML calibration's camera tables as (name, section, table), ``cam_N`` by N, others in the file's order."""
+    """A calibration's camera tables as (name, where in the file, table): a Qualisys file's in its order, a
+    TOML file's ``cam_N`` by N, others in the file's order."""
+    if is_qualisys(path):
+        return qualisys_tables(path)
     try:
         with path.open("rb") as file:
             document = tomllib.load(file)
@@ -112,7 +135,7 @@ def _tables(path: Path) -> list[tuple[str, str, dict[str, Any]]]:
     numbers = [_ANIPOSE_SECTION.fullmatch(key) for key in sections]
     if all(numbers):
         sections = [key for _, key in sorted(zip((int(m.group(1)) for m in numbers), sections))]
-    tables = [(document[key].get("name", key), key, document[key]) for key in sections]
+    tables = [(document[key].get("name", key), f"[{key}]", document[key]) for key in sections]
     for name, key, _ in tables:
         if not isinstance(name, str):
             raise InputError(f"calibration {path}, [{key}]: name must be a string, got {name!r}")
@@ -127,7 +150,7 @@ def _caliscope_tables(path: Path, cameras: dict[str, dict[str, Any]]) -> list[tu
             raise InputError(f"calibration {path}, [cameras.{key}]: Caliscope's camera tables are numbered ([cameras.0], [cameras.1], …)")
         table = {name: value for name, value in table.items() if value != "null"}
         if table.get("ignore") is not True and "rotation" in table and "translation" in table:
-            tables.append((int(key), (f"cam_{key}", f"cameras.{key}", table)))
+            tables.append((int(key), (f"cam_{key}", f"[cameras.{key}]", table)))
     if not tables:
         raise InputError(f"calibration {path}: Caliscope has placed none of its cameras (none has a rotation and translation "
                          "that is not ignored): calibrate the extrinsics first")
@@ -229,8 +252,8 @@ def check_rig(cameras: Sequence[Camera], where: str, units: str) -> None:
 
 
 def _camera(path: Path, name: str, section: str, table: dict[str, Any]) -> Camera:
-    """Camera ``name`` from its table, in the file's units."""
-    where = f"calibration {path}, [{section}]"
+    """Camera ``name`` from its table (``section``: where it is in the file), in the file's units."""
+    where = f"calibration {path}, {section}"
     missing = [key for key in _REQUIRED if key not in table]
     if missing:
         raise InputError(f"{where}: missing {', '.join(missing)}")
