@@ -38,6 +38,9 @@ MASK_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 #: ``calibration/`` is where Pose2Sim (``Calib_*.toml``) and anipose (``calibration.toml``) projects keep
 #: it; EasyMocap and ZJU-MoCap keep ``intri.yml`` and ``extri.yml`` at the capture's root.
 CALIBRATION_FOLDERS = (".", "calibration")
+#: Pose2Sim's project file. In its batch layout each trial is a folder holding one beside the session's
+#: own, and the trials share the session's ``calibration/`` folder.
+POSE2SIM_CONFIG = "Config.toml"
 
 
 def calibration_candidates(folder: Path) -> list[Path]:
@@ -54,9 +57,13 @@ def calibration_candidates(folder: Path) -> list[Path]:
 
 def find_calibration(source: Path, calibration: Path | None) -> Path:
     """``calibration`` when given (a folder: its one calibration; either EasyMocap file stands for the
-    pair, as its ``intri.yml``), else the one calibration of ``source``, else of ``source/calibration/``."""
+    pair, as its ``intri.yml``), else the one calibration of ``source``, else of ``source/calibration/``,
+    else, for a trial of a Pose2Sim batch (:data:`POSE2SIM_CONFIG` in it and in its parent), of the
+    session's ``calibration/``."""
     if calibration is None:
         folders = [source / name for name in CALIBRATION_FOLDERS]
+        if (source / POSE2SIM_CONFIG).is_file() and (source.parent / POSE2SIM_CONFIG).is_file():
+            folders.append(source.parent / "calibration")
     else:
         calibration = Path(calibration)
         if not calibration.is_dir():

@@ -10,7 +10,7 @@ import pytest
 import rig_fixtures as rig
 
 from mmcsplat.pipeline.ingest import ingest
-from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.plugin_api.errors import InputError, MissingFileError
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.calibration import read_calibration
 
@@ -112,3 +112,18 @@ def test_pose2sim_project_with_its_config_and_a_qca_ingests_without_flags(tmp_pa
     session = ingest(project, tmp_path / "s.zarr", progress=False)
     assert list(session.camera_names) == ["cam01", "cam02", "cam03"] and session.num_frames == 2
     assert session.provenance["reader"]["calibration"].endswith("Calib.qca.txt")
+
+
+def test_a_trial_of_a_pose2sim_batch_takes_its_sessions_calibration(tmp_path: Path) -> None:
+    """Pose2Sim's batch layout: the session's Config.toml and calibration/ beside trial folders that hold
+    their own Config.toml and videos/."""
+    cameras = _ring()
+    _write_qca(tmp_path / "batch" / "calibration" / "Calib.qca.txt", cameras)
+    (tmp_path / "batch" / "Config.toml").write_text("[project]\nframe_rate = 'auto'\n")
+    trial = tmp_path / "batch" / "Trial_1"
+    rig.write_videos(trial / "videos", cameras, 2)
+    with pytest.raises(MissingFileError, match=r"Trial_1: no calibration.toml.*pass --calibration"):  # not a Pose2Sim trial yet
+        ingest(trial, tmp_path / "none.zarr", progress=False)
+    (trial / "Config.toml").write_text("[project]\nmulti_person = false\n")
+    session = ingest(trial, tmp_path / "s.zarr", progress=False)
+    assert session.provenance["reader"]["calibration"] == str(tmp_path / "batch" / "calibration" / "Calib.qca.txt")
