@@ -62,6 +62,8 @@ def test_first_fit_images_span_the_moving_cameras_first_poses(session):
         first_fit_images(reader, train, FRAMES - 1, 0)
     rig = [reader.camera(name) for name in reader.heldout]  # both image frame 0: a rig there
     assert first_fit_images(reader, rig, 0, 0) == [(0, 0), (0, 1)]
+    # a rig camera that missed the fitted moment is left out of the first fit, the others train
+    assert first_fit_images(reader, [*rig, train[1]], 0, 0) == [(0, 0), (0, 1)]
 
 
 def test_monocular_capture_fits_tracks_with_deformation_and_is_scored_on_the_fixed_cameras(session, tmp_path):

@@ -12,6 +12,7 @@ import copy
 import logging
 import re
 import time
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -175,6 +176,12 @@ class FirstFrameFit:
         ]
         require_masks(views, self.settings, self.session, frame)
         self.warnings = subject_warnings(views, frame)
+        imaged = {index for _, index in self.images}
+        absent = [camera.name for index, camera in enumerate(self.train_cameras) if index not in imaged]
+        if absent and len(self.image_frames) == 1:
+            self.warnings.append(f"no image of frame {frame} from {', '.join(absent)} (a moment missed): the first fit trains on the "
+                                 "other cameras, and tracking uses each from the next frame it holds")
+            warnings.warn(self.warnings[-1], stacklevel=2)
         return views
 
     # ------------------------------------------------------------------------------------------ setup

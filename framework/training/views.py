@@ -33,13 +33,13 @@ MONOCULAR_IMAGES = 8
 
 def first_fit_images(session: SessionReader, cameras: Sequence[Camera], frame: int, window: int) -> list[tuple[int, int]]:
     """(session frame, training camera number) of every image a first fit trains on: the ``window`` frames
-    from ``frame`` on when ``window`` > 0; otherwise every camera at ``frame`` when at least two training
-    cameras image it (a rig: a camera missing there is an error when the image is read), else — one moving
-    camera, a monocular capture — the frames from ``frame`` on until they hold :data:`MONOCULAR_IMAGES`
-    images. An error when fewer than two images result."""
+    from ``frame`` on when ``window`` > 0; otherwise the cameras that image ``frame`` when at least two
+    training cameras do (a rig; one that missed that moment, as a Caliscope camera may, trains from the
+    next frame on), else — one moving camera, a monocular capture — the frames from ``frame`` on until they
+    hold :data:`MONOCULAR_IMAGES` images. An error when fewer than two images result."""
     present = np.stack([session.present(camera.name) for camera in cameras])  # [C, T]
     if window == 0 and present[:, frame].sum() >= 2:
-        return [(frame, index) for index in range(len(cameras))]
+        return [(frame, int(index)) for index in np.flatnonzero(present[:, frame])]
     stop = frame + window if window else frame
     if not window:
         while stop < present.shape[1] and present[:, frame:stop].sum() < MONOCULAR_IMAGES:
