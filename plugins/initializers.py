@@ -17,7 +17,7 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
-from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.plugin_api.errors import InputError, SubjectMaskError
 from mmcsplat.plugin_api.interfaces import DepthSource, Initializer, RegionChoice, SceneContext
 from mmcsplat.plugin_api.parameters import at_least, finite_positive, parameter
 from mmcsplat.plugin_api.registration import PluginBuilder
@@ -243,7 +243,7 @@ class VisualHullInitializer(Initializer):
             cover = {camera.name: float(np.mean(mask > 0.5)) for camera, mask, _ in views}
             faint = [f"{name} ({share:.3%} of its pixels)" for name, share in cover.items() if share < NEARLY_EMPTY_MASK]
             why = f"the masks of {', '.join(faint)} are nearly empty" if faint else "are the masks and calibration consistent?"
-            raise InputError(f"visual-hull initializer: no point lies inside every view's mask at frame {scene.frame}: {why}")
+            raise SubjectMaskError(f"visual-hull initializer: no point lies inside every view's mask at frame {scene.frame}: {why}")
         points = np.concatenate(kept_points)[: self.num_points]
         colors = np.concatenate(kept_colors)[: self.num_points]
         return gaussians_at(points, colors, generator, segmentation_start(points, scene))

@@ -86,3 +86,22 @@ def test_a_folder_resumes_under_auto_iterations_where_auto_gives_the_steps_it_wa
         assert "track (iterative) already done" in printed.getvalue()
     finally:
         record.write_text(json.dumps(made_with))
+
+
+def test_only_errors_of_the_masks_carry_advice_on_motion_masks(made, tmp_path, monkeypatch, capsys):
+    """A fit on ``parallax`` masks that fails because of them says how to get better masks; any other error
+    of the fit (here a stand-in for a camera missing from the fitted frame) reaches the user as raised."""
+    from mmcsplat.pipeline.fit import FirstFrameFit
+    from mmcsplat.plugin_api.errors import InputError, SubjectMaskError
+
+    capture, _, _ = made
+    for error, advised in ((SubjectMaskError("no point lies inside every view's mask"), True),
+                           (InputError("frame 0 of camera 'cam_1' is not in the session"), False)):
+        def failing(self, error=error):
+            raise error
+
+        monkeypatch.setattr(FirstFrameFit, "run", failing)
+        with redirect_stdout(StringIO()):
+            assert main(["run", str(capture), "--out", str(tmp_path / "out"), *ARGUMENTS]) == 2
+        said = capsys.readouterr().err
+        assert str(error) in said and ("the masks come from the subject's motion" in said) == advised

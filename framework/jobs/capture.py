@@ -55,7 +55,7 @@ from mmcsplat.pipeline.capture_session import (
 )
 from mmcsplat.pipeline.image_scale import AUTO_SCALE, resolve_scale
 from mmcsplat.pipeline.steps import BEFORE_FIELD, SettingsRecord, Step, StepTime, fit_complete, fresh, made_in_place, run_steps
-from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.plugin_api.errors import InputError, SubjectMaskError
 from mmcsplat.plugin_api.parameters import describe_parameters
 from mmcsplat.storage.atomic import write_json_atomic
 from mmcsplat.storage.run import LANDMARKS_CSV, LANDMARKS_INFO, METRICS_FILE, MOVEMENT_JSON, RENDERS_DIR, REPORT_FILE, RUN_INFO, TRACK_INFO, TRACKS_DIR
@@ -268,13 +268,13 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
             for grown in first.grown_regions:
                 log(f"run: {grown}")
             first.run()
-        except InputError as error:
+        except SubjectMaskError as error:
             if json.loads((out / MASKS_FILE).read_text()).get("masks") != "parallax":
                 raise
             frames = SessionReader(session).num_frames
-            raise InputError(f"{error} (the masks come from the subject's motion against plates estimated from these {frames} frames: where "
-                             "they are nearly empty it barely moved; give more frames, a plates/ folder of the empty scene, or 2D keypoints "
-                             f"in one of {KEYPOINT_FOLDERS_NAMED} or --keypoints)") from error
+            raise SubjectMaskError(f"{error} (the masks come from the subject's motion against plates estimated from these {frames} frames: where "
+                                   "they are nearly empty it barely moved; give more frames, a plates/ folder of the empty scene, or 2D keypoints "
+                                   f"in one of {KEYPOINT_FOLDERS_NAMED} or --keypoints)") from error
 
     def landmarks() -> None:
         track_landmarks(run, joints["name"], {"path": joints["path"]}, keypoints=source["name"] if source else None,

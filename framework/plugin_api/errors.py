@@ -34,6 +34,12 @@ class InputError(MmcsplatError, ValueError):
     """A file, setting or piece of data that cannot be used as given (a ``ValueError`` too)."""
 
 
+class SubjectMaskError(InputError):
+    """Subject masks that cannot place the subject: empty in every view a fit trains on, or with no point
+    inside all of them. Raised where the masks themselves are at fault, so that a caller that made them
+    (``mmcsplat run``'s segmenters) can say how to make better ones."""
+
+
 class MissingFileError(MmcsplatError, FileNotFoundError):
     """A file or folder that should be there and is not (a ``FileNotFoundError`` too)."""
 

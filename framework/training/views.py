@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
-from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.plugin_api.errors import InputError, SubjectMaskError
 from mmcsplat.plugin_api.interfaces import TrainingView
 
 if TYPE_CHECKING:
@@ -83,7 +83,7 @@ def subject_warnings(views: Sequence[TrainingView], t: int) -> list[str]:
     :func:`warnings.warn`); an error when no view's mask shows it at all."""
     masked = [view for view in views if view.mask is not None]
     if masked and not any(bool(view.mask.any()) for view in masked):
-        raise InputError(f"the subject mask is empty in every training view of frame {t}: check the segmentation")
+        raise SubjectMaskError(f"the subject mask is empty in every training view of frame {t}: check the segmentation")
     found = [f"camera {view.camera.name!r} never sees the subject at frame {t} (empty mask)" for view in masked if not view.mask.any()]
     seeing = sum(view.mask is None or bool(view.mask.any()) for view in views)
     if seeing < MIN_TRAINING_CAMERAS:
