@@ -7,8 +7,10 @@ each sync index holds a row of every camera. A camera that missed a moment is a 
 from there on, which ingest, pairing the videos frame by frame, could not see in the images. So the
 recording's frames are its moments (every sync index, in order), and each camera's video frames are
 placed at theirs: a moment a camera missed is absent for it, or, by default, an error naming the camera
-and the first moment it lacks. A file whose rows of a camera do not count its video's frames, or that
-lists a camera's moment twice, is refused. The file is read only where every video is named ``cam_N`` as
+and the first moment it lacks. A moment's time is the mean of its cameras' ``frame_time``, from the first
+moment's: the recording's own clock, which a nominal frame rate only approximates (Caliscope's own test
+recording at 6 fps spaces its moments 0.154–0.181 s apart). A file whose rows of a camera do not count its
+video's frames, or that lists a camera's moment twice, is refused. The file is read only where every video is named ``cam_N`` as
 Caliscope names them; other files of that name are left alone.
 """
 
@@ -20,6 +22,9 @@ import warnings
 from collections.abc import Mapping
 from pathlib import Path
 
+import attrs
+import numpy as np
+
 from mmcsplat.plugin_api.errors import InputError
 
 TIMESTAMPS_FILE = "timestamps.csv"
@@ -27,11 +32,19 @@ HEADER = ("sync_index", "cam_id", "frame_time")
 _VIDEO_STEM = re.compile(r"cam_(\d+)")
 
 
-def caliscope_frames(videos: Mapping[str, Path], frames: Mapping[str, int], missing_frames: str = "error") -> dict[str, list[int | None]] | None:
-    """Each camera's video frame at each moment of a Caliscope recording (``None`` where it missed one), or
-    ``None`` where no ``timestamps.csv`` applies (module docstring). ``videos`` maps camera names to their
-    videos (all in one folder), ``frames`` to their frame counts; a missed moment is an error unless
-    ``missing_frames`` is ``"absent"``, then a warning counting them."""
+@attrs.frozen
+class CaliscopeTiming:
+    """A Caliscope recording's moments: ``placed[camera][t]`` the video frame of moment ``t`` (``None`` where
+    the camera missed it), ``times[t]`` its seconds from the first moment."""
+
+    placed: dict[str, list[int | None]]
+    times: np.ndarray
+
+
+def caliscope_frames(videos: Mapping[str, Path], frames: Mapping[str, int], missing_frames: str = "error") -> CaliscopeTiming | None:
+    """The moments of a Caliscope recording, or ``None`` where no ``timestamps.csv`` applies (module
+    docstring). ``videos`` maps camera names to their videos (all in one folder), ``frames`` to their frame
+    counts; a missed moment is an error unless ``missing_frames`` is ``"absent"``, then a warning counting them."""
     folders = {path.parent for path in videos.values()}
     ids = {name: _VIDEO_STEM.fullmatch(path.stem) for name, path in videos.items()}
     if len(folders) != 1 or not all(ids.values()):
@@ -44,15 +57,19 @@ def caliscope_frames(videos: Mapping[str, Path], frames: Mapping[str, int], miss
     if not rows or tuple(cell.strip() for cell in rows[0]) != HEADER:
         return None
     moments: dict[int, set[int]] = {int(match.group(1)): set() for match in ids.values()}
+    clock: dict[int, list[float]] = {}
     for line, row in enumerate(rows[1:], start=2):
         try:
-            sync_index, cam_id = int(row[0]), int(row[1])
+            sync_index, cam_id, seconds = int(row[0]), int(row[1]), float(row[2])
         except (IndexError, ValueError):
-            raise InputError(f"{path}, line {line}: expected {','.join(HEADER)} with whole numbers for the first two, got {row}") from None
+            raise InputError(f"{path}, line {line}: expected {','.join(HEADER)}, whole numbers and then seconds, got {row}") from None
+        if not np.isfinite(seconds):
+            raise InputError(f"{path}, line {line}: frame_time {row[2]} is not a time")
         if cam_id in moments:
             if sync_index in moments[cam_id]:
                 raise InputError(f"{path}, line {line}: camera cam_{cam_id} has sync index {sync_index} twice")
             moments[cam_id].add(sync_index)
+            clock.setdefault(sync_index, []).append(seconds)
     every = sorted(set().union(*moments.values()))
     placed: dict[str, list[int | None]] = {}
     gaps: dict[str, list[int]] = {}
@@ -74,4 +91,8 @@ def caliscope_frames(videos: Mapping[str, Path], frames: Mapping[str, int], miss
     if gaps:
         detail = "; ".join(f"{name} lacks {len(missing)} (first sync index {missing[0]})" for name, missing in gaps.items())
         warnings.warn(f"{path}: of {len(every)} moments, {detail}: those frames are absent", stacklevel=3)
-    return placed
+    times = np.array([np.mean(clock[index]) for index in every])
+    if np.any(np.diff(times) <= 0):
+        t = int(np.flatnonzero(np.diff(times) <= 0)[0])
+        raise InputError(f"{path}: sync index {every[t + 1]} is no later than sync index {every[t]} by its frame times: the clock is not this recording's")
+    return CaliscopeTiming(placed, times - times[0])

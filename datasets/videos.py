@@ -158,11 +158,11 @@ class VideoReader(Reader):
         calibrated = read_calibration(calibration, units, names, {name: (info.width, info.height) for name, info in infos.items()})
         if self.verify:
             infos = {name: attrs.evolve(info, frames=decoded_frames(info.path)) for name, info in infos.items()}
-        placed = caliscope_frames(paths, {name: info.frames for name, info in infos.items()}, self.missing_frames)
+        timing = caliscope_frames(paths, {name: info.frames for name, info in infos.items()}, self.missing_frames)
         cameras = [fit_camera(c, infos[c.name].width, infos[c.name].height, self.size_mismatch, f"video {paths[c.name]}") for c in calibrated]
         # Without Caliscope's timing frame k of every video is moment k.
-        num_frames = len(next(iter(placed.values()))) if placed else common_length({name: info.frames for name, info in infos.items()}, "video", source)
-        placed = placed or {name: list(range(num_frames)) for name in names}
+        num_frames = len(timing.times) if timing else common_length({name: info.frames for name, info in infos.items()}, "video", source)
+        placed = timing.placed if timing else {name: list(range(num_frames)) for name in names}
         masks = mask_folders(source, calibrated, self.camera_map)
         needed = {name: 1 + max((k for k in placed[name] if k is not None), default=-1) for name in masks}
         short = {name: len(files) for name, files in masks.items() if len(files) < needed[name]}
@@ -177,7 +177,8 @@ class VideoReader(Reader):
             "masks": str(source / MASKS_FOLDER) if masks else None,
         }
         return VideoRecording(source, cameras, _frame_rate(infos, source), num_frames, provenance, paths, placed,
-                              {name: [None if k is None else files[k] for k in placed[name]] for name, files in masks.items()})
+                              {name: [None if k is None else files[k] for k in placed[name]] for name, files in masks.items()},
+                              timing.times if timing else None)
 
 
 def _frame_rate(infos: Mapping[str, VideoInfo], source: Path) -> float:
@@ -199,13 +200,19 @@ def _frame_rate(infos: Mapping[str, VideoInfo], source: Path) -> float:
 
 class VideoRecording(RigRecording):
     """Per-camera videos, decoded on demand; ``placed[camera][t]`` is the video frame of moment ``t``
-    (``None`` where the camera missed it)."""
+    (``None`` where the camera missed it), ``times`` the moments' seconds where the recording states them."""
 
     def __init__(self, source: Path, cameras: Sequence[Camera], fps: float, num_frames: int, provenance: dict, paths: dict[str, Path],
-                 placed: Mapping[str, Sequence[int | None]], masks: dict[str, list[Path | None]] | None = None) -> None:
+                 placed: Mapping[str, Sequence[int | None]], masks: dict[str, list[Path | None]] | None = None,
+                 times: np.ndarray | None = None) -> None:
         super().__init__(source, cameras, fps, num_frames, provenance, masks)
         self._paths = paths
         self._placed = placed
+        self._times = times
+
+    def frame_times(self) -> np.ndarray:
+        """The seconds of each moment: the recording's clock where it states one (Caliscope's), else by the frame rate."""
+        return super().frame_times() if self._times is None else self._times.copy()
 
     def present(self, camera: str) -> np.ndarray:
         """The moments this camera's video holds a frame of (all, unless Caliscope's timing says it missed some)."""

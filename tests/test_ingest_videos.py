@@ -503,6 +503,10 @@ def test_caliscope_timestamps_refuse_a_camera_that_missed_a_moment(tmp_path: Pat
     source = _caliscope_capture(tmp_path / "twice", [2, 2], {0: [416, 416], 1: [416, 417]})
     with pytest.raises(InputError, match=r"line 3: camera cam_0 has sync index 416 twice"):
         _ingest(source, tmp_path / "twice.zarr")
+    timestamps = source / "videos" / "timestamps.csv"
+    timestamps.write_text(timestamps.read_text().replace("416,0,", "416,0,x"))
+    with pytest.raises(InputError, match=r"line 2: expected sync_index,cam_id,frame_time, whole numbers and then seconds"):
+        _ingest(source, tmp_path / "unclocked.zarr")
 
 
 def test_caliscope_moments_a_camera_missed_are_absent_with_skip_missing(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
@@ -512,6 +516,8 @@ def test_caliscope_moments_a_camera_missed_are_absent_with_skip_missing(tmp_path
     with pytest.warns(UserWarning, match=r"of 4 moments, cam_0 lacks 1 \(first sync index 419\); cam_1 lacks 1 \(first sync index 417\)"):
         session = _ingest(source, tmp_path / "gap.zarr", skip_missing=True)
     assert session.num_frames == 4
+    # the moments' times are the recording's clock (each the mean of its cameras'), not the frame rate's
+    np.testing.assert_allclose(session.frame_times, [0, 1 / 30 - 5e-4, 2 / 30, 3 / 30 + 5e-4], atol=1e-5)
     assert session.present("cam_0").tolist() == [True, True, True, False]
     assert session.present("cam_1").tolist() == [True, False, True, True]
     # cam_1's second video frame is moment 418, the recording's third, beside cam_0's third video frame
