@@ -1,10 +1,11 @@
-"""The ``videos`` format: one video per calibrated camera plus an anipose or Pose2Sim calibration, or
-EasyMocap's ``intri.yml`` + ``extri.yml``.
+"""The ``videos`` format: one video per calibrated camera plus an anipose, Pose2Sim, Caliscope or Qualisys
+calibration, or EasyMocap's ``intri.yml`` + ``extri.yml``.
 
-Layout: ``SOURCE/*.{mp4,avi,mov,mkv}`` or ``SOURCE/videos/*.{…}`` (the sub-folder wins when it has
-videos), matched to the calibration's cameras by name (see :mod:`mmcsplat.datasets.rig`). The calibration
-is the ``calibration`` argument, else ``SOURCE/calibration.toml``, else the single ``SOURCE/*.toml`` or
-EasyMocap pair, else the same in ``SOURCE/calibration/`` (:func:`~mmcsplat.datasets.rig.find_calibration`);
+Layout: ``SOURCE/*.{mp4,avi,mov,mkv}`` or ``SOURCE/videos/*.{…}`` (or anipose's ``videos-raw/``,
+FreeMoCap's ``synchronized_videos/``; a sub-folder wins when it has videos), matched to the calibration's
+cameras by name (see :mod:`mmcsplat.datasets.rig`). The calibration is the ``calibration`` argument, else
+``SOURCE/calibration.toml``, else the single ``SOURCE/*.toml`` of cameras, ``*.qca.txt`` or EasyMocap pair,
+else the same in ``SOURCE/calibration/`` (:func:`~mmcsplat.datasets.rig.find_calibration`);
 a camera it states no image size for (EasyMocap's may not) takes its video's. A
 ``SOURCE/ground_truth.zarr`` (written by ``mmcsplat synth``) adds per-frame masks and depth. Masks the
 capture brings: ``SOURCE/masks/<camera>/`` holds one mask image per frame, the k-th in natural order
@@ -52,8 +53,9 @@ from mmcsplat.storage.camera_names import match_cameras
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv")
 
 
-#: The folders tried for videos, in order (module docstring).
-VIDEO_FOLDERS = ("videos", "videos-raw", ".")
+#: The folders tried for videos, in order (module docstring): Pose2Sim's and EasyMocap's, anipose's,
+#: FreeMoCap's, the capture's own.
+VIDEO_FOLDERS = ("videos", "videos-raw", "synchronized_videos", ".")
 
 
 def _videos_in(folder: Path) -> list[Path]:

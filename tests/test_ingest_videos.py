@@ -433,27 +433,29 @@ def test_camera_map_order_pairs_the_calibrations_cameras_with_the_videos_in_name
 
 
 @pytest.mark.skipif(not POSE2SIM.is_dir(), reason=f"shared Pose2Sim demo not found at {POSE2SIM}")
-@pytest.mark.parametrize("layout", ["pose2sim", "anipose", "per-camera folders"])
+@pytest.mark.parametrize("layout", ["pose2sim", "anipose", "freemocap", "per-camera folders"])
 def test_project_layouts_are_recognised_without_flags(tmp_path: Path, layout: str) -> None:
-    """Pose2Sim (calibration/Calib_*.toml, videos/), anipose (calibration/calibration.toml, videos-raw/) and
-    one folder per camera (SOURCE/cam01/trial_cam01.mp4) ingest with no --calibration or --format."""
+    """Pose2Sim (calibration/Calib_*.toml, videos/), anipose (calibration/calibration.toml, videos-raw/),
+    FreeMoCap (RECORDING_camera_calibration.toml beside synchronized_videos/) and one folder per camera
+    (SOURCE/cam01/trial_cam01.mp4) ingest with no --calibration or --format."""
     source = tmp_path / "project"
     (source / "calibration").mkdir(parents=True)
-    calibration = "Calib_qualisys.toml" if layout == "pose2sim" else "calibration.toml"
-    (source / "calibration" / calibration).symlink_to(POSE2SIM / "Calib_qualisys.toml")
+    calibration = {"pose2sim": "calibration/Calib_qualisys.toml", "freemocap": "recording_camera_calibration.toml"}.get(
+        layout, "calibration/calibration.toml")
+    (source / calibration).symlink_to(POSE2SIM / "Calib_qualisys.toml")
     for video in sorted((POSE2SIM / "videos").glob("*.mp4")):
         if layout == "per-camera folders":
             (source / video.stem).mkdir()
             (source / video.stem / f"trial_{video.name}").symlink_to(video)
         else:
-            folder = source / ("videos" if layout == "pose2sim" else "videos-raw")
+            folder = source / {"pose2sim": "videos", "freemocap": "synchronized_videos"}.get(layout, "videos-raw")
             folder.mkdir(exist_ok=True)
             (folder / video.name).symlink_to(video)
     out = tmp_path / "s.zarr"
     assert main(["ingest", str(source), str(out), "--frames", "0:2", "--scale", "0.125", "--no-progress", "--set", "verify=false"]) == 0
     reader = SessionReader(out)
     assert reader.camera_names == ("cam_01", "cam_02", "cam_03", "cam_04") and reader.num_frames == 2
-    assert reader.provenance["reader"]["calibration"] == str(source / "calibration" / calibration)
+    assert reader.provenance["reader"]["calibration"] == str(source / calibration)
 
 
 def test_a_masks_folder_per_camera_is_ingested_as_the_captures_masks(tmp_path: Path) -> None:
