@@ -79,7 +79,10 @@ def find_calibration(source: Path, calibration: Path | None) -> Path:
             return candidates[0]
         if candidates:
             names = ", ".join(path.name for path in candidates)
-            raise InputError(f"{folder}: several calibration files ({names}); choose one with --calibration")
+            qualisys = [path.name for path in candidates if is_qualisys(path)]
+            hint = (f" (Pose2Sim's conversion of {qualisys[0]} to TOML divides its lens distortion by 64: the .qca.txt holds the lens as "
+                    "Qualisys calibrated it, docs/ingest.md)") if qualisys and len(qualisys) < len(candidates) else ""
+            raise InputError(f"{folder}: several calibration files ({names}); choose one with --calibration{hint}")
     looked_for = "no calibration.toml, other single *.toml of cameras, Qualisys *.qca.txt, or EasyMocap intri.yml + extri.yml"
     if calibration is not None:
         raise MissingFileError(f"calibration folder {calibration}: {looked_for} in it")

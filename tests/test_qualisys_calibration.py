@@ -12,7 +12,7 @@ import rig_fixtures as rig
 from mmcsplat.pipeline.ingest import ingest
 from mmcsplat.plugin_api.errors import InputError, MissingFileError
 from mmcsplat.scene.camera import Camera
-from mmcsplat.storage.calibration import read_calibration
+from mmcsplat.storage.calibration import read_calibration, write_calibration
 
 
 def _text(value: float) -> str:
@@ -112,6 +112,11 @@ def test_pose2sim_project_with_its_config_and_a_qca_ingests_without_flags(tmp_pa
     session = ingest(project, tmp_path / "s.zarr", progress=False)
     assert list(session.camera_names) == ["cam01", "cam02", "cam03"] and session.num_frames == 2
     assert session.provenance["reader"]["calibration"].endswith("Calib.qca.txt")
+    # once Pose2Sim has converted it, both are there: which to use is asked, saying how they differ
+    write_calibration(project / "calibration" / "Calib_qualisys.toml", cameras)
+    with pytest.raises(InputError, match=r"several calibration files \(Calib.qca.txt, Calib_qualisys.toml\); choose one with "
+                                         r"--calibration \(Pose2Sim's conversion of Calib.qca.txt to TOML divides its lens distortion by 64"):
+        ingest(project, tmp_path / "both.zarr", progress=False)
 
 
 def test_a_trial_of_a_pose2sim_batch_takes_its_sessions_calibration(tmp_path: Path) -> None:
