@@ -20,7 +20,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--format", choices=default_registry().names("reader"), help="the capture format (auto-detected when omitted)")
     parser.add_argument("--calibration", type=Path, help="calibration to use instead of the one in SOURCE: a .toml (anipose, Pose2Sim, Caliscope's camera_array.toml), "
                         "Qualisys's .qca.txt, or EasyMocap's intri.yml or extri.yml (the other beside it) or their folder")
-    parser.add_argument("--units", choices=("m", "mm"), default="m", help="length unit of the calibration's translations (default: m)")
+    parser.add_argument("--units", choices=("m", "mm"), default="m", help="length unit of the calibration's translations (default: m; a Qualisys .qca.txt is millimetres whatever this says)")
     add_frames(parser, "the frame indices to ingest (default: all)")
     parser.add_argument("--scale", type=scale_value, default=1.0, help="resize factor for the stored images, or auto: their longer side "
                         f"at most {AUTO_LONGEST_SIDE} px, never enlarged; K is scaled to match (default: 1)")
