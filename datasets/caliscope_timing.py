@@ -34,9 +34,11 @@ _VIDEO_STEM = re.compile(r"cam_(\d+)")
 
 @attrs.frozen
 class CaliscopeTiming:
-    """A Caliscope recording's moments: ``placed[camera][t]`` the video frame of moment ``t`` (``None`` where
-    the camera missed it), ``times[t]`` its seconds from the first moment."""
+    """A Caliscope recording's moments as its ``path`` (``timestamps.csv``) states them: ``placed[camera][t]``
+    the video frame of moment ``t`` (``None`` where the camera missed it), ``times[t]`` its seconds from the
+    first moment."""
 
+    path: Path
     placed: dict[str, list[int | None]]
     times: np.ndarray
 
@@ -95,4 +97,4 @@ def caliscope_frames(videos: Mapping[str, Path], frames: Mapping[str, int], miss
     if np.any(np.diff(times) <= 0):
         t = int(np.flatnonzero(np.diff(times) <= 0)[0])
         raise InputError(f"{path}: sync index {every[t + 1]} is no later than sync index {every[t]} by its frame times: the clock is not this recording's")
-    return CaliscopeTiming(placed, times - times[0])
+    return CaliscopeTiming(path, placed, times - times[0])

@@ -177,6 +177,7 @@ class VideoReader(Reader):
             "videos": {name: str(path) for name, path in paths.items()},
             "size_mismatch": self.size_mismatch,
             "masks": str(source / MASKS_FOLDER) if masks else None,
+            "timestamps": str(timing.path) if timing else None,
         }
         return VideoRecording(source, cameras, _frame_rate(infos, source), num_frames, provenance, paths, placed,
                               {name: [None if k is None else files[k] for k in placed[name]] for name, files in masks.items()},

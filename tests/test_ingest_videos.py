@@ -517,7 +517,7 @@ def test_caliscope_moments_a_camera_missed_are_absent_with_skip_missing(tmp_path
     source = _caliscope_capture(tmp_path / "gap", [3, 3], {0: [416, 417, 418], 1: [416, 418, 419]})
     with pytest.warns(UserWarning, match=r"of 4 moments, cam_0 lacks 1 \(first sync index 419\); cam_1 lacks 1 \(first sync index 417\)"):
         session = _ingest(source, tmp_path / "gap.zarr", skip_missing=True)
-    assert session.num_frames == 4
+    assert session.num_frames == 4 and session.provenance["reader"]["timestamps"].endswith("videos/timestamps.csv")
     # the moments' times are the recording's clock (each the mean of its cameras'), not the frame rate's
     np.testing.assert_allclose(session.frame_times, [0, 1 / 30 - 5e-4, 2 / 30, 3 / 30 + 5e-4], atol=1e-5)
     assert session.present("cam_0").tolist() == [True, True, True, False]
