@@ -9,11 +9,12 @@ from mmcsplat import Registration, hookimpl
 def mmcsplat_readers() -> list[Registration]:
     return [
         Registration("videos", "mmcsplat.datasets.videos:VideoReader",
-                     "per-camera videos in SOURCE/videos/ (Pose2Sim), SOURCE/videos-raw/ (anipose), SOURCE/ or one folder per camera, "
-                     "with an anipose/Pose2Sim/Caliscope calibration .toml or EasyMocap intri.yml + extri.yml in SOURCE/ or SOURCE/calibration/"),
+                     "per-camera videos in SOURCE/videos/ (Pose2Sim), SOURCE/videos-raw/ (anipose), SOURCE/synchronized_videos/ (FreeMoCap), "
+                     "SOURCE/ or one folder per camera, with an anipose/Pose2Sim/Caliscope calibration .toml, a Qualisys .qca.txt or EasyMocap "
+                     "intri.yml + extri.yml in SOURCE/ or SOURCE/calibration/ (a Pose2Sim batch trial: its session's calibration/)"),
         Registration("images", "mmcsplat.datasets.images:ImageSequenceReader",
-                     "per-camera folders of images (in SOURCE/ or SOURCE/images/) with a calibration .toml or EasyMocap intri.yml + "
-                     "extri.yml in SOURCE/ or SOURCE/calibration/"),
+                     "per-camera folders of images (in SOURCE/ or SOURCE/images/) with a calibration .toml, a Qualisys .qca.txt or EasyMocap "
+                     "intri.yml + extri.yml in SOURCE/ or SOURCE/calibration/"),
         Registration("d3dgs", "mmcsplat.datasets.d3dgs:D3DGSReader",
                      "Dynamic3DGaussians / CMU Panoptic (train_meta.json, ims/, seg/)"),
         Registration("dnerf", "mmcsplat.datasets.dnerf:DNeRFReader",
