@@ -155,6 +155,7 @@ GOOD = {
         ({"size": [640.5, 480]}, r"\[cam_0\]: size must be two positive whole numbers"),
         ({"rotation": ["x", 0, 0]}, r"\[cam_0\]: rotation must be numbers"),
         ({"translation": [0.0, 1.0]}, r"\[cam_0\]: translation must have shape \[3\]"),
+        ({"name": 3}, r", \[cam_0\]: name must be a string, got 3"),
     ],
 )
 def test_malformed_tables_name_file_and_section(tmp_path: Path, change: dict, message: str) -> None:

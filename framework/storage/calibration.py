@@ -136,9 +136,9 @@ def _tables(path: Path) -> list[tuple[str, str, dict[str, Any]]]:
     if all(numbers):
         sections = [key for _, key in sorted(zip((int(m.group(1)) for m in numbers), sections))]
     tables = [(document[key].get("name", key), f"[{key}]", document[key]) for key in sections]
-    for name, key, _ in tables:
+    for name, section, _ in tables:
         if not isinstance(name, str):
-            raise InputError(f"calibration {path}, [{key}]: name must be a string, got {name!r}")
+            raise InputError(f"calibration {path}, {section}: name must be a string, got {name!r}")
     return tables
 
 
