@@ -62,7 +62,7 @@ from mmcsplat.plugin_api.errors import InputError, MissingFileError
 from mmcsplat.plugin_api.interfaces import Reader
 from mmcsplat.plugin_api.parameters import one_of, parameter
 from mmcsplat.scene.camera import Camera
-from mmcsplat.storage.calibration import metres_per_unit
+from mmcsplat.storage.calibration import AUTO_UNITS, metres_per_unit
 
 #: The supported camera models and their number of parameters.
 MODEL_PARAMETERS = {"SIMPLE_PINHOLE": 3, "PINHOLE": 4, "SIMPLE_RADIAL": 4, "RADIAL": 5, "OPENCV": 8,
@@ -120,9 +120,9 @@ class ColmapReader(Reader):
         source = Path(source)
         return (source / "images").is_dir() and model_folder(source) is not None
 
-    def open(self, source: Path, calibration: Path | None = None, units: str = "m") -> PosedImageRecording:
+    def open(self, source: Path, calibration: Path | None = None, units: str = AUTO_UNITS) -> PosedImageRecording:
         """Parse the model and check that every image it lists exists. ``units`` is the unit of the model's
-        translations; a separate calibration is refused (the model gives every pose)."""
+        translations (``auto``: metres, as they stand); a separate calibration is refused (the model gives every pose)."""
         source = Path(source)
         if calibration is not None:
             raise InputError(f"colmap source {source}: the poses come from the sparse model; --calibration is not supported")

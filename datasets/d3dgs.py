@@ -26,7 +26,7 @@ from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.interfaces import Reader
 from mmcsplat.plugin_api.parameters import finite_positive, parameter
 from mmcsplat.scene.camera import Camera
-from mmcsplat.storage.calibration import metres_per_unit, read_calibration
+from mmcsplat.storage.calibration import AUTO_UNITS, metres_per_unit, read_calibration
 from mmcsplat.storage.capture_files import read_json, require_files
 
 _KEYS = ("w", "h", "k", "w2c", "fn", "cam_id")
@@ -54,10 +54,10 @@ class D3DGSReader(Reader):
         """A folder with a ``train_meta.json``."""
         return (Path(source) / "train_meta.json").is_file()
 
-    def open(self, source: Path, calibration: Path | None = None, units: str = "m") -> PosedImageRecording:
+    def open(self, source: Path, calibration: Path | None = None, units: str = AUTO_UNITS) -> PosedImageRecording:
         """Parse both metas and check that every image (and mask, where a camera has any) exists.
         ``units`` is the unit of the translations of ``w2c`` (or of ``calibration``, which then replaces
-        the cameras by name)."""
+        the cameras by name; ``auto``: ``w2c``'s in metres, the calibration's as its rig decides)."""
         source = Path(source)
         scale = metres_per_unit(units)
         cameras: dict[str, _CameraFrames] = {}

@@ -37,7 +37,7 @@ from mmcsplat.datasets.posed_images import ALPHA_THRESHOLD, MISSING_FRAMES_PARAM
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.interfaces import Reader
 from mmcsplat.scene.camera import Camera
-from mmcsplat.storage.calibration import metres_per_unit
+from mmcsplat.storage.calibration import AUTO_UNITS, metres_per_unit
 from mmcsplat.storage.capture_files import read_image, read_json
 
 SPLITS = ("train", "val", "test")
@@ -69,9 +69,9 @@ class DNeRFReader(Reader):
         """A folder with a ``transforms_train.json``."""
         return (Path(source) / "transforms_train.json").is_file()
 
-    def open(self, source: Path, calibration: Path | None = None, units: str = "m") -> PosedImageRecording:
+    def open(self, source: Path, calibration: Path | None = None, units: str = AUTO_UNITS) -> PosedImageRecording:
         """Parse every split and check that each image exists. ``units`` is the unit of the poses'
-        translations; a separate calibration cannot apply to per-frame poses and is refused."""
+        translations (``auto``: metres, as they stand); a separate calibration cannot apply to per-frame poses and is refused."""
         source = Path(source)
         if calibration is not None:
             raise InputError(f"dnerf source {source}: the poses come from transforms_*.json; --calibration is not supported")

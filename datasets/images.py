@@ -40,7 +40,7 @@ from mmcsplat.datasets.rig import (
 from mmcsplat.plugin_api.errors import InputError, MissingFileError, NotAFolderError
 from mmcsplat.plugin_api.interfaces import Reader, RecordedFrame, Recording
 from mmcsplat.scene.camera import Camera
-from mmcsplat.storage.calibration import calibration_names, read_calibration
+from mmcsplat.storage.calibration import AUTO_UNITS, calibration_names, read_rig
 from mmcsplat.storage.camera_names import match_cameras, natural_key
 from mmcsplat.storage.capture_files import PLATES_FOLDER, read_image
 
@@ -112,12 +112,12 @@ class ImageSequenceReader(Reader):
         calibrated = any(calibration_candidates(source / name) for name in CALIBRATION_FOLDERS)
         return source.is_dir() and calibrated and bool(camera_folders(source))
 
-    def open(self, source: Path, calibration: Path | None = None, units: str = "m") -> Recording:
+    def open(self, source: Path, calibration: Path | None = None, units: str = AUTO_UNITS) -> Recording:
         source = Path(source)
         if not source.is_dir():
             raise NotAFolderError(f"images source {source} is not a folder")
         calibration = find_calibration(source, calibration)
-        # Matched by name first: a calibration stating no image size takes its images' (read_calibration's sizes).
+        # Matched by name first: a calibration stating no image size takes its images' (read_rig's sizes).
         names = calibration_names(calibration, self.cameras)
         folders = match_cameras(names, camera_folders(source), "image folder", source, self.camera_map)
         files, num_frames = frames_by_number({name: image_files(folder) for name, folder in folders.items()}, self.missing_frames, source)
@@ -128,12 +128,13 @@ class ImageSequenceReader(Reader):
             sizes[name] = (first.shape[1], first.shape[0])
             if first_alpha is not None:
                 alpha.append(name)
-        calibrated = read_calibration(calibration, units, names, sizes)
+        rig = read_rig(calibration, units, names, sizes)
+        calibrated = rig.cameras
         cameras = [fit_camera(camera, *sizes[camera.name], self.size_mismatch, f"image {firsts[camera.name]}") for camera in calibrated]
         masks = _frame_masks(source, calibrated, files, self.camera_map)
         provenance = {
             "calibration": str(calibration),
-            "units": units,
+            "units": rig.units,
             "folders": {name: str(folder) for name, folder in folders.items()},
             "size_mismatch": self.size_mismatch,
             "masks": f"{source / MASKS_FOLDER}" if masks else "the images' alpha channel (alpha > 127)" if alpha else None,

@@ -58,7 +58,7 @@ from mmcsplat.datasets.posed_images import MISSING_FRAMES_PARAMETER, PosedImage,
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.interfaces import Reader
 from mmcsplat.scene.camera import Camera
-from mmcsplat.storage.calibration import metres_per_unit
+from mmcsplat.storage.calibration import AUTO_UNITS, metres_per_unit
 from mmcsplat.storage.camera_names import natural_key
 from mmcsplat.storage.capture_files import read_json
 
@@ -107,10 +107,10 @@ class NerfstudioReader(Reader):
         source = Path(source)
         return (source / "transforms.json").is_file() and not (source / "transforms_train.json").is_file()
 
-    def open(self, source: Path, calibration: Path | None = None, units: str = "m") -> PosedImageRecording:
+    def open(self, source: Path, calibration: Path | None = None, units: str = AUTO_UNITS) -> PosedImageRecording:
         """Parse ``transforms.json`` and check that every image and mask exists (or skip those that do not,
         with ``missing_frames="absent"``). ``units`` is the unit of
-        the poses' translations; a separate calibration cannot apply to per-frame poses and is refused."""
+        the poses' translations (``auto``: metres, as they stand); a separate calibration cannot apply to per-frame poses and is refused."""
         source = Path(source)
         if calibration is not None:
             raise InputError(f"nerfstudio source {source}: the poses come from transforms.json; --calibration is not supported")

@@ -47,7 +47,7 @@ from mmcsplat.plugin_api.errors import InputError, NotAFolderError
 from mmcsplat.plugin_api.interfaces import Reader, RecordedFrame, Recording
 from mmcsplat.plugin_api.parameters import one_of, parameter
 from mmcsplat.scene.camera import Camera
-from mmcsplat.storage.calibration import calibration_names, read_calibration
+from mmcsplat.storage.calibration import AUTO_UNITS, calibration_names, read_rig
 from mmcsplat.storage.camera_names import match_cameras
 
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv")
@@ -147,17 +147,18 @@ class VideoReader(Reader):
     def detect(self, source: Path) -> bool:
         return Path(source).is_dir() and bool(video_files(Path(source)))
 
-    def open(self, source: Path, calibration: Path | None = None, units: str = "m") -> Recording:
+    def open(self, source: Path, calibration: Path | None = None, units: str = AUTO_UNITS) -> Recording:
         source = Path(source)
         if not source.is_dir():
             raise NotAFolderError(f"videos source {source} is not a folder")
         calibration = find_calibration(source, calibration)
-        # Matched by name first: a calibration stating no image size takes its videos' (read_calibration's sizes).
+        # Matched by name first: a calibration stating no image size takes its videos' (read_rig's sizes).
         names = calibration_names(calibration, self.cameras)
         matched = match_cameras(names, video_files(source), "video", source, self.camera_map, trial=self.trial)
         paths = {name: camera_video(path) for name, path in matched.items()}
         infos = {name: probe(paths[name]) for name in names}
-        calibrated = read_calibration(calibration, units, names, {name: (info.width, info.height) for name, info in infos.items()})
+        rig = read_rig(calibration, units, names, {name: (info.width, info.height) for name, info in infos.items()})
+        calibrated = rig.cameras
         if self.verify:
             infos = {name: attrs.evolve(info, frames=decoded_frames(info.path)) for name, info in infos.items()}
         timing = caliscope_frames(paths, {name: info.frames for name, info in infos.items()}, self.missing_frames)
@@ -173,7 +174,7 @@ class VideoReader(Reader):
             raise InputError(f"{source / MASKS_FOLDER}: fewer mask images than the frames ingested ({detail}); give one per frame, in frame order")
         provenance = {
             "calibration": str(calibration),
-            "units": units,
+            "units": rig.units,
             "videos": {name: str(path) for name, path in paths.items()},
             "size_mismatch": self.size_mismatch,
             "masks": str(source / MASKS_FOLDER) if masks else None,

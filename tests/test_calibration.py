@@ -2,16 +2,19 @@
 
 from __future__ import annotations
 
+import re
 import tomllib
 from pathlib import Path
 
+import attrs
 import cv2
 import numpy as np
 import pytest
 import tomli_w
 
+from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.scene.camera import Camera
-from mmcsplat.storage.calibration import read_calibration, write_calibration
+from mmcsplat.storage.calibration import read_calibration, read_rig, write_calibration
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 ANIPOSE = SHARED / "aniposelib_calibrations"
@@ -124,6 +127,25 @@ def test_write_read_round_trip(tmp_path: Path, units: str) -> None:
         padded[: original.distortion.size] = original.distortion
         np.testing.assert_allclose(read.distortion, padded)
     assert not list(tmp_path.glob(".*.tmp")), "temporary file left behind"
+
+
+@needs_shared
+@pytest.mark.parametrize("name", [name for name, _, _ in REAL_SAMPLES])
+def test_auto_units_read_each_real_file_in_its_measured_units(name: str) -> None:
+    rig = read_rig(_sample(name))  # units="auto", ingest's and run's default
+    assert rig.units == _units(name)
+    expected = read_calibration(_sample(name), units=_units(name))
+    np.testing.assert_array_equal([camera.t for camera in rig.cameras], [camera.t for camera in expected])
+
+
+def test_auto_units_refuse_a_rig_implausible_either_way_and_take_metres_for_one_camera(tmp_path: Path) -> None:
+    path = tmp_path / "calibration.toml"
+    write_calibration(path, [attrs.evolve(camera, t=camera.t * 1e8) for camera in _cameras()])
+    with pytest.raises(InputError, match=rf"calibration {re.escape(str(path))}: the cameras lie up to .* units from their centre, outside "
+                       "the 0.05–50 m of any real rig whether the units are metres or millimetres"):
+        read_rig(path)
+    write_calibration(path, _cameras()[:1], units="mm")
+    assert read_rig(path).units == "m"
 
 
 def test_units_scale_translations_and_a_mismatch_is_refused(tmp_path: Path) -> None:

@@ -65,15 +65,24 @@ def test_a_missing_image_file_shifts_nothing(tmp_path, capsys):
         assert abs(float(np.median(session.frame(t, "c2").rgb)) - rig.background_level(t)) <= 1
 
 
-def test_a_calibration_in_millimetres_read_as_metres_is_refused(tmp_path, capsys):
+def test_a_calibration_in_millimetres_read_as_metres_is_refused_and_read_as_millimetres_by_default(tmp_path, capsys):
     capture = tmp_path / "capture"
     capture.mkdir()
     cameras = rig.ring_cameras(("c1", "c2"))
     write_calibration(capture / "calibration.toml", cameras, units="mm")
     rig.write_image_folders(capture, cameras, 2)
-    assert main(["ingest", str(capture), str(tmp_path / "s.zarr")]) == 2
+    assert main(["ingest", str(capture), str(tmp_path / "m.zarr"), "--units", "m"]) == 2
     assert "pass --units mm" in capsys.readouterr().err
-    assert main(["ingest", str(capture), str(tmp_path / "s.zarr"), "--units", "mm"]) == 0
+    assert not (tmp_path / "m.zarr").exists()
+    assert main(["ingest", str(capture), str(tmp_path / "mm.zarr"), "--units", "mm"]) == 0
+    capsys.readouterr()
+    assert main(["ingest", str(capture), str(tmp_path / "auto.zarr")]) == 0  # --units auto: only millimetres make a real rig
+    assert "calibration read in mm" in capsys.readouterr().out
+    stated, auto = SessionReader(tmp_path / "mm.zarr"), SessionReader(tmp_path / "auto.zarr")
+    assert auto.provenance["units"] == "auto" and auto.provenance["reader"]["units"] == "mm"
+    for name in ("c1", "c2"):
+        np.testing.assert_allclose(auto.camera(name).t, stated.camera(name).t)
+        np.testing.assert_allclose(auto.camera(name).t, cameras[("c1", "c2").index(name)].t)
 
 
 @pytest.mark.parametrize("override, message", [

@@ -60,6 +60,24 @@ def test_a_folder_resumes_under_auto_where_auto_gives_the_scale_it_was_made_with
     assert "was made with other settings" in refused and "scale 1.0, now 0.5" in refused
 
 
+def test_a_folder_resumes_under_auto_units_where_its_rig_reads_in_the_units_it_was_made_with(made, capsys):
+    capture, out, _ = made
+    record = out / SETTINGS_FILE
+    made_with = json.loads(record.read_text())
+    assert made_with["units"] == "auto"
+    try:
+        for spelled in (["--units", "m"], []):  # made with auto, resumed with metres; then made with metres, resumed with auto
+            with redirect_stdout(StringIO()) as printed:
+                assert main(["run", str(capture), "--out", str(out), *spelled, *ARGUMENTS]) == 0
+            assert "track (iterative) already done" in printed.getvalue()
+            record.write_text(json.dumps({**made_with, "units": "m"}))  # as a folder made before `auto` records it
+        capsys.readouterr()
+        assert main(["run", str(capture), "--out", str(out), "--units", "mm", *ARGUMENTS]) == 2
+        assert "units 'm', now 'mm'" in capsys.readouterr().err
+    finally:
+        record.write_text(json.dumps(made_with))
+
+
 def test_a_folder_made_at_another_scale_than_auto_gives_is_refused_under_auto(made, tmp_path, capsys):
     capture, _, _ = made
     out = tmp_path / "half"

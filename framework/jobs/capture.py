@@ -58,6 +58,7 @@ from mmcsplat.pipeline.steps import BEFORE_FIELD, SettingsRecord, Step, StepTime
 from mmcsplat.plugin_api.errors import InputError, SubjectMaskError
 from mmcsplat.plugin_api.parameters import describe_parameters
 from mmcsplat.storage.atomic import write_json_atomic
+from mmcsplat.storage.calibration import AUTO_UNITS
 from mmcsplat.storage.run import LANDMARKS_CSV, LANDMARKS_INFO, METRICS_FILE, MOVEMENT_JSON, RENDERS_DIR, REPORT_FILE, RUN_INFO, TRACK_INFO, TRACKS_DIR
 from mmcsplat.training.frame_steps import AUTO_STEPS, FEWEST_STEPS, STEPS_PER_SECOND, steps_per_frame
 
@@ -86,7 +87,7 @@ class CaptureSettings:
     """What ``mmcsplat run`` does with a capture; ``None`` paths are looked for in the capture folder."""
 
     calibration: str | None = None
-    units: str = "m"
+    units: str = AUTO_UNITS
     scale: float | str = DEFAULT_SCALE
     frames: tuple[int | None, int | None, int | None] = (None, None, None)
     cameras: tuple[str, ...] = attrs.field(default=(), converter=tuple)
@@ -310,7 +311,8 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     ]
     try:
         times = run_steps("run", steps, log, SettingsRecord.of(out / SETTINGS_FILE, settings, {"scale": lambda value: _scale_in(session, value),
-                                                                                     "track_iterations": lambda value: _iterations_in(session, value)}))
+                                                                                     "track_iterations": lambda value: _iterations_in(session, value),
+                                                                                     "units": lambda value: _units_in(session, value)}))
     except BaseException:
         if created and not any(out.iterdir()):  # refused before any step made something: no empty folder left behind
             out.rmdir()
@@ -330,6 +332,18 @@ def _scale_in(session: Path, scale: Any) -> Any:
         if cameras:
             return resolve_scale(scale, list(cameras.values()))
     return scale
+
+
+def _units_in(session: Path, units: Any) -> Any:
+    """The units ``units`` stands for in the folder whose session is ``session``: ``auto`` as its reader
+    resolved it (its provenance; metres for a reader that records none, as ``auto`` reads poses without a
+    unit), so a folder made with ``--units mm`` resumes under ``auto`` where the rig reads in millimetres,
+    and the other way round."""
+    if units == AUTO_UNITS and session.exists():
+        from mmcsplat.storage.session import SessionReader
+
+        return SessionReader(session).provenance.get("reader", {}).get("units", "m")
+    return units
 
 
 def _iterations_in(session: Path, value: Any) -> Any:

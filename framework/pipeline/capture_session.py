@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 from mmcsplat.pipeline.image_scale import AUTO_SCALE
 from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.storage.calibration import AUTO_UNITS
 from mmcsplat.storage.ground_truth import GROUND_TRUTH, GroundTruthReader
 
 #: The scale ``mmcsplat run`` ingests a capture at (a real rig's full-size frames fit too slowly on a CPU).
@@ -92,7 +93,7 @@ def keypoint_source(path: Path) -> dict[str, Any]:
                      "DeepLabCut (.csv, .h5) files")
 
 
-def prepare_capture_session(capture: Path, partial: Path, *, calibration: Path | None = None, units: str = "m", frames: slice | None = None,
+def prepare_capture_session(capture: Path, partial: Path, *, calibration: Path | None = None, units: str = AUTO_UNITS, frames: slice | None = None,
                             scale: float | str = 1.0, cameras: Sequence[str] | None = None, holdout: Sequence[str] = (), source: dict[str, Any] | None = None,
                             reader_options: dict[str, Any] | None = None, segmenter: BuiltSegmenter | None = None,
                             progress: bool = True) -> dict[str, Any]:

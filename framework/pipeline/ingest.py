@@ -30,6 +30,7 @@ from mmcsplat.configuration.registry import Registry, default_registry
 from mmcsplat.pipeline.image_scale import checked_scale, resolve_scale
 from mmcsplat.plugin_api.errors import InputError, MissingFileError
 from mmcsplat.scene.camera import Camera
+from mmcsplat.storage.calibration import AUTO_UNITS
 from mmcsplat.storage.capture_files import PLATES_FOLDER
 from mmcsplat.storage.session.format import local_path
 
@@ -197,7 +198,7 @@ def ingest(
     *,
     format: str | None = None,
     calibration: Path | None = None,
-    units: str = "m",
+    units: str = AUTO_UNITS,
     frames: slice | None = None,
     scale: float | str = 1.0,
     cameras: Sequence[str] | None = None,

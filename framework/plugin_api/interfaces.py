@@ -93,9 +93,11 @@ class Reader(ABC):
         """Whether ``source`` looks like this format (cheap: file names, not decoding)."""
 
     @abstractmethod
-    def open(self, source: Path, calibration: Path | None = None, units: str = "m") -> Recording:
+    def open(self, source: Path, calibration: Path | None = None, units: str = "auto") -> Recording:
         """Open ``source``; ``calibration`` overrides the format's own, ``units`` is the calibration's
-        length unit ("m" or "mm"). Errors name the file or camera at fault."""
+        length unit ("m" or "mm"), or "auto" (ingest's default): the reader decides — a calibration file by
+        the extent of its rig (``mmcsplat.storage.calibration.read_rig``), poses that carry no unit of their
+        own in metres. Errors name the file or camera at fault."""
 
 
 # --------------------------------------------------------------------------------------------- renderers

@@ -15,18 +15,21 @@ those it has not placed (no rotation or translation; files it wrote before write
 a missing value) are left out, as Caliscope's own export to anipose leaves them out.
 
 Translations in a file are in the calibration board's unit (``"m"`` or ``"mm"``; a Qualisys file's
-always millimetres); the cameras returned are always in metres. Tables named ``cam_N`` are ordered by N (``cam_10`` after ``cam_9``); a file whose
+always millimetres), or ``"auto"``: whichever of the two puts the rig within :data:`RIG_RADIUS_M` — the two
+readings differ a thousandfold, so at most one is a real rig. The cameras returned are always in metres. Tables named ``cam_N`` are ordered by N (``cam_10`` after ``cam_9``); a file whose
 tables are named otherwise keeps the file's order.
 """
 
 from __future__ import annotations
 
+import logging
 import re
 import tomllib
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+import attrs
 import numpy as np
 
 from mmcsplat.plugin_api.errors import InputError
@@ -37,6 +40,10 @@ from mmcsplat.storage.qualisys_calibration import is_qualisys, qualisys_tables
 
 #: Metres per unit of a calibration file's translations.
 UNITS = {"m": 1.0, "mm": 1e-3}
+#: The units that let the rig decide (:func:`read_rig`); poses that carry no unit of their own take metres.
+AUTO_UNITS = "auto"
+#: What ``--units`` accepts.
+UNIT_CHOICES = (AUTO_UNITS, *UNITS)
 
 _ANIPOSE_SECTION = re.compile(r"cam_(\d+)")
 _REQUIRED = ("size", "matrix", "distortions", "rotation", "translation")
@@ -47,30 +54,45 @@ RIG_RADIUS_M = (0.05, 50.0)
 #: (strong wide-angle lenses scale their corners by 0.6–0.8; a fisheye's scale from θ to tan θ is its model's).
 RADIAL_SCALE = (1 / 3, 3.0)
 
+logger = logging.getLogger(__name__)
+
 
 def metres_per_unit(units: str) -> float:
-    """The scale from ``units`` ("m" or "mm") to metres; a clear error for anything else."""
+    """The scale from ``units`` ("m", "mm", or "auto": metres, for poses that carry no unit of their own) to
+    metres; a clear error for anything else."""
+    if units == AUTO_UNITS:
+        return UNITS["m"]
     try:
         return UNITS[units]
     except KeyError:
-        raise InputError(f"unknown calibration units {units!r}; choose one of {', '.join(UNITS)}") from None
+        raise InputError(f"unknown calibration units {units!r}; choose one of {', '.join(UNIT_CHOICES)}") from None
 
 
-def read_calibration(path: Path, units: str = "m", cameras: Sequence[str] | None = None,
-                     sizes: Mapping[str, tuple[int, int]] | None = None) -> list[Camera]:
+@attrs.frozen
+class Rig:
+    """A calibration's ``cameras`` (metres) and the ``units`` its translations were read in ("m" or "mm")."""
+
+    cameras: list[Camera]
+    units: str
+
+
+def read_rig(path: Path, units: str = AUTO_UNITS, cameras: Sequence[str] | None = None,
+             sizes: Mapping[str, tuple[int, int]] | None = None) -> Rig:
     """The cameras of an anipose or Pose2Sim ``calibration.toml``, of Caliscope's ``camera_array.toml``, of EasyMocap's ``intri.yml`` and
-    ``extri.yml`` (``path`` either of them or their folder: :mod:`.easymocap_calibration`), or of Qualisys's ``.qca.txt``, in metres.
+    ``extri.yml`` (``path`` either of them or their folder: :mod:`.easymocap_calibration`), or of Qualisys's ``.qca.txt``, in metres,
+    and the units they were read in.
 
-    ``units`` is the unit of the file's translations (a Qualisys file's are millimetres whatever it says). ``cameras`` (names) keeps only those, in the file's
+    ``units`` is the unit of the file's translations, or ``"auto"``: the one that puts the rig within
+    :data:`RIG_RADIUS_M` (module docstring); a Qualisys file's are millimetres whatever it says. ``cameras`` (names) keeps only those, in the file's
     order, and checks only them: a broken camera left out (a copied table) does not stop the others.
     ``sizes`` (name → width, height) gives the image size of a camera whose file states none (EasyMocap's
     may not): the readers pass their decoded frames' sizes; a stated size wins. Errors name the file and
     the table or camera at fault.
     """
     path = Path(path)
-    scale = metres_per_unit(units)
+    metres_per_unit(units)
     if is_qualisys(path):
-        scale, units = UNITS["mm"], "mm"
+        units = "mm"
     pair = easymocap_files(path)
     if pair:
         where = f"calibration {pair[0]} and {pair[1].name}"
@@ -80,9 +102,40 @@ def read_calibration(path: Path, units: str = "m", cameras: Sequence[str] | None
         tables = _tables(path)
         names = _select(path, [name for name, _, _ in tables], cameras)
         read = [_camera(path, name, section, table) for name, section, table in tables if name in names]
-    read = [camera.with_units(scale) for camera in read]
+    if units == AUTO_UNITS:
+        units = _rig_units(read, where)
+    read = [camera.with_units(UNITS[units]) for camera in read]
     check_rig(read, where, units)
-    return read
+    return Rig(read, units)
+
+
+def read_calibration(path: Path, units: str = AUTO_UNITS, cameras: Sequence[str] | None = None,
+                     sizes: Mapping[str, tuple[int, int]] | None = None) -> list[Camera]:
+    """The cameras of :func:`read_rig`, in metres."""
+    return read_rig(path, units, cameras, sizes).cameras
+
+
+def _rig_radius(cameras: Sequence[Camera]) -> float:
+    """The farthest camera's distance from the cameras' centroid, in their units."""
+    centres = np.array([camera.center for camera in cameras])
+    return float(np.linalg.norm(centres - centres.mean(axis=0), axis=1).max())
+
+
+def _rig_units(cameras: Sequence[Camera], where: str) -> str:
+    """The units in which ``cameras`` (read unscaled) form a plausible rig: metres unless only millimetres
+    do (one camera, which has no extent, is read in metres); an error when neither does."""
+    if len(cameras) < 2:
+        return "m"
+    radius = _rig_radius(cameras)
+    low, high = RIG_RADIUS_M
+    for units, scale in UNITS.items():
+        if low <= radius * scale <= high:
+            if units != "m":
+                logger.info("%s: translations read in %s: its cameras lie up to %.4g m from their centre so, %.4g m in metres",
+                            where, units, radius * scale, radius)
+            return units
+    raise InputError(f"{where}: the cameras lie up to {radius:.4g} units from their centre, outside the {low:g}–{high:g} m of any real "
+                     "rig whether the units are metres or millimetres: check the translations")
 
 
 def calibration_names(path: Path, cameras: Sequence[str] | None = None) -> list[str]:
@@ -241,8 +294,7 @@ def check_rig(cameras: Sequence[Camera], where: str, units: str) -> None:
                                  "out with --cameras (mmcsplat ingest and run), or delete its table from the file")
     if len(cameras) < 2:
         return
-    centres = np.array([camera.center for camera in cameras])
-    radius = float(np.linalg.norm(centres - centres.mean(axis=0), axis=1).max())
+    radius = _rig_radius(cameras)
     low, high = RIG_RADIUS_M
     if not low <= radius <= high:
         other = {"m": "mm", "mm": "m"}.get(units)
