@@ -42,11 +42,22 @@ class CaliscopeTiming:
     placed: dict[str, list[int | None]]
     times: np.ndarray
 
+    def check_frames(self, videos: Mapping[str, Path], frames: Mapping[str, int]) -> None:
+        """Refuse the timing where a camera's rows do not count its video's ``frames`` (name → count; ``videos``
+        name → path, for the message): then the file is not this recording's."""
+        for name, placed in self.placed.items():
+            rows = sum(k is not None for k in placed)
+            if rows != frames[name]:
+                raise InputError(f"{self.path}: {rows} frames of camera {name}, but its video {videos[name].name} holds {frames[name]}: "
+                                 "the timestamps are not this recording's")
 
-def caliscope_frames(videos: Mapping[str, Path], frames: Mapping[str, int], missing_frames: str = "error") -> CaliscopeTiming | None:
+
+def caliscope_frames(videos: Mapping[str, Path], missing_frames: str = "error") -> CaliscopeTiming | None:
     """The moments of a Caliscope recording, or ``None`` where no ``timestamps.csv`` applies (module
-    docstring). ``videos`` maps camera names to their videos (all in one folder), ``frames`` to their frame
-    counts; a missed moment is an error unless ``missing_frames`` is ``"absent"``, then a warning counting them."""
+    docstring). ``videos`` maps camera names to their videos (all in one folder); a missed moment is an
+    error unless ``missing_frames`` is ``"absent"``, then a warning counting them. Read before the videos
+    are decoded, so a file that cannot apply is refused at once; :meth:`CaliscopeTiming.check_frames` checks it
+    against their frame counts once they are known."""
     folders = {path.parent for path in videos.values()}
     ids = {name: _VIDEO_STEM.fullmatch(path.stem) for name, path in videos.items()}
     if len(folders) != 1 or not all(ids.values()):
@@ -77,9 +88,6 @@ def caliscope_frames(videos: Mapping[str, Path], frames: Mapping[str, int], miss
     gaps: dict[str, list[int]] = {}
     for name, match in ids.items():
         own = moments[int(match.group(1))]
-        if len(own) != frames[name]:
-            raise InputError(f"{path}: {len(own)} frames of camera {name}, but its video {videos[name].name} holds {frames[name]}: "
-                             "the timestamps are not this recording's")
         frame_of = {index: k for k, index in enumerate(sorted(own))}
         placed[name] = [frame_of.get(index) for index in every]
         if missing := [index for index in every if index not in frame_of]:

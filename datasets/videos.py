@@ -159,9 +159,11 @@ class VideoReader(Reader):
         infos = {name: probe(paths[name]) for name in names}
         rig = read_rig(calibration, units, names, {name: (info.width, info.height) for name, info in infos.items()})
         calibrated = rig.cameras
+        timing = caliscope_frames(paths, self.missing_frames)
         if self.verify:
             infos = {name: attrs.evolve(info, frames=decoded_frames(info.path)) for name, info in infos.items()}
-        timing = caliscope_frames(paths, {name: info.frames for name, info in infos.items()}, self.missing_frames)
+        if timing:
+            timing.check_frames(paths, {name: info.frames for name, info in infos.items()})
         cameras = [fit_camera(c, infos[c.name].width, infos[c.name].height, self.size_mismatch, f"video {paths[c.name]}") for c in calibrated]
         # Without Caliscope's timing frame k of every video is moment k.
         num_frames = len(timing.times) if timing else common_length({name: info.frames for name, info in infos.items()}, "video", source)

@@ -489,22 +489,29 @@ def _caliscope_capture(tmp_path: Path, frames: list[int], moments: dict[int, lis
     return source
 
 
-def test_caliscope_timestamps_refuse_a_camera_that_missed_a_moment(tmp_path: Path) -> None:
+def test_caliscope_timestamps_refuse_a_camera_that_missed_a_moment(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     # every moment in both cameras: frame k is one moment, the recording ingests
     source = _caliscope_capture(tmp_path / "whole", [3, 3], {0: [416, 417, 418], 1: [416, 417, 418]})
     assert _ingest(source, tmp_path / "whole.zarr").num_frames == 3
-    # cam_1 missed moment 417: its second frame is moment 418, one behind cam_0's from there
+    # cam_1 missed moment 417: its second frame is moment 418, one behind cam_0's from there. Said before
+    # any video is decoded (the verify pass takes minutes on a long recording).
+    import mmcsplat.datasets.videos as videos
+
+    decoded: list[Path] = []
+    monkeypatch.setattr(videos, "decoded_frames", lambda path, count=videos.decoded_frames: decoded.append(path) or count(path))
     source = _caliscope_capture(tmp_path / "gap", [3, 2], {0: [416, 417, 418], 1: [416, 418]})
     with pytest.raises(InputError, match=r"timestamps.csv: camera cam_1 has no frame at sync index 417, "
                                          r"so from there frame k of its video is another moment.*pass --skip-missing"):
         _ingest(source, tmp_path / "gap.zarr")
-    assert not (tmp_path / "gap.zarr").exists()
+    assert not (tmp_path / "gap.zarr").exists() and not decoded
     source = _caliscope_capture(tmp_path / "other", [3, 3], {0: [416, 417], 1: [416, 417]})
     with pytest.raises(InputError, match=r"2 frames of camera cam_0, but its video cam_0.mp4 holds 3: the timestamps are not this recording's"):
         _ingest(source, tmp_path / "other.zarr")
     source = _caliscope_capture(tmp_path / "twice", [2, 2], {0: [416, 416], 1: [416, 417]})
+    decoded.clear()
     with pytest.raises(InputError, match=r"line 3: camera cam_0 has sync index 416 twice"):
         _ingest(source, tmp_path / "twice.zarr")
+    assert not decoded
     timestamps = source / "videos" / "timestamps.csv"
     timestamps.write_text(timestamps.read_text().replace("416,0,", "416,0,x"))
     with pytest.raises(InputError, match=r"line 2: expected sync_index,cam_id,frame_time, whole numbers and then seconds"):
