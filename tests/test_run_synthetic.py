@@ -10,6 +10,7 @@ import shutil
 from contextlib import redirect_stdout
 from io import StringIO
 
+import numpy as np
 import pytest
 
 from mmcsplat.cli import main
@@ -76,6 +77,25 @@ def test_a_folder_resumes_under_auto_units_where_its_rig_reads_in_the_units_it_w
         assert "units 'm', now 'mm'" in capsys.readouterr().err
     finally:
         record.write_text(json.dumps(made_with))
+
+
+def test_run_reads_a_calibration_in_millimetres_and_says_so(made, tmp_path):
+    from mmcsplat.storage.calibration import read_calibration, write_calibration
+    from mmcsplat.storage.session import SessionReader
+
+    capture, _, _ = made
+    copy = tmp_path / "capture"
+    shutil.copytree(capture, copy)
+    metres = read_calibration(copy / "calibration.toml")
+    write_calibration(copy / "calibration.toml", metres, units="mm")
+    out = tmp_path / "out"
+    with redirect_stdout(StringIO()) as printed:
+        assert main(["run", str(copy), "--out", str(out), "--frames", "0:3", "--set", "fit.iterations=10", "--track-iterations", "1",
+                     "--no-progress"]) == 0
+    assert "calibration read in mm" in printed.getvalue()
+    session = SessionReader(out / "session.zarr")
+    for camera in metres:
+        np.testing.assert_allclose(session.camera(camera.name).center, camera.center, atol=1e-9)
 
 
 def test_a_folder_made_at_another_scale_than_auto_gives_is_refused_under_auto(made, tmp_path, capsys):

@@ -260,6 +260,9 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
                                          cameras=list(settings.cameras) or None, holdout=list(settings.holdout), source=source,
                                          reader_options=reader_options, segmenter=segmenter, progress=progress)
         write_json_atomic(out / MASKS_FILE, choice)
+        read_in = SessionReader(partial).provenance.get("reader", {}).get("units")
+        if settings.units == AUTO_UNITS and read_in not in (None, "m"):
+            log(f"run: calibration read in {read_in} (--units auto: in metres its rig would be implausible)")
         log(f"run: masks: {choice['detail']}")
 
     def fit() -> None:
