@@ -120,6 +120,11 @@ def test_a_capture_session_fills_in_what_run_would_and_refuses_what_does_not_app
     assert cell.plan.url.startswith(str(tmp_path / "out" / "sessions" / "capture" / "capture-")) and not cell.plan.in_place
     with pytest.raises(StudyError, match=r"\['cameras'\] do not apply to a capture session"):
         load_study(write_study(tmp_path, variants, 'capture = { path = "capture" }\ncameras = ["cam_01"]'))
+    # Metres unless stated (the units are in every cell's key); run's auto when asked; nothing else.
+    assert settings["units"] == "m"
+    assert load_study(write_study(tmp_path, variants, 'capture = { path = "capture", units = "auto" }')).sessions[0].capture["units"] == "auto"
+    with pytest.raises(StudyError, match=r"capture units must be one of auto, m, mm, got 'cm'"):
+        load_study(write_study(tmp_path, variants, 'capture = { path = "capture", units = "cm" }'))
     # A segmenter makes the capture's masks, as `run --segmenter` does: another session, made with it.
     segmented = expand(load_study(write_study(tmp_path, variants, 'capture = { path = "capture", frames = [0, 4], holdout = ["cam_04"] }\n'
                                               'segmenter = { name = "background", method = "median" }')), tmp_path / "out")[0]

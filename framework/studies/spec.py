@@ -26,7 +26,7 @@ import attrs
 from mmcsplat.configuration.config import Config, ConfigError, PluginChoice, load_config, set_value
 from mmcsplat.configuration.registry import PluginError, Registry, default_registry
 from mmcsplat.plugin_api.errors import InputError, PluginUnavailableError
-from mmcsplat.storage.calibration import AUTO_UNITS
+from mmcsplat.storage.calibration import UNIT_CHOICES
 from mmcsplat.synthetic.defaults import SYNTHETIC_HELDOUT, SYNTHETIC_SEGMENTER
 
 #: Bump when the meaning of a key's payload changes: every cell then runs again.
@@ -350,7 +350,11 @@ def capture_settings(table: Mapping[str, Any], where: str, folder: Path | None) 
         joints = joints_file(capture, paths["joints"])
     except InputError as error:
         raise StudyError(f"{where} capture: {error}") from error
-    return {"path": str(capture), "calibration": paths["calibration"], "units": str(table.get("units", AUTO_UNITS)), "scale": scale if scale == AUTO_SCALE else float(scale),
+    # Metres by default, not run's auto: the units are part of every cell's key, so a study made before auto keeps its cells.
+    units = table.get("units", "m")
+    if units not in UNIT_CHOICES:
+        raise StudyError(f"{where} capture units must be one of {', '.join(UNIT_CHOICES)}, got {units!r}")
+    return {"path": str(capture), "calibration": paths["calibration"], "units": units, "scale": scale if scale == AUTO_SCALE else float(scale),
             "frames": list(frames), "cameras": list(_strings(table.get("cameras", []), f"{where} capture cameras")),
             "holdout": list(_strings(table.get("holdout", []), f"{where} capture holdout")),
             "keypoints": str(keypoints) if keypoints else None, "joints": str(joints) if joints else None}
