@@ -9,10 +9,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from mmcsplat.cli.options import add_frames, add_names, add_settings, scale_value, settings_table
+from mmcsplat.cli.options import add_frames, add_names, add_settings, add_units, scale_value, settings_table
 from mmcsplat.configuration.registry import default_registry
 from mmcsplat.pipeline.image_scale import AUTO_LONGEST_SIDE
-from mmcsplat.storage.calibration import AUTO_UNITS, UNIT_CHOICES
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -21,7 +20,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--format", choices=default_registry().names("reader"), help="the capture format (auto-detected when omitted)")
     parser.add_argument("--calibration", type=Path, help="calibration to use instead of the one in SOURCE: a .toml (anipose, Pose2Sim, Caliscope's camera_array.toml), "
                         "Qualisys's .qca.txt, or EasyMocap's intri.yml or extri.yml (the other beside it) or their folder")
-    parser.add_argument("--units", choices=UNIT_CHOICES, default=AUTO_UNITS, help="length unit of the calibration's translations (default auto: metres, or millimetres where only they put the cameras 5 cm–50 m from their centre; a Qualisys .qca.txt is millimetres whatever this says)")
+    add_units(parser)
     add_frames(parser, "the frame indices to ingest (default: all)")
     parser.add_argument("--scale", type=scale_value, default=1.0, help="resize factor for the stored images, or auto: their longer side "
                         f"at most {AUTO_LONGEST_SIDE} px, never enlarged; K is scaled to match (default: 1)")
@@ -38,7 +37,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mmcsplat.pipeline.ingest import ingest
+    from mmcsplat.pipeline.ingest import ingest, units_chosen
 
     session = ingest(
         args.source,
@@ -59,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
     sizes = sorted({f"{camera.width}×{camera.height}" for camera in session.cameras})
     held = f" (held out: {', '.join(session.heldout)})" if session.heldout else ""
     plates = ", with clean plates" if session.provenance.get("plates") else ""
-    read_in = session.provenance.get("reader", {}).get("units")
-    units = f", calibration read in {read_in}" if args.units == AUTO_UNITS and read_in not in (None, "m") else ""
+    chosen = units_chosen(session, args.units)
+    units = f", calibration read in {chosen}" if chosen else ""
     print(f"wrote {args.out}: {len(session.cameras)} cameras{held}, {session.num_frames} frames at {session.fps:g} fps, {', '.join(sizes)}{plates}{units}")
     return 0

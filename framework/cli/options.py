@@ -48,6 +48,15 @@ def add_frames(parser: argparse.ArgumentParser, help: str) -> None:
     parser.add_argument("--frames", type=frame_range, metavar="START:STOP[:STEP]", help=help)
 
 
+def add_units(parser: argparse.ArgumentParser) -> None:
+    """``--units {auto,m,mm}``: the calibration's length unit (:func:`mmcsplat.storage.calibration.read_rig`)."""
+    from mmcsplat.storage.calibration import AUTO_UNITS, UNIT_CHOICES
+
+    parser.add_argument("--units", choices=UNIT_CHOICES, default=AUTO_UNITS, help="length unit of the calibration's translations (default "
+                        "auto: metres, or millimetres where only they put the cameras 5 cm–50 m from their centre; a Qualisys .qca.txt is "
+                        "millimetres whatever this says)")
+
+
 def settings_table(pairs: list[str]) -> dict:
     """The table ``--set KEY=VALUE`` options make, for a plugin's parameters (dotted keys make tables)."""
     from mmcsplat.configuration.config import apply_overrides

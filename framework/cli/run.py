@@ -15,9 +15,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from mmcsplat.cli.options import add_frames, add_names, add_settings, scale_value
+from mmcsplat.cli.options import add_frames, add_names, add_settings, add_units, scale_value
 from mmcsplat.pipeline.image_scale import AUTO_LONGEST_SIDE
-from mmcsplat.storage.calibration import AUTO_UNITS, UNIT_CHOICES
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -27,7 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("capture", type=Path, help="the capture folder (videos or images and a calibration)")
     parser.add_argument("--out", required=True, type=Path, help="output directory (created; reused steps are skipped)")
     parser.add_argument("--calibration", help="calibration .toml (anipose, Pose2Sim, Caliscope), Qualisys .qca.txt or EasyMocap intri.yml (default: the capture's own, see docs/ingest.md)")
-    parser.add_argument("--units", choices=UNIT_CHOICES, default=AUTO_UNITS, help="length unit of the calibration's translations (default auto: metres, or millimetres where only they put the cameras 5 cm–50 m from their centre; a Qualisys .qca.txt is millimetres whatever this says)")
+    add_units(parser)
     parser.add_argument("--scale", type=scale_value, default=DEFAULT_SCALE, help="resize factor of the stored images, or auto (the "
                         f"default): their longer side at most {AUTO_LONGEST_SIDE} px, never enlarged (0.25 for 1080 × 1920 video)")
     add_frames(parser, "the frame indices to use (default: all)")

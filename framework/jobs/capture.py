@@ -54,6 +54,7 @@ from mmcsplat.pipeline.capture_session import (
     prepare_capture_session,
 )
 from mmcsplat.pipeline.image_scale import AUTO_SCALE, resolve_scale
+from mmcsplat.pipeline.ingest import units_chosen
 from mmcsplat.pipeline.steps import BEFORE_FIELD, SettingsRecord, Step, StepTime, fit_complete, fresh, made_in_place, run_steps
 from mmcsplat.plugin_api.errors import InputError, SubjectMaskError
 from mmcsplat.plugin_api.parameters import describe_parameters
@@ -260,9 +261,9 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
                                          cameras=list(settings.cameras) or None, holdout=list(settings.holdout), source=source,
                                          reader_options=reader_options, segmenter=segmenter, progress=progress)
         write_json_atomic(out / MASKS_FILE, choice)
-        read_in = SessionReader(partial).provenance.get("reader", {}).get("units")
-        if settings.units == AUTO_UNITS and read_in not in (None, "m"):
-            log(f"run: calibration read in {read_in} (--units auto: in metres its rig would be implausible)")
+        chosen = units_chosen(SessionReader(partial), settings.units)
+        if chosen:
+            log(f"run: calibration read in {chosen} (--units auto: in metres its rig would be implausible)")
         log(f"run: masks: {choice['detail']}")
 
     def fit() -> None:

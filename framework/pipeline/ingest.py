@@ -192,6 +192,13 @@ def check_output(source: Path, out: str | os.PathLike) -> None:
         raise InputError(f"output {os.fspath(out)} is the capture {source} or contains it: write the session elsewhere")
 
 
+def units_chosen(session: SessionReader, units: str) -> str | None:
+    """The units ``--units auto`` read ``session``'s calibration in where they were not metres (what ingest
+    and ``run`` say, since the user did not); ``None`` otherwise."""
+    read_in = session.provenance.get("reader", {}).get("units")
+    return read_in if units == AUTO_UNITS and read_in not in (None, "m") else None
+
+
 def ingest(
     source: Path,
     out: str | os.PathLike,
