@@ -201,3 +201,14 @@ def test_transforms_folder_holds_the_rig_and_the_fitted_frame(runs, tmp_path):
         np.testing.assert_array_equal(cv2.imread(str(out / entry["mask_path"]), cv2.IMREAD_GRAYSCALE) > 127, frame.mask)
     assert not list(tmp_path.glob(".ns*"))
     assert main(["export", str(runs[1]), "--transforms", str(out)]) == 2  # an existing folder is never replaced
+
+
+def test_a_transforms_image_that_cannot_be_written_stops_the_export_leaving_nothing(runs, tmp_path, monkeypatch):
+    import cv2
+
+    from mmcsplat.outputs.transforms_json import export_transforms
+
+    monkeypatch.setattr(cv2, "imwrite", lambda path, image: False)  # as OpenCV answers on a full disk
+    with pytest.raises(OSError, match=r"images/.*\.png: OpenCV could not write it"):
+        export_transforms(runs[1], tmp_path / "ns")
+    assert not list(tmp_path.iterdir())

@@ -57,6 +57,15 @@ def intrinsics(camera: Camera) -> dict[str, Any]:
     return entry
 
 
+def _write_image(path: Path, image: np.ndarray) -> None:
+    """``image`` (BGR or grey) as a PNG at ``path``; an error naming it where OpenCV could not write it (a
+    full disk), rather than a transforms.json that lists an image the folder lacks."""
+    import cv2
+
+    if not cv2.imwrite(str(path), image):
+        raise OSError(f"{path}: OpenCV could not write it")
+
+
 def export_transforms(run: str | Path, out: str | Path) -> Path:
     """Write the nerfstudio dataset folder of ``run``'s fitted frame to ``out`` (module docstring), which
     must not exist or be empty; returns the path of its transforms.json. Cameras without that frame are
@@ -74,12 +83,12 @@ def export_transforms(run: str | Path, out: str | Path) -> Path:
                 continue
             camera, data = session.camera(name), session.frame(t, name)
             image = f"images/{name}.png"
-            cv2.imwrite(str(folder / image), cv2.cvtColor(np.ascontiguousarray(data.rgb), cv2.COLOR_RGB2BGR))
+            _write_image(folder / image, cv2.cvtColor(np.ascontiguousarray(data.rgb), cv2.COLOR_RGB2BGR))
             entry = {"file_path": image, **intrinsics(camera), "transform_matrix": camera_to_world_gl(camera).tolist()}
             if data.mask is not None:
                 (folder / "masks").mkdir(exist_ok=True)
                 entry["mask_path"] = f"masks/{name}.png"
-                cv2.imwrite(str(folder / entry["mask_path"]), np.where(data.mask, 255, 0).astype(np.uint8))
+                _write_image(folder / entry["mask_path"], np.where(data.mask, 255, 0).astype(np.uint8))
             frames.append(entry)
             names.append(name)
         split = {role: [f"images/{name}.png" for name in cameras if name in names]
