@@ -15,7 +15,8 @@ from mmcsplat.pipeline.ingest import ingest
 from mmcsplat.pipeline.plates import estimate_plates
 from mmcsplat.pipeline.segment import BuiltSegmenter, segment_session
 from mmcsplat.plugin_api.errors import InputError
-from mmcsplat.plugins.segmenters.parallax import recurrence_share
+from mmcsplat.plugins.segmenters.parallax import floor_normal, recurrence_share, sweep_floor
+from mmcsplat.scene.camera import Camera, look_at
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.synthetic import SynthConfig, synthesize
 
@@ -250,3 +251,15 @@ def test_recurrence_share_counts_the_samples_within_the_threshold_in_every_chann
     for threshold in (0.5, 9.5, 10.0, 30.0):
         largest = np.abs(samples.astype(int) - samples[2].astype(int)).max(axis=-1)
         assert np.allclose(recurrence_share(samples[2], samples, threshold), (largest < threshold).mean(axis=0))
+
+
+def test_a_rig_looking_up_at_its_subject_has_no_floor_and_says_what_to_bring_instead():
+    """Cameras at desk height looking up at a point above them (Caliscope's own recording looks so at a man at a
+    desk, docs/real-data.md): no floor lies below the point they look at, and the error says what run can use."""
+    K = np.array([[100.0, 0, 63.5], [0, 100.0, 47.5], [0, 0, 1]])
+    centres = [(np.cos(a), np.sin(a), 0.0) for a in np.linspace(0, 2 * np.pi, 4, endpoint=False)]
+    cameras = [Camera(f"cam_{k}", 128, 96, K, look_at(c, (0, 0, 0.8)), -look_at(c, (0, 0, 0.8)) @ np.asarray(c))
+               for k, c in enumerate(centres)]
+    with pytest.raises(InputError, match=r"parallax segmenter: the cameras do not look down at a common point.*bring masks, 2D "
+                                         r"keypoints \(run --keypoints\) or clean plates"):
+        sweep_floor(cameras, [np.zeros((96, 128, 3), np.uint8)] * 4, floor_normal(cameras))

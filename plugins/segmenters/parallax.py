@@ -158,8 +158,9 @@ def sweep_floor(cameras: Sequence[Camera], medians: Sequence[np.ndarray], normal
     top = float(np.mean(centres @ normal))
     depth = top - float(rig_center(cameras) @ normal)  # the rig centre's depth below the cameras
     if depth <= 0:
-        raise InputError("parallax segmenter: the cameras do not look down at a common point, so no floor lies below them; "
-                         "choose another segmenter (keypoints, background with a recorded plate)")
+        raise InputError("parallax segmenter: the cameras do not look down at a common point, so no floor lies below them to tell the "
+                         "subject by: bring masks, 2D keypoints (run --keypoints) or clean plates with the capture, or choose another "
+                         "segmenter (--segmenter; keypoints, or background with a recorded plate)")
     pairs = [(i, int(j)) for i in range(len(cameras)) for j in np.argsort(np.linalg.norm(centres - centres[i], axis=1))[1:3]]
 
     def agreement(offset: float) -> float:
