@@ -224,6 +224,10 @@ class VideoRecording(RigRecording):
         """The moments this camera's video holds a frame of (all, unless Caliscope's timing says it missed some)."""
         return np.array([k is not None for k in self._placed[camera]], dtype=bool)
 
+    def source_frames(self, camera: str) -> np.ndarray:
+        """Each moment's frame of this camera's video (−1 where it missed the moment)."""
+        return np.array([-1 if k is None else k for k in self._placed[camera]], dtype=np.int64)
+
     def _decode(self, camera: str, indices: range) -> Iterator[RecordedFrame]:
         import cv2
 

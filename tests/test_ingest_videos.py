@@ -541,6 +541,36 @@ def test_caliscope_moments_a_camera_missed_are_absent_with_skip_missing(tmp_path
     assert SessionReader(tmp_path / "cli.zarr").present("cam_1").tolist() == [True, False, True, True]
 
 
+def test_caliscope_keypoints_follow_each_video_frame_to_its_moment(tmp_path: Path) -> None:
+    """2D keypoints are numbered by each camera's video frame (OpenPose's files, DeepLabCut's rows). Where a
+    Caliscope camera missed a moment its video frame k is a later moment, and its keypoints go with it."""
+    from mmcsplat.plugins.landmarks.openpose import MODELS, OpenPoseKeypoints
+
+    # cam_1 missed moment 417: its video frame 1 is moment 418, the session's frame 2
+    source = _caliscope_capture(tmp_path / "gap", [3, 2], {0: [416, 417, 418], 1: [416, 418]})
+    with pytest.warns(UserWarning, match="those frames are absent"):
+        session = _ingest(source, tmp_path / "gap.zarr", skip_missing=True)
+    assert session.provenance["source_frame_offsets"] == {"cam_1": [[0, 0], [2, -1]]}
+    assert session.source_frames("cam_0", [0, 1, 2]).tolist() == [0, 1, 2]
+    assert session.source_frames("cam_1", [0, 1, 2]).tolist() == [0, -1, 1]
+    assert session.source_frames("cam_1", [2]).tolist() == [1]
+    # A person at a place of its own at each moment, detected in each camera's video frames of that moment.
+    names = MODELS["BODY_25B"]
+    body = np.random.default_rng(0).uniform(-0.25, 0.25, (len(names), 3))
+    moments = [body + [0.08 * m, 0.0, 0.0] for m in range(3)]
+    recorded = {camera.name: camera for camera in rig.ring_cameras(["cam_0", "cam_1"])}
+    for name, video_moments in (("cam_0", [0, 1, 2]), ("cam_1", [0, 2])):
+        (source / "pose" / name).mkdir(parents=True)
+        for k, m in enumerate(video_moments):
+            person = np.column_stack([recorded[name].project(moments[m]), np.full(len(names), 0.9)])
+            (source / "pose" / name / f"{name}_{k:012d}_keypoints.json").write_text(json.dumps({"people": [{"pose_keypoints_2d": person.ravel().tolist()}]}))
+    seen = {o.camera: o for o in OpenPoseKeypoints(folder=str(source / "pose")).observations(session, [0, 1, 2])}
+    for name, frames in (("cam_0", [0, 1, 2]), ("cam_1", [0, 2])):
+        for t in frames:
+            np.testing.assert_allclose(seen[name].pixels[t], session.camera(name).project(moments[t]), atol=0.5)
+    assert not seen["cam_1"].confidence[1].any()  # the moment cam_1 missed holds none of its detections
+
+
 def test_caliscope_video_whose_container_overstates_its_frames(tmp_path: Path) -> None:
     """A camera's dropped frame cut from a Matroska video: its container still states the duration's three
     frames, the timestamps two; the frames decoded are what counts."""

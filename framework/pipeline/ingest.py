@@ -35,7 +35,7 @@ from mmcsplat.storage.capture_files import PLATES_FOLDER
 from mmcsplat.storage.session.format import local_path
 
 if TYPE_CHECKING:
-    from mmcsplat.plugin_api.interfaces import Reader
+    from mmcsplat.plugin_api.interfaces import Reader, Recording
     from mmcsplat.storage.session import SessionReader
 
 
@@ -192,6 +192,22 @@ def check_output(source: Path, out: str | os.PathLike) -> None:
         raise InputError(f"output {os.fspath(out)} is the capture {source} or contains it: write the session elsewhere")
 
 
+def source_frame_offsets(recording: Recording, cameras: Sequence[str]) -> dict[str, list[list[int]]]:
+    """For each of ``cameras`` whose own frame numbers (:meth:`~mmcsplat.plugin_api.interfaces.Recording.source_frames`)
+    are not the frame indices, the runs ``[first frame index, offset]`` of its number minus the index over the
+    frames it holds (a Caliscope camera one frame behind from its missed moment on: ``[[0, 0], [k + 1, -1]]``);
+    what :meth:`~mmcsplat.storage.session.SessionReader.source_frames` reads back."""
+    runs = {}
+    for camera in cameras:
+        numbers = np.asarray(recording.source_frames(camera), dtype=np.int64)
+        held = np.flatnonzero(numbers >= 0)
+        offsets = numbers[held] - held
+        if offsets.any():
+            starts = np.flatnonzero(np.diff(offsets, prepend=offsets[0] - 1))
+            runs[camera] = [[int(held[i]), int(offsets[i])] for i in starts]
+    return runs
+
+
 def units_chosen(session: SessionReader, units: str) -> str | None:
     """The units ``--units auto`` read ``session``'s calibration in where they were not metres (what ingest
     and ``run`` say, since the user did not); ``None`` otherwise."""
@@ -279,6 +295,8 @@ def ingest(
             # source videos — a 2D keypoint detected in them — into the stored images.
             "source_cameras": [by_name[camera].to_dict() for camera in selected],
             "plates": str(plates_folder.resolve()) if plate_images else None,
+            # Where a camera's own frame numbers (its video's, which its 2D keypoints follow) are not the capture's.
+            "source_frame_offsets": source_frame_offsets(recording, selected),
         }
         with SessionWriter(
             out,

@@ -77,6 +77,13 @@ class Recording(ABC):
         """[num_frames] seconds of each frame index."""
         return np.arange(self.num_frames, dtype=np.float64) / self.fps
 
+    def source_frames(self, camera: str) -> np.ndarray:
+        """[num_frames] int: the number of each frame index in ``camera``'s own source — its video's frame,
+        which 2D keypoints detected in that video are numbered by — or −1 where the camera lacks it. The frame
+        index itself, unless the format places a camera's frames otherwise (a Caliscope camera that missed a
+        moment is a frame behind the others from there on)."""
+        return np.where(self.present(camera), np.arange(self.num_frames), -1)
+
     def describe(self) -> dict[str, Any]:
         """Provenance stored in the session's attributes."""
         return {}

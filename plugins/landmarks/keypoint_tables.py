@@ -102,7 +102,6 @@ class TableKeypoints(TriangulatedKeypoints):
         matched = {name: files[path] for name, path in match_cameras(session.camera_names, list(files), "keypoint file", folder, self.camera_map,
                                                                    KEYPOINTS_CAMERA_MAP, self.trial).items()}
         recorded = session.recorded_cameras()
-        capture = session.capture_frames(frames)
         people, edges, names = [], [], None  # people[camera][frame]: [P, L, 3] in the stored images' pixels
         for camera in cameras:
             parts, numbers, table = self.read_table(matched[camera.name])
@@ -110,7 +109,9 @@ class TableKeypoints(TriangulatedKeypoints):
                 raise InputError(f"{matched[camera.name]}: keypoint names {list(parts)} differ from the other cameras' {list(names)}")
             names = parts
             rows = {int(number): k for k, number in enumerate(numbers)}
-            seen = [_detected(table[rows[int(number)]]) if int(number) in rows else np.zeros((0, len(parts), 3)) for number in capture]
+            # The camera's video frames, which its table is numbered by (−1, never a row, where it lacks one).
+            seen = [_detected(table[rows[int(number)]]) if int(number) in rows else np.zeros((0, len(parts), 3))
+                    for number in session.source_frames(camera.name, frames)]
             people.append(people_to_session_pixels(seen, recorded.get(camera.name), camera))
             edges.append(self.read_edges(matched[camera.name]))
         return subject_observations(session, frames, people, names, self.min_confidence, edges, self.subject)

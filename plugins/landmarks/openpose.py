@@ -90,13 +90,14 @@ class OpenPoseKeypoints(TriangulatedKeypoints):
         matched = match_cameras(session.camera_names, list(by_label), "keypoint folder", folder, self.camera_map, KEYPOINTS_CAMERA_MAP)
         folders = {name: by_label[label] for name, label in matched.items()}
         recorded = session.recorded_cameras()
-        capture = session.capture_frames(frames)
         people = []  # [camera][frame]: [P, L, 3] in the stored images' pixels
         for camera in cameras:
             files = {frame_number(path): path for path in sorted(folders[camera.name].glob("*.json"), key=lambda p: natural_key(p.name))}
-            if not any(int(number) in files for number in capture):
+            numbers = session.source_frames(camera.name, frames)  # its video's frames, which OpenPose numbered
+            held = numbers[numbers >= 0]
+            if len(held) and not any(int(number) in files for number in held):
                 raise MissingFileError(f"{folders[camera.name]}: no keypoint file numbered like the session's frames "
-                                       f"{int(capture[0])}–{int(capture[-1])}")
-            seen = [read_people(files[int(number)], len(names)) if int(number) in files else np.zeros((0, len(names), 3)) for number in capture]
+                                       f"{int(held[0])}–{int(held[-1])}")
+            seen = [read_people(files[int(number)], len(names)) if int(number) in files else np.zeros((0, len(names), 3)) for number in numbers]
             people.append(people_to_session_pixels(seen, recorded.get(camera.name), camera))
         return subject_observations(session, frames, people, names, self.min_confidence, subject=self.subject)

@@ -127,6 +127,19 @@ class SessionReader(SessionBase):
         start, _, step = self.provenance.get("frames", [0, None, 1])
         return (start or 0) + np.asarray(frames, dtype=np.int64) * (step or 1)
 
+    def source_frames(self, camera: str, frames: Sequence[int] | np.ndarray) -> np.ndarray:
+        """The frame numbers in ``camera``'s own source — its video's frames, which 2D keypoints detected in it
+        follow — of session ``frames``, −1 where the camera lacks the frame: the capture frame numbers
+        (:meth:`capture_frames`) unless ingest recorded the camera's frames placed otherwise
+        (``provenance.source_frame_offsets``: a Caliscope camera that missed a moment is a frame behind from there)."""
+        capture = self.capture_frames(frames)
+        runs = np.asarray(self.provenance.get("source_frame_offsets", {}).get(camera, []), dtype=np.int64).reshape(-1, 2)
+        offsets = np.zeros_like(capture)
+        if len(runs):
+            run = np.searchsorted(runs[:, 0], capture, side="right") - 1
+            offsets = np.where(run >= 0, runs[np.maximum(run, 0), 1], 0)
+        return np.where(self.present(camera)[np.asarray(frames, dtype=np.int64)], capture + offsets, -1)
+
     def recorded_cameras(self) -> dict[str, Camera]:
         """The cameras as recorded (before undistortion and rescaling) by name, from the provenance; empty
         for a session ingested before mmcsplat kept them."""
