@@ -174,17 +174,6 @@ class ImageRecording(RigRecording):
         """The frames whose image exists (all, unless ingested with ``missing_frames="absent"``)."""
         return np.array([path is not None for path in self._files[camera]], dtype=bool)
 
-    def source_frames(self, camera: str) -> np.ndarray:
-        """The number in each frame's image name (−1 where the camera lacks the frame): what a detector run on
-        the folder numbers its output by (OpenPose names each JSON after its image; ffmpeg numbers extracted
-        frames from 1). Names without numbers, or repeating one, count by position."""
-        files = self._files[camera]
-        numbers = [None if path is None else frame_number(path) for path in files]
-        placed = [number for number in numbers if number is not None]
-        if len(placed) != sum(path is not None for path in files) or len(set(placed)) != len(placed):
-            return super().source_frames(camera)
-        return np.array([-1 if number is None else number for number in numbers], dtype=np.int64)
-
     def _decode(self, camera: str, indices: range) -> Iterator[RecordedFrame]:
         for t in indices:
             path = self._files[camera][t]
