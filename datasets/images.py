@@ -58,14 +58,16 @@ def frame_number(path: Path) -> int | None:
     return int(digits[-1]) if digits else None
 
 
-def frames_by_number(files: dict[str, list[Path]], missing_frames: str, source: Path) -> tuple[dict[str, list[Path | None]], int]:
+def frames_by_number(files: dict[str, list[Path]], missing_frames: str,
+                     source: Path) -> tuple[dict[str, list[Path | None]], int, int | None]:
     """Each camera's images placed at frame index = number − the first number of the capture, so that
     a missing file shifts nothing; a gap is an error, or with ``missing_frames="absent"`` a frame the
-    camera lacks. Names without numbers (or repeated numbers) keep the sorted order, as before."""
+    camera lacks. Names without numbers (or repeated numbers) keep the sorted order, as before. Returns the
+    placed files, the number of frames and that first number (``None`` for names without numbers)."""
     numbers = {name: [frame_number(path) for path in paths] for name, paths in files.items()}
     if any(None in found or len(set(found)) != len(found) for found in numbers.values()):
         length = common_length({name: len(paths) for name, paths in files.items()}, "image folder", source)
-        return {name: list(paths[:length]) for name, paths in files.items()}, length
+        return {name: list(paths[:length]) for name, paths in files.items()}, length, None
     first = min(min(found) for found in numbers.values())
     length = common_length({name: max(found) - first + 1 for name, found in numbers.items()}, "image folder", source)
     placed: dict[str, list[Path | None]] = {}
@@ -83,7 +85,7 @@ def frames_by_number(files: dict[str, list[Path]], missing_frames: str, source: 
                          "ingest, the reader option missing_frames=absent, to ingest the rest with those frames absent)")
     if listed:
         warnings.warn(f"{source}: {sum(map(len, gaps.values()))} frames absent: {listed}", stacklevel=3)
-    return placed, length
+    return placed, length, first
 
 
 def camera_folders(source: Path) -> list[Path]:
@@ -120,7 +122,7 @@ class ImageSequenceReader(Reader):
         # Matched by name first: a calibration stating no image size takes its images' (read_rig's sizes).
         names = calibration_names(calibration, self.cameras)
         folders = match_cameras(names, camera_folders(source), "image folder", source, self.camera_map)
-        files, num_frames = frames_by_number({name: image_files(folder) for name, folder in folders.items()}, self.missing_frames, source)
+        files, num_frames, first_number = frames_by_number({name: image_files(folder) for name, folder in folders.items()}, self.missing_frames, source)
         firsts = {name: next(path for path in files[name] if path is not None) for name in names}
         sizes, alpha = {}, []
         for name, path in firsts.items():
@@ -136,6 +138,8 @@ class ImageSequenceReader(Reader):
             "calibration": str(calibration),
             "units": rig.units,
             "folders": {name: str(folder) for name, folder in folders.items()},
+            # Frame index t is the image numbered first_number + t (what OpenPose names an image's keypoints by).
+            "first_number": first_number,
             "size_mismatch": self.size_mismatch,
             "masks": f"{source / MASKS_FOLDER}" if masks else "the images' alpha channel (alpha > 127)" if alpha else None,
         }
@@ -173,6 +177,12 @@ class ImageRecording(RigRecording):
     def present(self, camera: str) -> np.ndarray:
         """The frames whose image exists (all, unless ingested with ``missing_frames="absent"``)."""
         return np.array([path is not None for path in self._files[camera]], dtype=bool)
+
+    def source_frames(self, camera: str) -> np.ndarray:
+        """Each frame's position among this camera's images (−1 where it lacks the frame): what a detector
+        that runs through the folder numbers its output by (Pose2Sim's JSON, SLEAP's and DeepLabCut's rows)."""
+        present = self.present(camera)
+        return np.where(present, np.cumsum(present) - 1, -1)
 
     def _decode(self, camera: str, indices: range) -> Iterator[RecordedFrame]:
         for t in indices:

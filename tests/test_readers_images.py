@@ -203,3 +203,38 @@ def test_masks_folder_by_image_name_and_rgba_alpha(tmp_path: Path) -> None:
             cv2.imwrite(str(path), np.dstack([image, alpha]))
     session = ingest(rgba, tmp_path / "rgba.zarr", progress=False)
     assert session.has_source_mask("c1") and 0.3 < session.frame(1, "c1").mask.mean() < 0.7
+
+
+@pytest.mark.parametrize("named", ["openpose", "pose2sim"])
+def test_keypoints_of_an_image_folder_numbered_from_one_land_on_their_images(tmp_path: Path, named: str) -> None:
+    """ffmpeg numbers the frames it extracts from 1. OpenPose run on the folder names each JSON after its image
+    (``frame_0001_keypoints.json``); Pose2Sim after its image and its position from 0 (``frame_0001_000000.json``).
+    Either way frame t's detections are its own image's (OpenPose's were read one image late)."""
+    import json
+    import warnings
+
+    from mmcsplat.plugins.landmarks.openpose import MODELS, OpenPoseKeypoints
+
+    capture = tmp_path / "capture"
+    cameras = rig.ring_cameras(["cam_0", "cam_1"])
+    (capture / "calibration").mkdir(parents=True)
+    write_calibration(capture / "calibration" / "calibration.toml", cameras)
+    body = np.random.default_rng(0).uniform(-0.25, 0.25, (len(MODELS["BODY_25B"]), 3))
+    for camera in cameras:
+        (capture / "images" / camera.name).mkdir(parents=True)
+        (capture / "pose" / camera.name).mkdir(parents=True)
+        for position, number in enumerate((1, 2, 3)):
+            image = cv2.cvtColor(rig.frame_image(camera, number), cv2.COLOR_RGB2BGR)
+            assert cv2.imwrite(str(capture / "images" / camera.name / f"frame_{number:04d}.png"), image)
+            person = np.column_stack([camera.project(body + [0.08 * number, 0, 0]), np.full(len(body), 0.9)])
+            name = f"frame_{number:04d}_keypoints.json" if named == "openpose" else f"frame_{number:04d}_{position:06d}.json"
+            (capture / "pose" / camera.name / name).write_text(json.dumps({"people": [{"pose_keypoints_2d": person.ravel().tolist()}]}))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # no frame rate stated
+        session = ingest(capture, tmp_path / "s.zarr", progress=False)
+    assert session.provenance["reader"]["first_number"] == 1
+    seen = {o.camera: o for o in OpenPoseKeypoints(folder=str(capture / "pose")).observations(session, [0, 1, 2])}
+    for camera in cameras:
+        for t in range(3):
+            np.testing.assert_allclose(seen[camera.name].pixels[t], session.camera(camera.name).project(body + [0.08 * (t + 1), 0, 0]),
+                                       atol=0.5)

@@ -63,6 +63,9 @@ def test_a_missing_image_file_shifts_nothing(tmp_path, capsys):
     # Each stored frame is its own file's (the fixture's grey level encodes the frame), none moved up.
     for t in (0, 1, 3):
         assert abs(float(np.median(session.frame(t, "c2").rgb)) - rig.background_level(t)) <= 1
+    # A detector run through c2's folder (Pose2Sim's JSON, SLEAP's rows) numbers its images by position: frame 3 is its third.
+    assert session.source_frames("c2", [0, 1, 2, 3]).tolist() == [0, 1, -1, 2]
+    assert session.source_frames("c1", [0, 1, 2, 3]).tolist() == [0, 1, 2, 3]
 
 
 def test_a_calibration_in_millimetres_read_as_metres_is_refused_and_read_as_millimetres_by_default(tmp_path, capsys):

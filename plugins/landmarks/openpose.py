@@ -2,8 +2,11 @@
 
 Layout: one folder per camera under ``folder`` (``pose_2d/cam01/…``, or OpenPose's ``cam01_json``, matched
 to the session's cameras by name like videos: ``cam01`` ↔ ``cam_01`` ↔ ``int_cam01_img``, or by
-``camera_map``), each holding one JSON file per frame whose last number is the capture's frame number (``cam01.0042.json``, ``…_000000000042_
-keypoints.json``). Each file lists ``people``, each with ``pose_keypoints_2d`` = [x, y, confidence] × K
+``camera_map``), each holding one JSON file per frame whose last number is the frame's in the camera's video
+or image folder (``cam01.0042.json``, ``…_000000000042_keypoints.json``; Pose2Sim's ``frame_0001_000000.json``, the
+image's position from 0). OpenPose run on an image folder names each file after its image instead
+(``frame_0001_keypoints.json``): where a session made from images still finds its images, such a file is the
+frame of the image it is named after, whatever the first image's number (ffmpeg numbers from 1). Each file lists ``people``, each with ``pose_keypoints_2d`` = [x, y, confidence] × K
 in the source video's pixels; the ``model`` names the K keypoints (BODY_25B, the model Pose2Sim's demo
 uses, or BODY_25). A frame missing a file or a person has no detections (confidence 0).
 
@@ -50,6 +53,24 @@ def frame_number(path: Path) -> int | None:
     return int(numbers[-1]) if numbers else None
 
 
+def image_named(session: SessionReader, camera: str, files: Sequence[Path]) -> dict[int, Path]:
+    """The ``files`` OpenPose named after ``camera``'s images (``{image stem}_keypoints.json``, from ``--image_dir``)
+    by the capture frame of their image (the image's number less the capture's first); empty where the session was
+    not made from numbered images, its images are gone, or no file is named so."""
+    reader = session.provenance.get("reader", {})
+    first, folder = reader.get("first_number"), reader.get("folders", {}).get(camera)
+    if first is None or folder is None or not Path(folder).is_dir():
+        return {}
+    stems = {path.stem for path in Path(folder).iterdir() if path.is_file()}
+    named = {}
+    for path in files:
+        image = path.stem.removesuffix("_keypoints")
+        number = frame_number(Path(image))
+        if image != path.stem and image in stems and number is not None:
+            named[number - first] = path
+    return named
+
+
 def read_people(path: Path, count: int) -> np.ndarray:
     """[P, count, 3] (x, y, confidence) of every person in one OpenPose JSON file."""
     try:
@@ -92,8 +113,12 @@ class OpenPoseKeypoints(TriangulatedKeypoints):
         recorded = session.recorded_cameras()
         people = []  # [camera][frame]: [P, L, 3] in the stored images' pixels
         for camera in cameras:
-            files = {frame_number(path): path for path in sorted(folders[camera.name].glob("*.json"), key=lambda p: natural_key(p.name))}
-            numbers = session.source_frames(camera.name, frames)  # its video's frames, which OpenPose numbered
+            found = sorted(folders[camera.name].glob("*.json"), key=lambda p: natural_key(p.name))
+            by_image = image_named(session, camera.name, found)
+            if by_image:
+                files, numbers = by_image, np.where(session.present(camera.name)[list(frames)], session.capture_frames(frames), -1)
+            else:  # numbered by the camera's own frames: its video's, or its images' positions
+                files, numbers = {frame_number(path): path for path in found}, session.source_frames(camera.name, frames)
             held = numbers[numbers >= 0]
             if len(held) and not any(int(number) in files for number in held):
                 raise MissingFileError(f"{folders[camera.name]}: no keypoint file numbered like the session's frames "
