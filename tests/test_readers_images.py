@@ -238,3 +238,7 @@ def test_keypoints_of_an_image_folder_numbered_from_one_land_on_their_images(tmp
         for t in range(3):
             np.testing.assert_allclose(seen[camera.name].pixels[t], session.camera(camera.name).project(body + [0.08 * (t + 1), 0, 0]),
                                        atol=0.5)
+    if named == "openpose":  # the images moved away: which file is which image can no longer be told, and that is said
+        (capture / "images").rename(tmp_path / "elsewhere")
+        with pytest.warns(UserWarning, match=r"OpenPose names an image's keypoints after the image, but camera 'cam_0'"):
+            OpenPoseKeypoints(folder=str(capture / "pose")).observations(session, [0, 1, 2])

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import json
 import re
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -59,7 +60,13 @@ def image_named(session: SessionReader, camera: str, files: Sequence[Path]) -> d
     not made from numbered images, its images are gone, or no file is named so."""
     reader = session.provenance.get("reader", {})
     first, folder = reader.get("first_number"), reader.get("folders", {}).get(camera)
-    if first is None or folder is None or not Path(folder).is_dir():
+    if first is None or folder is None:
+        return {}
+    if not Path(folder).is_dir():
+        if first != 0 and any(path.stem.endswith("_keypoints") for path in files):
+            warnings.warn(f"{files[0].parent}: OpenPose names an image's keypoints after the image, but camera {camera!r}'s images "
+                          f"are no longer at {folder} to tell which: read by position, one frame off for each the numbering "
+                          f"starts above 0 ({first})", stacklevel=3)
         return {}
     stems = {path.stem for path in Path(folder).iterdir() if path.is_file()}
     named = {}
