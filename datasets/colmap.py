@@ -188,7 +188,7 @@ class ColmapReader(Reader):
                          if folder.is_dir() and folder.name not in by_folder and image_files(folder))
         if unposed:
             warnings.warn(f"{images_file}: no registered image in images/{', images/'.join(unposed)}; those folders are left out", stacklevel=3)
-        files, num_frames = frames_by_number({name: image_files(source / "images" / name) for name in sorted(by_folder)},
+        files, num_frames, _ = frames_by_number({name: image_files(source / "images" / name) for name in sorted(by_folder)},
                                             self.missing_frames, source)
         images = {name: {t: PosedImage(path, None, f"{images_file}: camera folder {name!r}") for t, path in enumerate(paths) if path is not None}
                   for name, paths in files.items()}
