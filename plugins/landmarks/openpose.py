@@ -65,8 +65,8 @@ def image_named(session: SessionReader, camera: str, files: Sequence[Path]) -> d
     if not Path(folder).is_dir():
         if first != 0 and any(path.stem.endswith("_keypoints") for path in files):
             warnings.warn(f"{files[0].parent}: OpenPose names an image's keypoints after the image, but camera {camera!r}'s images "
-                          f"are no longer at {folder} to tell which: read by position, one frame off for each the numbering "
-                          f"starts above 0 ({first})", stacklevel=3)
+                          f"are no longer at {folder} to tell which: read by position instead, {first} frame(s) late if these files are "
+                          f"named after images numbered from {first}", stacklevel=3)
         return {}
     stems = {path.stem for path in Path(folder).iterdir() if path.is_file()}
     named = {}
