@@ -222,7 +222,7 @@ class VideoRecording(RigRecording):
 
     def present(self, camera: str) -> np.ndarray:
         """The moments this camera's video holds a frame of (all, unless Caliscope's timing says it missed some)."""
-        return np.array([k is not None for k in self._placed[camera]], dtype=bool)
+        return self.source_frames(camera) >= 0
 
     def source_frames(self, camera: str) -> np.ndarray:
         """Each moment's frame of this camera's video (−1 where it missed the moment)."""

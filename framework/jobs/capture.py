@@ -54,7 +54,7 @@ from mmcsplat.pipeline.capture_session import (
     prepare_capture_session,
 )
 from mmcsplat.pipeline.image_scale import AUTO_SCALE, resolve_scale
-from mmcsplat.pipeline.ingest import units_chosen
+from mmcsplat.pipeline.ingest import units_chosen, units_read
 from mmcsplat.pipeline.steps import BEFORE_FIELD, SettingsRecord, Step, StepTime, fit_complete, fresh, made_in_place, run_steps
 from mmcsplat.plugin_api.errors import InputError, SubjectMaskError
 from mmcsplat.plugin_api.parameters import describe_parameters
@@ -346,7 +346,7 @@ def _units_in(session: Path, units: Any) -> Any:
     if units == AUTO_UNITS and session.exists():
         from mmcsplat.storage.session import SessionReader
 
-        return SessionReader(session).provenance.get("reader", {}).get("units", "m")
+        return units_read(SessionReader(session))
     return units
 
 

@@ -208,11 +208,17 @@ def source_frame_offsets(recording: Recording, cameras: Sequence[str]) -> dict[s
     return runs
 
 
+def units_read(session: SessionReader) -> str:
+    """The units ``session``'s calibration was read in, as its reader recorded them; metres for a reader that
+    records none (poses without a unit of their own)."""
+    return session.provenance.get("reader", {}).get("units", "m")
+
+
 def units_chosen(session: SessionReader, units: str) -> str | None:
     """The units ``--units auto`` read ``session``'s calibration in where they were not metres (what ingest
     and ``run`` say, since the user did not); ``None`` otherwise."""
-    read_in = session.provenance.get("reader", {}).get("units")
-    return read_in if units == AUTO_UNITS and read_in not in (None, "m") else None
+    read_in = units_read(session)
+    return read_in if units == AUTO_UNITS and read_in != "m" else None
 
 
 def ingest(

@@ -90,7 +90,7 @@ def read_rig(path: Path, units: str = AUTO_UNITS, cameras: Sequence[str] | None 
     the table or camera at fault.
     """
     path = Path(path)
-    metres_per_unit(units)
+    metres_per_unit(units)  # unknown units are refused before the file is read
     if is_qualisys(path):
         units = "mm"
     pair = easymocap_files(path)

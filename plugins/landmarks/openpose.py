@@ -123,7 +123,7 @@ class OpenPoseKeypoints(TriangulatedKeypoints):
             found = sorted(folders[camera.name].glob("*.json"), key=lambda p: natural_key(p.name))
             by_image = image_named(session, camera.name, found)
             if by_image:
-                files, numbers = by_image, np.where(session.present(camera.name)[list(frames)], session.capture_frames(frames), -1)
+                files, numbers = by_image, session.capture_frames(frames)  # a frame the camera lacks has no image, so no such file
             else:  # numbered by the camera's own frames: its video's, or its images' positions
                 files, numbers = {frame_number(path): path for path in found}, session.source_frames(camera.name, frames)
             held = numbers[numbers >= 0]
