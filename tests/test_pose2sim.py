@@ -69,3 +69,26 @@ def test_pose2sim_demo_runs_with_one_command(tmp_path):
         assert main(command) == 0
     steps = re.findall(r"^\[run\] .*", again.getvalue(), flags=re.M)
     assert len(steps) > 5 and all("already done" in line for line in steps)
+
+
+@pytest.mark.skipif(not POSE2SIM.is_dir(), reason=f"shared real data not found at {POSE2SIM}")
+def test_a_capture_with_keypoints_and_no_trc_carries_the_keypoints_own_joints(tmp_path):
+    """What most captures bring: videos, a calibration and 2D detections, no 3D joints. The detections'
+    triangulation is bound, carried and scored, and sizes the body's parts."""
+    capture = tmp_path / "capture"
+    capture.mkdir()
+    for name in ("videos", "pose_2d", "Calib_qualisys.toml"):
+        (capture / name).symlink_to(POSE2SIM / name)
+    out = tmp_path / "out"
+    with redirect_stdout(StringIO()) as printed:
+        assert main(["run", str(capture), "--out", str(out), "--frames", "0:3", "--scale", "0.125", "--set", "fit.iterations=30",
+                     "--track-iterations", "3", "--no-progress"]) == 0
+    assert "run: joints: the keypoints' own triangulation (the capture has no TRC)" in printed.getvalue()
+    assert f"against the OpenPose keypoints {POSE2SIM / 'pose_2d'} (BODY_25B), triangulated" in printed.getvalue()
+    run = out / "run"
+    track = json.loads((run / "track.json").read_text())
+    assert track["params"]["skeleton"] == {"name": "openpose", "folder": str(POSE2SIM / "pose_2d")}
+    assert "LElbow–LWrist" in track["summary"]["body_parts"]["parts"]
+    info = json.loads((run / "landmarks.json").read_text())
+    assert "LKnee" in info["names"] and "Head" in info["names"] and info["accuracy_3d"]["pairs"] > 0
+    assert all(np.isfinite(score["carried_median_source_px"]) for score in info["accuracy_2d"].values())

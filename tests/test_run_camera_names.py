@@ -12,8 +12,9 @@ import pytest
 
 from mmcsplat.configuration.registry import default_registry
 from mmcsplat.jobs.capture import CaptureSettings, keypoints_with, run_capture
-from mmcsplat.pipeline.capture_session import joints_file
+from mmcsplat.pipeline.capture_session import joints_file, missing_torso
 from mmcsplat.plugin_api.errors import InputError, MissingFileError
+from mmcsplat.plugin_api.interfaces import Landmarks, LandmarkSource
 from mmcsplat.storage.session import SessionReader
 
 DEMO = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "pose2sim_demo"
@@ -119,3 +120,26 @@ def test_the_joints_are_the_captures_single_trc_else_the_one_pose2sim_wrote_in_p
     (tmp_path / "pose-3d" / "trial_0-100_filt_butterworth.trc").write_text("")
     with pytest.raises(InputError, match=r"several joints TRC file candidates \(trial_0-100.trc, trial_0-100_filt_butterworth.trc\)"):
         joints_file(tmp_path, None)
+
+
+class _Joints(LandmarkSource):
+    """Fixed joints at frame 0, for the torso check alone."""
+
+    def __init__(self, names, known):
+        self.names, self.known = names, known
+
+    def read(self, session, frames):
+        positions = np.where(np.array(self.known)[:, None], np.arange(3.0), np.nan)
+        return Landmarks(self.names, [0], positions[None], source="the joints")
+
+
+def test_body_parts_are_held_only_where_the_joints_name_a_torso_at_the_fitted_frame():
+    human = ("LShoulder", "RShoulder", "RHip", "LHip", "Nose")
+    assert missing_torso(_Joints(human, [True] * 5), None, 0) is None
+    synthetic = ("shoulder_left", "shoulder_right", "hip_right", "hip_left")  # mmcsplat synth's joints
+    assert missing_torso(_Joints(synthetic, [True] * 4), None, 0) is None
+    # A detection missed in all but one camera at the fitted frame, and an animal's keypoints: said, not an error after the fit.
+    assert missing_torso(_Joints(human, [True, True, False, True, True]), None, 0) == "the joints at frame 0: RHip not known there"
+    mouse = ("snout", "ear_left", "ear_right", "tailbase")
+    assert missing_torso(_Joints(mouse, [True] * 4), None, 0) == ("the joints at frame 0: no LShoulder, RShoulder, RHip, LHip among "
+                                                                  "snout, ear_left, ear_right, tailbase")

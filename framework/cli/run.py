@@ -6,7 +6,7 @@ recorded plates; else from the subject's motion; or with the segmenter --segment
 subject masked out and refines the masks against them (not --segmenter's), fits the first
 frame with the start region sized from the masks' visual hull, tracks the sequence, evaluates on the
 held-out cameras, carries the joints of a TRC file (the capture's single *.trc, else Pose2Sim's pose-3d/*.trc, or --joints; a synthetic
-capture's true joints without one) and scores them against it and the keypoints, renders the tracking figure and the landmark overlay, and writes the
+capture's true joints without one; else its 2D keypoints triangulated) and scores them against it and the keypoints, renders the tracking figure and the landmark overlay, and writes the
 report. Steps already done in OUT are reused, so a rerun resumes; docs/real-data.md walks through it.
 """
 
@@ -39,7 +39,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                  "trial (--reader-set) name the keypoints' files too unless this gives theirs", dest="keypoint_options", flag="--keypoints-set")
     parser.add_argument("--joints", help="TRC file of joints to carry as landmarks (default: the capture's single *.trc, else the single one in "
                         "Pose2Sim's pose-3d/, else a "
-                        "synthetic capture's true joints from its ground_truth.zarr)")
+                        "synthetic capture's true joints from its ground_truth.zarr, else the 2D keypoints triangulated)")
     parser.add_argument("--segmenter", metavar="NAME", help="make every camera's masks with this segmenter plugin, e.g. onnx-semantic with "
                         "a person-segmentation model (`mmcsplat plugins --show segmenter:NAME`), instead of from keypoints, plates or motion")
     add_settings(parser, "a parameter of the --segmenter, e.g. model=person.onnx", dest="segmenter_options", flag="--segmenter-set")
@@ -57,7 +57,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"learning rate of the means while tracking, times the scene scale (default {TRACK_MEANS_LR:g}: ten times the fit's)")
     parser.add_argument("--track-parts", type=float, default=TRACK_LAMBDA_PARTS, metavar="WEIGHT",
                         help=f"weight of the length prior within body parts, found from the joints' first frame (default {TRACK_LAMBDA_PARTS:g}; "
-                        "0: off; without joints there are no parts)")
+                        "0: off; none where the joints name no shoulders and hips at the fitted frame)")
     parser.add_argument("--track-flow-gain", type=float, default=TRACK_FLOW_GAIN, metavar="GAIN",
                         help=f"the optical flow's lifted displacement times this starts each tracked frame (default {TRACK_FLOW_GAIN:g}: "
                         "the flow reports about three quarters of a real limb's motion, and the fit does not close the gap; 1: as measured)")

@@ -19,14 +19,16 @@ flow → flow-guided track → landmarks → evaluate → renders → report.
   rig centre plus 10 cm, never below the configuration's), so an adult or a mouse fits like an infant.
 - Track: ``iterative`` at :data:`~mmcsplat.training.frame_steps.STEPS_PER_SECOND` steps a second of video
   (:func:`~mmcsplat.training.frame_steps.steps_per_frame`: 50 a frame at 60 fps, 100 at 30) and :data:`TRACK_MEANS_LR`, each frame started from the optical flow's lifted motion
-  times :data:`TRACK_FLOW_GAIN`, and with joints the body's parts held at their lengths
+  times :data:`TRACK_FLOW_GAIN`, and with a human's joints the body's parts held at their lengths
   (:data:`TRACK_LAMBDA_PARTS`). Keypoint guidance (``--track-keypoints WEIGHT``) pulls the tracks towards the
   training cameras' keypoints; it is off by default, since infants are where detectors fail. The fit's
   configuration carries these settings as its ``[dynamics]`` table, so RUN/run.json holds them and
   ``mmcsplat track DIR/run`` re-tracks as ``run`` did.
 - Landmarks: a TRC of joints (``--joints FILE``, default the single ``CAPTURE/*.trc``, else ``CAPTURE/pose-3d/*.trc``), else a synthetic
-  capture's true joints (its ``ground_truth.zarr``), bound at the fitted frame, scored against their later
-  frames and against the keypoints in every camera.
+  capture's true joints (its ``ground_truth.zarr``), else the 2D keypoints' own triangulation (what a capture
+  with detections and no 3D joints has), bound at the fitted frame, scored against their later frames and
+  against the keypoints in every camera. The same joints at the fitted frame give the body's parts, where
+  they name its shoulders and hips there.
 
 Every step writes atomically and is skipped on a rerun when its outputs are newer than its inputs, as in
 the demo; ``DIR/run.json`` is not this file — the settings are recorded in ``DIR/capture.json`` once a
@@ -51,6 +53,7 @@ from mmcsplat.pipeline.capture_session import (
     joints_source,
     keypoint_folder,
     keypoint_source,
+    missing_torso,
     prepare_capture_session,
 )
 from mmcsplat.pipeline.image_scale import AUTO_SCALE, resolve_scale
@@ -179,6 +182,7 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     from mmcsplat.pipeline.segment import BuiltSegmenter
     from mmcsplat.pipeline.track import dynamics_choice, track_run
     from mmcsplat.storage.session import SessionReader
+    from mmcsplat.training.settings import FitSettings
 
     capture, out = Path(capture).resolve(), Path(out).resolve()
     if not capture.is_dir():
@@ -201,11 +205,13 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
         extra = {key: value for key, value in source.items() if key not in ("name", "folder", "files")}
         log(f"run: keypoints: {source['name']} from {keypoints}" + (f" ({', '.join(f'{key}={value}' for key, value in extra.items())})"
                                                                   if extra else ""))
-    joints = joints_source(capture, settings.joints)
+    # Without a TRC or a synthetic truth, the 2D keypoints' own triangulation: what a capture with detections only has.
+    joints = joints_source(capture, settings.joints) or source
+    joint_params = {key: value for key, value in joints.items() if key != "name"} if joints else {}
+    if joints is not None and joints is source:
+        log("run: joints: the keypoints' own triangulation (the capture has no TRC): bound at the fitted frame, carried, and scored "
+            "against it and the keypoints")
     tracking = [f"dynamics.means_lr={settings.track_means_lr}", f"dynamics.flow_gain={settings.track_flow_gain}"]
-    if joints is not None and settings.track_lambda_parts > 0:
-        tracking += [f"dynamics.lambda_parts={settings.track_lambda_parts}", f"dynamics.skeleton.name={joints['name']}",
-                     quoted_override("dynamics.skeleton.path", joints["path"])]
     if settings.track_keypoints:  # a negative weight is refused by the dynamics' own check below
         tracking += guidance_overrides(settings.track_keypoints, source, capture)
 
@@ -240,7 +246,7 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     session, run = out / "session.zarr", out / "run"
 
     @functools.cache
-    def session_tracking() -> list[str]:
+    def session_steps() -> list[str]:
         """The tracking overrides with the iterations this session's frame rate gives (said once)."""
         if settings.track_iterations != AUTO_STEPS:
             return tracked_with(provisional)
@@ -249,6 +255,20 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
         log(f"run: tracking at {iterations} steps a frame ({STEPS_PER_SECOND:g} a second of video at {fps:g} fps, "
             f"{FEWEST_STEPS} at least)")
         return tracked_with(iterations)
+
+    @functools.cache
+    def session_tracking() -> list[str]:
+        """The tracking overrides for this session: its steps a frame, and the body's parts where the joints
+        name a torso at the fitted frame (said once when they do not)."""
+        if joints is None or settings.track_lambda_parts == 0:
+            return session_steps()
+        frame = FitSettings.from_config(fit_config).frame
+        missing = missing_torso(default_registry().create("landmarks", joints["name"], **joint_params), SessionReader(session), frame)
+        if missing is not None:
+            log(f"run: no body parts held: {missing}")
+            return session_steps()
+        return [*session_steps(), f"dynamics.lambda_parts={settings.track_lambda_parts}", f"dynamics.skeleton.name={joints['name']}",
+                *(quoted_override(f"dynamics.skeleton.{key}", value) for key, value in joint_params.items())]
 
     if not session.exists():
         capture_reader(capture, reader_options=reader_options)
@@ -282,7 +302,7 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
                                    f"in one of {KEYPOINT_FOLDERS_NAMED} or --keypoints)") from error
 
     def landmarks() -> None:
-        track_landmarks(run, joints["name"], {"path": joints["path"]}, keypoints=source["name"] if source else None,
+        track_landmarks(run, joints["name"], joint_params, keypoints=source["name"] if source else None,
                         keypoint_params=keypoint_params)
 
     renders = run / RENDERS_DIR

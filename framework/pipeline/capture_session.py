@@ -14,8 +14,12 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from mmcsplat.pipeline.image_scale import AUTO_SCALE
 from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.plugin_api.interfaces import LandmarkSource
+from mmcsplat.scene.human_skeleton import TORSO, TORSO_NAMINGS
 from mmcsplat.storage.calibration import AUTO_UNITS
 from mmcsplat.storage.ground_truth import GROUND_TRUTH, GroundTruthReader
 
@@ -68,6 +72,21 @@ def joints_source(capture: Path, given: str | None) -> dict[str, str] | None:
         return {"name": "trc", "path": str(trc)}
     truth = capture / GROUND_TRUTH
     return {"name": "synthetic", "path": str(truth.resolve())} if truth.is_dir() and GroundTruthReader(truth).has("joints") else None
+
+
+def missing_torso(source: LandmarkSource, session: SessionReader, frame: int) -> str | None:
+    """Why the joints ``source`` reads name no torso at session ``frame`` to size a human's parts by (its corners,
+    :data:`~mmcsplat.scene.human_skeleton.TORSO_NAMINGS`, unknown there: an animal's keypoints, or detections missed in
+    all but one camera), or None when they do."""
+    landmarks = source.read(session, [frame])
+    known = {name for name, position in zip(landmarks.names, landmarks.at(frame), strict=True) if np.isfinite(position).all()}
+    if any(all(name in known for name in corners) for corners in TORSO_NAMINGS):
+        return None
+    corners = next((corners for corners in TORSO_NAMINGS if any(name in landmarks.names for name in corners)), TORSO)
+    lacking = [name for name in corners if name not in known]
+    named = [name for name in lacking if name in landmarks.names]
+    return (f"{landmarks.source or 'the joints'} at frame {frame}: " + (f"{', '.join(named)} not known there" if named else
+            f"no {', '.join(lacking)} among {', '.join(landmarks.names[:6])}{'…' if len(landmarks.names) > 6 else ''}"))
 
 
 def keypoint_source(path: Path) -> dict[str, Any]:

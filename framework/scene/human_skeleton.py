@@ -16,6 +16,10 @@ LIMB_BONES: tuple[tuple[str, str], ...] = (
 FEET: tuple[tuple[str, ...], ...] = (("LAnkle", "LHeel", "LBigToe", "LSmallToe"), ("RAnkle", "RHeel", "RBigToe", "RSmallToe"))
 #: The torso's corners, in order around it (a polygon).
 TORSO: tuple[str, ...] = ("LShoulder", "RShoulder", "RHip", "LHip")
+#: The synthetic infant's names of the torso's corners (``mmcsplat synth``'s joints), in :data:`TORSO`'s order.
+SYNTHETIC_TORSO: tuple[str, ...] = ("shoulder_left", "shoulder_right", "hip_right", "hip_left")
+#: The torso's corners by each naming a body's joints come in.
+TORSO_NAMINGS: tuple[tuple[str, ...], ...] = (TORSO, SYNTHETIC_TORSO)
 #: The head's points, the one that best stands for the whole head first.
 HEAD: tuple[str, ...] = ("Head", "Nose", "LEye", "REye", "LEar", "REar")
 

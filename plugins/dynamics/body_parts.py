@@ -24,14 +24,12 @@ import numpy as np
 import torch
 
 from mmcsplat.plugin_api.errors import InputError
-from mmcsplat.scene.human_skeleton import FEET, HEAD, LIMB_BONES, TORSO
+from mmcsplat.scene.human_skeleton import FEET, HEAD, LIMB_BONES, SYNTHETIC_TORSO, TORSO, TORSO_NAMINGS
 from mmcsplat.scene.human_skeleton import torso_length as human_torso_length
 
 from .rigidity import EPSILON, gather_rows
 from .rigidity_kernel import Stretch, StretchPairs
 
-#: The synthetic infant's names of the torso's corners, in human_skeleton.TORSO's order.
-SYNTHETIC_TORSO = ("shoulder_left", "shoulder_right", "hip_right", "hip_left")
 #: The neck, base to crown: without it the Gaussians between the torso and the head belong to no part, and
 #: on the Pose2Sim demo the tracked head sank 37 mm into the shoulders (docs/results.md, "The neck").
 NECK: tuple[str, str] = ("Neck", "Head")
@@ -54,7 +52,7 @@ def _segment_distances(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.n
 
 def torso_length(joints: Mapping[str, np.ndarray]) -> float | None:
     """Mid-shoulders to mid-hips, by either naming; ``None`` when the skeleton lacks them."""
-    for corners in (TORSO, SYNTHETIC_TORSO):
+    for corners in TORSO_NAMINGS:
         if all(name in joints for name in corners):
             named = dict(zip(TORSO, corners, strict=True))
             return float(human_torso_length(lambda name: joints[named[name]]))
