@@ -92,4 +92,6 @@ def mmcsplat_landmarks() -> list[Registration]:
                      "DeepLabCut CSV or HDF5 keypoints per camera (anipose's pose-2d), triangulated in the session's cameras"),
         Registration("sleap", "mmcsplat.plugins.landmarks.sleap:SleapKeypoints",
                      "SLEAP keypoints per camera (.analysis.h5 or .slp), triangulated in the session's cameras"),
+        Registration("freemocap", "mmcsplat.plugins.landmarks.freemocap:FreeMoCapKeypoints",
+                     "FreeMoCap's 2D keypoints of every camera (MediaPipe or YOLO, one .npy file), triangulated in the session's cameras"),
     ]

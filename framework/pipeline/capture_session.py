@@ -52,9 +52,17 @@ KEYPOINT_FOLDERS = ("pose_2d", "pose-associated", "pose-sync", "pose", "pose-2d-
 KEYPOINT_FOLDERS_NAMED = ", ".join(f"{name}/" for name in KEYPOINT_FOLDERS)
 
 
+#: Where a FreeMoCap recording keeps its trackers' 2D keypoints: one file for every camera.
+FREEMOCAP_KEYPOINTS = "output_data/raw_data/*2dData_numCams_numFrames_numTrackedPoints_pixelXY.npy"
+#: The keypoint suffix of a FreeMoCap 2D file, which :func:`keypoint_source` reads with the ``freemocap`` source.
+FREEMOCAP_SUFFIX = ".npy"
+
+
 def keypoint_folder(capture: Path, given: str | None) -> Path | None:
-    """``given``, else the first of :data:`KEYPOINT_FOLDERS` that ``capture`` holds (None when it holds none)."""
-    return next((path for name in KEYPOINT_FOLDERS if (path := found(capture, given, name, "keypoints")) is not None), None)
+    """``given``, else the first of :data:`KEYPOINT_FOLDERS` that ``capture`` holds, else a FreeMoCap recording's
+    2D file (:data:`FREEMOCAP_KEYPOINTS`); None when it holds none."""
+    return next((path for name in KEYPOINT_FOLDERS if (path := found(capture, given, name, "keypoints")) is not None), None) \
+        or found(capture, None, FREEMOCAP_KEYPOINTS, "FreeMoCap 2D keypoints file")
 
 
 def joints_file(capture: Path, given: str | None) -> Path | None:
@@ -91,7 +99,7 @@ def missing_torso(source: LandmarkSource, session: SessionReader, frame: int) ->
 
 def keypoint_source(path: Path) -> dict[str, Any]:
     """The landmarks plugin (``name``) and parameters that read the 2D keypoints at ``path``: a SLEAP file
-    (``.slp``, ``.analysis.h5``) or a DeepLabCut one (``.csv``, ``.h5``), or a folder of OpenPose camera folders
+    (``.slp``, ``.analysis.h5``), a DeepLabCut one (``.csv``, ``.h5``) or FreeMoCap's (``.npy``), or a folder of OpenPose camera folders
     of JSON files, else of SLEAP files, else of DeepLabCut files."""
     lower = path.name.lower()
     if path.is_file():
@@ -99,8 +107,10 @@ def keypoint_source(path: Path) -> dict[str, Any]:
             return {"name": "sleap", "files": [str(path)]}
         if lower.endswith((".csv", ".h5")):
             return {"name": "deeplabcut", "files": [str(path)]}
-        raise InputError(f"keypoint file {path} is neither SLEAP (.slp, .analysis.h5) nor DeepLabCut (.csv, .h5): give one of those, "
-                         "or a folder of OpenPose camera folders")
+        if lower.endswith(FREEMOCAP_SUFFIX):
+            return {"name": "freemocap", "path": str(path)}
+        raise InputError(f"keypoint file {path} is neither SLEAP (.slp, .analysis.h5), DeepLabCut (.csv, .h5) nor FreeMoCap (.npy): give "
+                         "one of those, or a folder of OpenPose camera folders")
     entries = sorted(path.iterdir())
     if any(entry.is_dir() and any(entry.glob("*.json")) for entry in entries):
         return {"name": "openpose", "folder": str(path)}

@@ -1,0 +1,158 @@
+"""2D keypoints as FreeMoCap stores them, one NumPy file for every camera, triangulated in the session's cameras.
+
+A FreeMoCap recording keeps its trackers' 2D detections in
+``output_data/raw_data/{tracker}_2dData_numCams_numFrames_numTrackedPoints_pixelXY.npy`` (FreeMoCap 1.4 on;
+before it ``mediapipe2dData_numCams_numFrames_numTrackedPoints_pixelXY.npy``, the name FreeMoCap itself still
+falls back to): an array [cameras, frames, points, 3] of x, y in the pixels of the recording's
+``synchronized_videos`` and a third value that is not a confidence (MediaPipe's relative depth; YOLO's NaN).
+Row k of a camera is the k-th frame of its video. Undetected points are NaN; FreeMoCap stores no confidence,
+so a detected point counts as confidence 1.
+
+- **Points**: MediaPipe Holistic's 553 (the body's 33, then both hands and the face; only the body is read,
+  which comes first in every FreeMoCap version) or YOLO's 17 COCO keypoints, told apart by the count. Their
+  names become OpenPose's where OpenPose has the joint (``left_knee`` → ``LKnee``; MediaPipe's
+  ``left_foot_index``, the tip of the foot, → ``LBigToe``), so the masks, body parts and movement
+  measures that know a human body by OpenPose's names know this one; the others keep MediaPipe's names.
+- **Pixels**: MediaPipe's normalised coordinates times the image size put a pixel's centre at +0.5, so
+  0.5 is taken off to reach OpenCV's (and mmcsplat's) integer centres.
+- **Cameras**: the array's cameras are the recording's ``synchronized_videos/*.mp4`` in FreeMoCap's order
+  (names sorted ignoring case: FreeMoCap ≥ 1.6 and its tracker sort them so; earlier versions took the
+  folder's listing order, which ``camera_order`` states where it differed); each session camera is matched
+  to its video by name, as the videos reader matched it (the calibration FreeMoCap writes names each camera
+  after its video).
+
+FreeMoCap records no skeleton edges; the ``keypoints`` segmenter draws a human from OpenPose's names.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Sequence
+from pathlib import Path
+
+import attrs
+import numpy as np
+
+from mmcsplat.plugin_api.errors import InputError, MissingFileError
+from mmcsplat.plugin_api.interfaces import KeypointObservations
+from mmcsplat.plugin_api.parameters import parameter
+from mmcsplat.storage.camera_names import KEYPOINTS_CAMERA_MAP, match_cameras
+from mmcsplat.storage.session import SessionReader
+
+from .subject import SUBJECT_DOC, subject_observations
+from .triangulation import TriangulatedKeypoints, people_to_session_pixels
+
+#: FreeMoCap's 2D file in a recording, any tracker's (``mediapipe_``, ``yolo_``) and the name before 1.4.
+FILE_PATTERN = re.compile(r"(?:\w+_)?2dData_numCams_numFrames_numTrackedPoints_pixelXY\.npy$|mediapipe2dData_numCams_numFrames_numTrackedPoints_pixelXY\.npy$")
+#: Where a recording keeps it, and its videos.
+RAW_DATA, VIDEOS = Path("output_data") / "raw_data", "synchronized_videos"
+
+_SIDES = {"left": "L", "right": "R"}
+#: MediaPipe Pose's 33 landmarks, in order.
+MEDIAPIPE_BODY = (
+    "nose", "left_eye_inner", "left_eye", "left_eye_outer", "right_eye_inner", "right_eye", "right_eye_outer", "left_ear", "right_ear",
+    "mouth_left", "mouth_right", "left_shoulder", "right_shoulder", "left_elbow", "right_elbow", "left_wrist", "right_wrist",
+    "left_pinky", "right_pinky", "left_index", "right_index", "left_thumb", "right_thumb", "left_hip", "right_hip", "left_knee",
+    "right_knee", "left_ankle", "right_ankle", "left_heel", "right_heel", "left_foot_index", "right_foot_index",
+)
+#: MediaPipe Holistic's points as FreeMoCap stores them: the body, the right and left hands, the face with its irises.
+MEDIAPIPE_POINTS = 33 + 21 + 21 + 478
+#: COCO's 17 keypoints, YOLO's pose model's order.
+COCO = ("nose", "left_eye", "right_eye", "left_ear", "right_ear", "left_shoulder", "right_shoulder", "left_elbow", "right_elbow",
+        "left_wrist", "right_wrist", "left_hip", "right_hip", "left_knee", "right_knee", "left_ankle", "right_ankle")
+#: The joints OpenPose names too, by their MediaPipe and COCO name's part after the side.
+_OPENPOSE = {"eye": "Eye", "ear": "Ear", "shoulder": "Shoulder", "elbow": "Elbow", "wrist": "Wrist", "hip": "Hip", "knee": "Knee",
+             "ankle": "Ankle", "heel": "Heel", "foot_index": "BigToe"}
+#: MediaPipe's pixel centres are at +0.5 (module docstring).
+PIXEL_CENTRE = 0.5
+
+
+def openpose_name(name: str) -> str:
+    """OpenPose's name for a MediaPipe or COCO keypoint where OpenPose has the joint, else the name itself."""
+    if name == "nose":
+        return "Nose"
+    side, _, part = name.partition("_")
+    return _SIDES[side] + _OPENPOSE[part] if side in _SIDES and part in _OPENPOSE else name
+
+
+def read_freemocap_2d(path: Path) -> tuple[tuple[str, ...], np.ndarray]:
+    """(keypoint names, [cameras, frames, K, 2] pixels with OpenCV's integer centres, NaN where undetected) of
+    the body in a FreeMoCap 2D file."""
+    try:
+        data = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as error:
+        raise InputError(f"{path}: not a NumPy array file ({error})") from None
+    if data.ndim != 4 or data.shape[3] not in (2, 3):
+        raise InputError(f"{path}: shape {list(data.shape)}, expected [cameras, frames, points, 3] as FreeMoCap writes it")
+    if data.shape[2] == MEDIAPIPE_POINTS:
+        names = MEDIAPIPE_BODY
+    elif data.shape[2] == len(COCO):
+        names = COCO
+    else:
+        raise InputError(f"{path}: {data.shape[2]} points, neither MediaPipe Holistic's {MEDIAPIPE_POINTS} nor YOLO's {len(COCO)}: "
+                         "no names known for them")
+    pixels = data[:, :, :len(names), :2].astype(np.float64) - PIXEL_CENTRE
+    return tuple(openpose_name(name) for name in names), pixels
+
+
+@attrs.frozen
+class FreeMoCapKeypoints(TriangulatedKeypoints):
+    """FreeMoCap's 2D keypoints of every camera, from one file, triangulated (module docstring)."""
+
+    path: str = parameter(doc="the 2D file (output_data/raw_data/mediapipe_2dData_numCams_numFrames_numTrackedPoints_pixelXY.npy)",
+                          kw_only=True)
+    videos: str | None = parameter(None, doc="the recording's synchronized_videos folder, whose videos are the file's cameras (default: "
+                                             "the one beside the file's output_data)")
+    camera_order: tuple[str, ...] | None = parameter(None, doc="the session's cameras in the file's order, where FreeMoCap's order was "
+                                                              "not the videos' names sorted (recordings before FreeMoCap 1.6)")
+    subject: str | None = parameter(None, doc=SUBJECT_DOC)
+
+    @property
+    def described(self) -> str:
+        return f"FreeMoCap keypoints {self.path}"
+
+    def _videos_folder(self) -> Path:
+        if self.videos is not None:
+            return Path(self.videos)
+        path = Path(self.path).resolve()
+        return path.parents[2] / VIDEOS if len(path.parents) > 2 else path.parent / VIDEOS
+
+    def rows(self, session: SessionReader, count: int) -> dict[str, int]:
+        """Each session camera's row of the file's ``count`` cameras."""
+        if self.camera_order is not None:
+            if sorted(self.camera_order) != sorted(session.camera_names) or len(self.camera_order) != count:
+                raise InputError(f"{self.path}: camera_order {list(self.camera_order)} must list the session's cameras "
+                                 f"({', '.join(session.camera_names)}) once each, one for each of the file's {count}")
+            return {name: k for k, name in enumerate(self.camera_order)}
+        folder = self._videos_folder()
+        if not folder.is_dir():
+            raise MissingFileError(f"{self.path}: the recording's videos, which order its cameras, are not at {folder}: give videos=FOLDER "
+                                   "or camera_order")
+        videos = sorted((p for p in folder.iterdir() if p.is_file() and p.suffix.lower() == ".mp4"), key=lambda p: p.name.lower())
+        if len(videos) != count:
+            raise InputError(f"{self.path}: {count} cameras, but {folder} holds {len(videos)} .mp4 videos "
+                             f"({', '.join(p.name for p in videos) or 'none'}): give camera_order")
+        row = {path: k for k, path in enumerate(videos)}
+        labels = {folder / path.stem: path for path in videos}
+        matched = match_cameras(session.camera_names, list(labels), "FreeMoCap video", folder, set_by=KEYPOINTS_CAMERA_MAP)
+        return {name: row[labels[label]] for name, label in matched.items()}
+
+    def observations(self, session: SessionReader, frames: Sequence[int]) -> list[KeypointObservations]:
+        """The subject's keypoints in every camera, in the stored images' pixels."""
+        path = Path(self.path)
+        if not path.is_file():
+            raise MissingFileError(f"freemocap keypoints: file {path} does not exist")
+        names, pixels = read_freemocap_2d(path)
+        rows = self.rows(session, len(pixels))
+        recorded = session.recorded_cameras()
+        people = []  # [camera][frame]: [P, L, 3] in the stored images' pixels
+        for name in session.camera_names:
+            camera, table = session.camera(name), pixels[rows[name]]
+            seen = []
+            for number in session.source_frames(name, frames):
+                found = table[number] if 0 <= number < len(table) else np.full((len(names), 2), np.nan)
+                detected = np.isfinite(found).all(axis=1)
+                seen.append(np.concatenate([np.where(detected[:, None], found, 0.0), detected[:, None].astype(np.float64)], axis=1)[None]
+                            if detected.any() else np.zeros((0, len(names), 3)))
+            people.append(people_to_session_pixels(seen, recorded.get(name), camera))
+        return subject_observations(session, frames, people, names, 0.5, subject=self.subject)
