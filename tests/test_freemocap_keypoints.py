@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import zarr
 from fitting_scene import write_session
 from test_keypoints import FIGURE, FRAMES, figure_at
 
@@ -113,3 +114,18 @@ def test_run_finds_a_freemocap_recordings_keypoints(session, tmp_path):
     assert keypoint_source(path) == {"name": "freemocap", "path": str(path)}
     (tmp_path / "pose_2d").mkdir()  # a Pose2Sim folder beside it comes first, as before
     assert keypoint_folder(tmp_path, None) == tmp_path / "pose_2d"
+
+
+def test_each_camera_is_the_video_it_was_ingested_from(tmp_path):
+    """FreeMoCap names videos after the recording (``…_Camera_000.mp4``), the calibration its cameras otherwise: the
+    session's record of which video each camera came from pairs them, not their names."""
+    session = write_session(tmp_path / "session.zarr", frames=FRAMES, zoom=4)
+    reader = SessionReader(session)
+    videos = {name: f"rec_Camera_{k:03d}.mp4" for k, name in enumerate(reversed(reader.camera_names))}
+    group = zarr.open_group(str(session), mode="r+")
+    group.attrs["provenance"] = {**group.attrs["provenance"], "reader": {"videos": {name: f"/elsewhere/{video}" for name, video in videos.items()}}}
+    path = write_recording(tmp_path / "recording", reader, sorted(videos, key=lambda name: videos[name]))
+    for stem in reader.camera_names:  # the stand-ins named after the cameras give way to the recording's own names
+        (tmp_path / "recording" / "synchronized_videos" / f"{stem}.mp4").rename(tmp_path / "recording" / "synchronized_videos" / videos[stem])
+    landmarks = default_registry().create("landmarks", "freemocap", path=str(path)).read(SessionReader(session), range(FRAMES))
+    np.testing.assert_allclose(landmarks.positions, _expected(MEDIAPIPE_BODY), atol=1e-6)

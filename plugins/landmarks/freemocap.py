@@ -17,9 +17,9 @@ so a detected point counts as confidence 1.
   0.5 is taken off to reach OpenCV's (and mmcsplat's) integer centres.
 - **Cameras**: the array's cameras are the recording's ``synchronized_videos/*.mp4`` in FreeMoCap's order
   (names sorted ignoring case: FreeMoCap ≥ 1.6 and its tracker sort them so; earlier versions took the
-  folder's listing order, which ``camera_order`` states where it differed); each session camera is matched
-  to its video by name, as the videos reader matched it (the calibration FreeMoCap writes names each camera
-  after its video).
+  folder's listing order, which ``camera_order`` states where it differed); each session camera is the
+  video it was ingested from, or for a session made elsewhere the video its name matches (or ``camera_map``
+  names).
 
 FreeMoCap records no skeleton edges; the ``keypoints`` segmenter draws a human from OpenPose's names.
 """
@@ -103,6 +103,8 @@ class FreeMoCapKeypoints(TriangulatedKeypoints):
                           kw_only=True)
     videos: str | None = parameter(None, doc="the recording's synchronized_videos folder, whose videos are the file's cameras (default: "
                                              "the one beside the file's output_data)")
+    camera_map: dict | None = parameter(None, doc="session camera name → its video's name (without .mp4), where a session not made from "
+                                             "these videos names its cameras otherwise")
     camera_order: tuple[str, ...] | None = parameter(None, doc="the session's cameras in the file's order, where FreeMoCap's order was "
                                                               "not the videos' names sorted (recordings before FreeMoCap 1.6)")
     subject: str | None = parameter(None, doc=SUBJECT_DOC)
@@ -132,10 +134,14 @@ class FreeMoCapKeypoints(TriangulatedKeypoints):
         if len(videos) != count:
             raise InputError(f"{self.path}: {count} cameras, but {folder} holds {len(videos)} .mp4 videos "
                              f"({', '.join(p.name for p in videos) or 'none'}): give camera_order")
-        row = {path: k for k, path in enumerate(videos)}
+        row = {path.name: k for k, path in enumerate(videos)}
+        # The video each camera was ingested from, where the session came from these videos; else matched by name.
+        ingested = {name: Path(video).name for name, video in session.provenance.get("reader", {}).get("videos", {}).items()}
+        if all(ingested.get(name) in row for name in session.camera_names):
+            return {name: row[ingested[name]] for name in session.camera_names}
         labels = {folder / path.stem: path for path in videos}
-        matched = match_cameras(session.camera_names, list(labels), "FreeMoCap video", folder, set_by=KEYPOINTS_CAMERA_MAP)
-        return {name: row[labels[label]] for name, label in matched.items()}
+        matched = match_cameras(session.camera_names, list(labels), "FreeMoCap video", folder, self.camera_map, KEYPOINTS_CAMERA_MAP)
+        return {name: row[labels[label].name] for name, label in matched.items()}
 
     def observations(self, session: SessionReader, frames: Sequence[int]) -> list[KeypointObservations]:
         """The subject's keypoints in every camera, in the stored images' pixels."""
