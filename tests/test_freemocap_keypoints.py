@@ -15,8 +15,10 @@ from test_keypoints import FIGURE, FRAMES, figure_at
 from mmcsplat.configuration.registry import default_registry
 from mmcsplat.pipeline.capture_session import keypoint_folder, keypoint_source
 from mmcsplat.plugin_api.errors import InputError
-from mmcsplat.plugins.landmarks.freemocap import COCO, MEDIAPIPE_BODY, MEDIAPIPE_POINTS, openpose_name
+from mmcsplat.plugins.landmarks.freemocap import MEDIAPIPE_POINTS
+from mmcsplat.plugins.landmarks.keypoint_models import COCO, MEDIAPIPE_BODY
 from mmcsplat.plugins.landmarks.openpose import MODELS
+from mmcsplat.scene.human_skeleton import openpose_name
 from mmcsplat.storage.session import SessionReader
 
 RAW = Path("output_data") / "raw_data"

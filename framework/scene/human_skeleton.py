@@ -24,6 +24,24 @@ TORSO_NAMINGS: tuple[tuple[str, ...], ...] = (TORSO, SYNTHETIC_TORSO)
 HEAD: tuple[str, ...] = ("Head", "Nose", "LEye", "REye", "LEar", "REar")
 
 
+#: Joints OpenPose names too, by the part of a MediaPipe, COCO or Halpe name after its side (``left_knee``).
+_SIDED = {"eye": "Eye", "ear": "Ear", "shoulder": "Shoulder", "elbow": "Elbow", "wrist": "Wrist", "hip": "Hip", "knee": "Knee",
+          "ankle": "Ankle", "heel": "Heel", "big_toe": "BigToe", "small_toe": "SmallToe", "foot_index": "BigToe"}
+#: The same for joints with no side.
+_CENTRAL = {"nose": "Nose", "neck": "Neck", "head": "Head", "hip": "MidHip"}
+_SIDES = {"left": "L", "right": "R"}
+
+
+def openpose_name(name: str) -> str:
+    """OpenPose's name for a keypoint named the MediaPipe, COCO or Halpe way (``left_knee`` → ``LKnee``; MediaPipe's
+    ``left_foot_index``, the tip of the foot, → ``LBigToe``; Halpe's ``hip``, mid-hips, → ``MidHip``) where OpenPose
+    has the joint, else the name itself: masks, body parts and movement measures know a body by OpenPose's names."""
+    if name in _CENTRAL:
+        return _CENTRAL[name]
+    side, _, part = name.partition("_")
+    return _SIDES[side] + _SIDED[part] if side in _SIDES and part in _SIDED else name
+
+
 def fixed_bones(names: tuple[str, ...] | list[str]) -> list[tuple[str, str]]:
     """The pairs among ``names`` whose distance no pose changes: the limbs' long bones, each ankle to its
     heel and toes, hip to hip, the neck to each shoulder (the collarbones), the neck to the head, and the

@@ -26,7 +26,6 @@ FreeMoCap records no skeleton edges; the ``keypoints`` segmenter draws a human f
 
 from __future__ import annotations
 
-import re
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -36,43 +35,21 @@ import numpy as np
 from mmcsplat.plugin_api.errors import InputError, MissingFileError
 from mmcsplat.plugin_api.interfaces import KeypointObservations
 from mmcsplat.plugin_api.parameters import parameter
+from mmcsplat.scene.human_skeleton import openpose_name
 from mmcsplat.storage.camera_names import KEYPOINTS_CAMERA_MAP, match_cameras
 from mmcsplat.storage.session import SessionReader
 
+from .keypoint_models import COCO, MEDIAPIPE_BODY
 from .subject import SUBJECT_DOC, subject_observations
 from .triangulation import TriangulatedKeypoints, people_to_session_pixels
 
-#: FreeMoCap's 2D file in a recording, any tracker's (``mediapipe_``, ``yolo_``) and the name before 1.4.
-FILE_PATTERN = re.compile(r"(?:\w+_)?2dData_numCams_numFrames_numTrackedPoints_pixelXY\.npy$|mediapipe2dData_numCams_numFrames_numTrackedPoints_pixelXY\.npy$")
-#: Where a recording keeps it, and its videos.
-RAW_DATA, VIDEOS = Path("output_data") / "raw_data", "synchronized_videos"
+#: Where a recording keeps its videos, beside ``output_data``.
+VIDEOS = "synchronized_videos"
 
-_SIDES = {"left": "L", "right": "R"}
-#: MediaPipe Pose's 33 landmarks, in order.
-MEDIAPIPE_BODY = (
-    "nose", "left_eye_inner", "left_eye", "left_eye_outer", "right_eye_inner", "right_eye", "right_eye_outer", "left_ear", "right_ear",
-    "mouth_left", "mouth_right", "left_shoulder", "right_shoulder", "left_elbow", "right_elbow", "left_wrist", "right_wrist",
-    "left_pinky", "right_pinky", "left_index", "right_index", "left_thumb", "right_thumb", "left_hip", "right_hip", "left_knee",
-    "right_knee", "left_ankle", "right_ankle", "left_heel", "right_heel", "left_foot_index", "right_foot_index",
-)
 #: MediaPipe Holistic's points as FreeMoCap stores them: the body, the right and left hands, the face with its irises.
 MEDIAPIPE_POINTS = 33 + 21 + 21 + 478
-#: COCO's 17 keypoints, YOLO's pose model's order.
-COCO = ("nose", "left_eye", "right_eye", "left_ear", "right_ear", "left_shoulder", "right_shoulder", "left_elbow", "right_elbow",
-        "left_wrist", "right_wrist", "left_hip", "right_hip", "left_knee", "right_knee", "left_ankle", "right_ankle")
-#: The joints OpenPose names too, by their MediaPipe and COCO name's part after the side.
-_OPENPOSE = {"eye": "Eye", "ear": "Ear", "shoulder": "Shoulder", "elbow": "Elbow", "wrist": "Wrist", "hip": "Hip", "knee": "Knee",
-             "ankle": "Ankle", "heel": "Heel", "foot_index": "BigToe"}
 #: MediaPipe's pixel centres are at +0.5 (module docstring).
 PIXEL_CENTRE = 0.5
-
-
-def openpose_name(name: str) -> str:
-    """OpenPose's name for a MediaPipe or COCO keypoint where OpenPose has the joint, else the name itself."""
-    if name == "nose":
-        return "Nose"
-    side, _, part = name.partition("_")
-    return _SIDES[side] + _OPENPOSE[part] if side in _SIDES and part in _OPENPOSE else name
 
 
 def read_freemocap_2d(path: Path) -> tuple[tuple[str, ...], np.ndarray]:
