@@ -94,4 +94,6 @@ def mmcsplat_landmarks() -> list[Registration]:
                      "SLEAP keypoints per camera (.analysis.h5 or .slp), triangulated in the session's cameras"),
         Registration("freemocap", "mmcsplat.plugins.landmarks.freemocap:FreeMoCapKeypoints",
                      "FreeMoCap's 2D keypoints of every camera (MediaPipe or YOLO, one .npy file), triangulated in the session's cameras"),
+        Registration("caliscope", "mmcsplat.plugins.landmarks.caliscope:CaliscopeKeypoints",
+                     "Caliscope's 2D keypoints of every camera (a body tracker's xy_TRACKER.csv), triangulated in the session's cameras"),
     ]

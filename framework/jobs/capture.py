@@ -5,8 +5,8 @@ flow → flow-guided track → landmarks → evaluate → renders → report.
 - Masks: the capture's own when it brings them for every training camera (Dynamic3DGaussians ``seg/``,
   a ``masks/`` folder per camera, RGBA alpha: whatever its reader ingests); else, with 2D keypoints
   (``--keypoints PATH``, default the capture's ``pose_2d/``, else Pose2Sim's ``pose-associated/``, ``pose-sync/``
-  or ``pose/``, else anipose's ``pose-2d-filtered/`` or ``pose-2d/``, else a FreeMoCap recording's 2D file (:func:`keypoint_folder`): a folder
-  of OpenPose camera folders, of SLEAP or of DeepLabCut files, or one such file, or FreeMoCap's; see :func:`keypoint_source`; their source's parameters
+  or ``pose/``, else anipose's ``pose-2d-filtered/`` or ``pose-2d/``, else a FreeMoCap or Caliscope recording's 2D file (:func:`keypoint_folder`):
+  a folder of OpenPose camera folders, of SLEAP or of DeepLabCut files, or one such file, or FreeMoCap's or Caliscope's; see :func:`keypoint_source`; their source's parameters
   ``--keypoints-set``, its ``camera_map`` and ``trial`` the reader's unless given: :func:`keypoints_with`) the skeleton-then-plate
   path of the ``keypoints`` segmenter; without, against the capture's recorded plates (``background``, method
   ``plate``) or, with nothing but videos and a calibration, the ``parallax`` segmenter (what the cameras

@@ -58,11 +58,28 @@ FREEMOCAP_KEYPOINTS = "output_data/raw_data/*2dData_numCams_numFrames_numTracked
 FREEMOCAP_SUFFIX = ".npy"
 
 
+#: Caliscope's body trackers (its calibration boards' aside), whose 2D keypoints a recording keeps in ``TRACKER/xy_TRACKER.csv``.
+CALISCOPE_BODY_TRACKERS = ("ONNX_*", "POSE", "HOLISTIC", "SIMPLE_HOLISTIC")
+#: How Caliscope names a tracker's 2D file, which :func:`keypoint_source` reads with the ``caliscope`` source.
+CALISCOPE_PREFIX = "xy_"
+
+
+def caliscope_keypoints(capture: Path) -> Path | None:
+    """A Caliscope recording's body tracker's 2D file (:data:`CALISCOPE_BODY_TRACKERS`); None when it has none, an error
+    naming them when it has several."""
+    files = sorted({path for tracker in CALISCOPE_BODY_TRACKERS for path in capture.glob(f"{tracker}/{CALISCOPE_PREFIX}{tracker}.csv")})
+    if len(files) > 1:
+        raise InputError(f"{capture}: several Caliscope trackers' keypoints ({', '.join(path.parent.name for path in files)}); choose one "
+                         "with --keypoints")
+    return files[0].resolve() if files else None
+
+
 def keypoint_folder(capture: Path, given: str | None) -> Path | None:
     """``given``, else the first of :data:`KEYPOINT_FOLDERS` that ``capture`` holds, else a FreeMoCap recording's
-    2D file (:data:`FREEMOCAP_KEYPOINTS`); None when it holds none."""
+    2D file (:data:`FREEMOCAP_KEYPOINTS`), else a Caliscope recording's (:func:`caliscope_keypoints`); None when it
+    holds none."""
     return next((path for name in KEYPOINT_FOLDERS if (path := found(capture, given, name, "keypoints")) is not None), None) \
-        or found(capture, None, FREEMOCAP_KEYPOINTS, "FreeMoCap 2D keypoints file")
+        or found(capture, None, FREEMOCAP_KEYPOINTS, "FreeMoCap 2D keypoints file") or caliscope_keypoints(capture)
 
 
 def joints_file(capture: Path, given: str | None) -> Path | None:
@@ -99,18 +116,20 @@ def missing_torso(source: LandmarkSource, session: SessionReader, frame: int) ->
 
 def keypoint_source(path: Path) -> dict[str, Any]:
     """The landmarks plugin (``name``) and parameters that read the 2D keypoints at ``path``: a SLEAP file
-    (``.slp``, ``.analysis.h5``), a DeepLabCut one (``.csv``, ``.h5``) or FreeMoCap's (``.npy``), or a folder of OpenPose camera folders
+    (``.slp``, ``.analysis.h5``), a DeepLabCut one (``.csv``, ``.h5``), FreeMoCap's (``.npy``) or Caliscope's (``xy_*.csv``), or a folder of OpenPose camera folders
     of JSON files, else of SLEAP files, else of DeepLabCut files."""
     lower = path.name.lower()
     if path.is_file():
         if lower.endswith((".slp", ".analysis.h5")):
             return {"name": "sleap", "files": [str(path)]}
+        if lower.startswith(CALISCOPE_PREFIX) and lower.endswith(".csv"):
+            return {"name": "caliscope", "path": str(path)}
         if lower.endswith((".csv", ".h5")):
             return {"name": "deeplabcut", "files": [str(path)]}
         if lower.endswith(FREEMOCAP_SUFFIX):
             return {"name": "freemocap", "path": str(path)}
-        raise InputError(f"keypoint file {path} is neither SLEAP (.slp, .analysis.h5), DeepLabCut (.csv, .h5) nor FreeMoCap (.npy): give "
-                         "one of those, or a folder of OpenPose camera folders")
+        raise InputError(f"keypoint file {path} is neither SLEAP (.slp, .analysis.h5), DeepLabCut (.csv, .h5), FreeMoCap (.npy) nor "
+                         "Caliscope (xy_*.csv): give one of those, or a folder of OpenPose camera folders")
     entries = sorted(path.iterdir())
     if any(entry.is_dir() and any(entry.glob("*.json")) for entry in entries):
         return {"name": "openpose", "folder": str(path)}
