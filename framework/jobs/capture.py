@@ -202,7 +202,7 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
             default_registry().create("landmarks", source["name"], **keypoint_params)
         except InputError as error:
             raise InputError(f"--keypoints-set: {error}") from error
-        extra = {key: value for key, value in source.items() if key not in ("name", "folder", "files")}
+        extra = {key: value for key, value in source.items() if key not in ("name", "folder", "files", "path")}
         log(f"run: keypoints: {source['name']} from {keypoints}" + (f" ({', '.join(f'{key}={value}' for key, value in extra.items())})"
                                                                   if extra else ""))
     # Without a TRC or a synthetic truth, the 2D keypoints' own triangulation: what a capture with detections only has.
