@@ -142,7 +142,8 @@ def test_tracking_with_the_parts_holds_their_lengths(scene):
                                 partners=8, reach=0.3, margin=0.02, seed=1)
         changes[name] = pairs.loss(torch.as_tensor(last)).item()
     assert summaries["free"] is None
-    assert summaries["held"]["parts"] == ["LShoulder–LElbow", "LElbow–LWrist", "LShoulder–RShoulder–RHip–LHip"] and min(summaries["held"]["gaussians"]) > 0
+    # The neck, which the skeleton lacks, between its shoulders.
+    assert summaries["held"]["parts"] == ["LShoulder–LElbow", "LElbow–LWrist", "LShoulder–RShoulder–RHip–LHip–Neck"] and min(summaries["held"]["gaussians"]) > 0
     assert changes["held"] < 0.5 * changes["free"], changes
 
 

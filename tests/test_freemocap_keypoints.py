@@ -15,10 +15,12 @@ from test_keypoints import FIGURE, FRAMES, figure_at
 from mmcsplat.configuration.registry import default_registry
 from mmcsplat.pipeline.capture_session import keypoint_folder, keypoint_source
 from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.plugins.dynamics.body_parts import HUMAN_PARTS, part_members
 from mmcsplat.plugins.landmarks.freemocap import MEDIAPIPE_POINTS
 from mmcsplat.plugins.landmarks.keypoint_models import COCO, MEDIAPIPE_BODY
 from mmcsplat.plugins.landmarks.openpose import MODELS
-from mmcsplat.scene.human_skeleton import openpose_name
+from mmcsplat.plugins.segmenters.keypoints import midpoint_keypoints
+from mmcsplat.scene.human_skeleton import openpose_name, with_midpoints
 from mmcsplat.storage.session import SessionReader
 
 RAW = Path("output_data") / "raw_data"
@@ -131,3 +133,22 @@ def test_each_camera_is_the_video_it_was_ingested_from(tmp_path):
         (tmp_path / "recording" / "synchronized_videos" / f"{stem}.mp4").rename(tmp_path / "recording" / "synchronized_videos" / videos[stem])
     landmarks = default_registry().create("landmarks", "freemocap", path=str(path)).read(SessionReader(session), range(FRAMES))
     np.testing.assert_allclose(landmarks.positions, _expected(MEDIAPIPE_BODY), atol=1e-6)
+
+
+def test_keypoints_without_a_neck_get_one_for_the_masks_and_the_parts(session, tmp_path):
+    """MediaPipe's and COCO's keypoints name no neck or head centre: the masks' neck and the neck part need them."""
+    reader = SessionReader(session)
+    path = write_recording(tmp_path / "recording", reader, sorted(reader.camera_names, key=str.lower))
+    observed = default_registry().create("landmarks", "freemocap", path=str(path)).observations(reader, range(FRAMES))[0]
+    names, pixels, seen = midpoint_keypoints(observed)
+    assert names[-2:] == ("Neck", "Head")
+    shoulders = [observed.names.index("LShoulder"), observed.names.index("RShoulder")]
+    np.testing.assert_allclose(pixels[:, -2], observed.pixels[:, shoulders].mean(axis=1))
+    assert seen[:, -2].all() and not seen[:, -1].any()  # the figure has no ears
+    joints = {name: np.full(3, k, dtype=float) for k, name in enumerate(("LShoulder", "RShoulder", "LEar", "REar", "LHip", "RHip", "Nose"))}
+    joints["Head"] = np.full(3, 9.0)  # a head the keypoints name stays theirs
+    added = with_midpoints(joints)
+    np.testing.assert_allclose(added["Neck"], np.full(3, 0.5))
+    assert added["Head"][0] == 9.0 and list(with_midpoints({"LShoulder": np.zeros(3)})) == ["LShoulder"]
+    _, parts = part_members(np.zeros((1, 3)), with_midpoints({name: joints[name] for name in joints if name != "Head"}), HUMAN_PARTS, 1.0, 0.0)
+    assert ("Neck", "Head") in parts and ("LShoulder", "RShoulder", "RHip", "LHip", "Neck") in parts

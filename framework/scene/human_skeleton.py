@@ -3,7 +3,7 @@ grouping or measuring a body share, so that a renamed or added joint changes in 
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 
 import numpy as np
 
@@ -22,6 +22,18 @@ SYNTHETIC_TORSO: tuple[str, ...] = ("shoulder_left", "shoulder_right", "hip_righ
 TORSO_NAMINGS: tuple[tuple[str, ...], ...] = (TORSO, SYNTHETIC_TORSO)
 #: The head's points, the one that best stands for the whole head first.
 HEAD: tuple[str, ...] = ("Head", "Nose", "LEye", "REye", "LEar", "REar")
+
+
+#: Joints of OpenPose's that MediaPipe's and COCO's keypoints lack, each at the midpoint of two they have: the
+#: neck between the shoulders, the head's centre between the ears. Without a neck the torso and the head are not
+#: joined (the masks' neck, the body parts' neck part: docs/results.md, "The neck").
+MIDPOINTS: dict[str, tuple[str, str]] = {"Neck": ("LShoulder", "RShoulder"), "Head": ("LEar", "REar")}
+
+
+def with_midpoints(joints: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """``joints`` (name → position, any shape) with each of :data:`MIDPOINTS` they lack but have both ends of."""
+    added = {name: (joints[a] + joints[b]) / 2 for name, (a, b) in MIDPOINTS.items() if name not in joints and a in joints and b in joints}
+    return {**joints, **added}
 
 
 #: Joints OpenPose names too, by the part of a MediaPipe, COCO or Halpe name after its side (``left_knee``).

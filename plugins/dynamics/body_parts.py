@@ -12,7 +12,9 @@ wrist; the torso: every pair of shoulders and hips). Each foreground Gaussian be
 shape is nearest, if it lies within ``reach`` of it, and to every other part within ``margin`` more: a
 Gaussian at a joint belongs to both of its parts, so it keeps its distance to either's far end and the
 joint still bends. Both lengths are shares of the skeleton's torso (mid-shoulders to mid-hips), so that an
-infant and an adult are treated alike.
+infant and an adult are treated alike. A skeleton without a neck or a head's centre (MediaPipe's, COCO's
+keypoints) gets them between the shoulders and between the ears (``human_skeleton.with_midpoints``), so the
+neck part holds the head on the torso.
 """
 
 from __future__ import annotations

@@ -46,6 +46,7 @@ from mmcsplat.plugin_api.interfaces import Dynamics, LandmarkSource, TrackingCon
 from mmcsplat.plugin_api.parameters import above, at_least, between, one_of, parameter
 from mmcsplat.plugin_api.render_contract import RenderCameras, RenderOutput
 from mmcsplat.scene.gaussian_table import GAUSSIAN_PARAMETERS
+from mmcsplat.scene.human_skeleton import with_midpoints
 from mmcsplat.storage.session.flow import FlowPair, SessionFlow, pair_present
 from mmcsplat.storage.tracks import TrackWriter
 from mmcsplat.training.coarse_views import CoarseToFine
@@ -262,7 +263,8 @@ class IterativeDynamics(Dynamics):
                                           "dynamics.skeleton.name=trc and dynamics.skeleton.path=…, or dynamics.lambda_parts=0")
         first = context.frames.start
         landmarks = source.read(context.session, [first])
-        joints = {joint: position for joint, position in zip(landmarks.names, landmarks.at(first), strict=True) if np.isfinite(position).all()}
+        joints = with_midpoints({joint: position for joint, position in zip(landmarks.names, landmarks.at(first), strict=True)
+                                 if np.isfinite(position).all()})
         pairs = PartPairs.build(params["means"], np.flatnonzero(foreground.numpy()), joints, HUMAN_PARTS, self.part_partners,
                                 self.part_reach, self.part_margin, self.seed)
         logger.info("iterative: %d pairs over %d body parts (%s Gaussians) from %s", len(pairs.first), len(pairs.parts),

@@ -6,7 +6,8 @@ Each frame's detections are drawn filled, in one of three shapes chosen by what 
 - a human skeleton (the keypoints include shoulders and hips by OpenPose's names): the torso as the
   polygon of shoulders and hips, each limb as a thick segment, the head as a disk — widths in proportion
   to the subject's torso length in that camera (median over the frames), so near and far views get
-  alike masks;
+  alike masks; keypoints without a neck or a head's centre (MediaPipe's, COCO's) get them between the
+  shoulders and between the ears, so the neck joins the head to the torso;
 - any other skeleton the file declares (a SLEAP skeleton's edges: a mouse's nose–head–spine–tail): each
   edge as a thick segment and each keypoint as a disk, as wide as ``BODY_WIDTH`` of the keypoints'
   extent (the largest distance between two of a frame's keypoints, median over the frames);
@@ -36,7 +37,7 @@ from mmcsplat.plugin_api.interfaces import KeypointObservations
 from mmcsplat.plugin_api.parameters import above, at_least, one_of, parameter
 from mmcsplat.plugin_api.registration import PluginBuilder
 from mmcsplat.plugins.segmenters.postprocess import KEEP, PostProcessedSegmenter, dilate, open_close, present_frames
-from mmcsplat.scene.human_skeleton import HEAD, LIMB_BONES, TORSO
+from mmcsplat.scene.human_skeleton import HEAD, LIMB_BONES, MIDPOINTS, TORSO
 from mmcsplat.scene.human_skeleton import torso_length as human_torso_length
 from mmcsplat.storage.session import SessionReader
 
@@ -66,6 +67,20 @@ def torso_length(observed: KeypointObservations) -> float | None:
 def is_human(names: tuple[str, ...]) -> bool:
     """Whether the keypoints include the torso's by OpenPose's names (drawn as a human skeleton)."""
     return all(name in names for name in TORSO)
+
+
+def midpoint_keypoints(observed: KeypointObservations) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
+    """The observations' names, pixels [T, K', 2] and seen [T, K'] with the joints of
+    :data:`~mmcsplat.scene.human_skeleton.MIDPOINTS` they lack (a neck for MediaPipe's or COCO's keypoints) added,
+    seen where both ends are."""
+    index, seen = {name: j for j, name in enumerate(observed.names)}, observed.confidence > 0
+    added = [(name, a, b) for name, (a, b) in MIDPOINTS.items() if name not in index and a in index and b in index]
+    if not added:
+        return tuple(observed.names), observed.pixels, seen
+    pixels = [(observed.pixels[:, index[a]] + observed.pixels[:, index[b]]) / 2 for _, a, b in added]
+    shown = [seen[:, index[a]] & seen[:, index[b]] for _, a, b in added]
+    return ((*observed.names, *(name for name, _, _ in added)), np.concatenate([observed.pixels, np.stack(pixels, axis=1)], axis=1),
+            np.concatenate([seen, np.stack(shown, axis=1)], axis=1))
 
 
 def extent(observed: KeypointObservations) -> float | None:
@@ -175,16 +190,17 @@ class KeypointSegmenter(PostProcessedSegmenter):
         if self.refine == "plate" and plate is None:
             raise InputError(f"{session.url}: camera {camera!r} has no clean plate for refine = \"plate\": estimate one with "
                              f"`mmcsplat plates {session.url}` after segmenting with refine = \"none\"")
+        names, pixels, shown = midpoint_keypoints(observed) if human else (observed.names, observed.pixels, observed.confidence > 0)
         for t in present_frames(session, camera):
             where = np.flatnonzero(observed.frames == t)
             if not len(where):
                 yield int(t), np.zeros((stored.height, stored.width), dtype=bool), None
                 continue
             k = where[0]
-            seen, shape = observed.confidence[k] > 0, (stored.height, stored.width)
-            torso = torso_mask(observed.pixels[k], seen, observed.names, shape) if human else None
-            mask = skeleton_mask(observed.pixels[k], seen, observed.names, torso, scale) if torso is not None else \
-                outline_mask(observed.pixels[k], seen, observed.names, observed.edges, shape, scale)
+            seen, shape = shown[k], (stored.height, stored.width)
+            torso = torso_mask(pixels[k], seen, names, shape) if human else None
+            mask = skeleton_mask(pixels[k], seen, names, torso, scale) if torso is not None else \
+                outline_mask(pixels[k], seen, names, observed.edges, shape, scale)
             if plate is not None:
                 difference = np.abs(session.frame(int(t), camera).rgb.astype(np.int16) - plate.astype(np.int16)).max(axis=-1)
                 mask = open_close(difference > self.threshold, 1, 2) & dilate(mask, round(self.margin * scale))
