@@ -17,6 +17,7 @@ from mmcsplat.configuration.registry import default_registry
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugins.landmarks.openpose import MODELS
 from mmcsplat.plugins.landmarks.subject import choose_subject
+from mmcsplat.plugins.segmenters.keypoints import skeleton_mask, torso_mask
 from mmcsplat.storage.landmark_formats import read_trc
 from mmcsplat.storage.session import SessionReader, SessionUpdater
 
@@ -597,3 +598,15 @@ def test_sleap_labels_files_declare_their_body_edges_not_their_symmetries(tmp_pa
     write_slp(tmp_path / "bad.slp", ["snout"], {}, links=[{"source": 0, "target": 4}])
     with pytest.raises(ValueError, match=r"bad\.slp: a skeleton link does not name two of its 1 nodes"):
         read_sleap_edges(tmp_path / "bad.slp")
+
+
+def test_a_head_seen_only_by_its_ears_keeps_its_disk():
+    """A view from behind (no nose, no head top) still draws the head, around the ears: without it that view's mask
+    cuts the head off and the fit loses it (the demo's cam_04 at frame 0 with MediaPipe's points)."""
+    names = ("LShoulder", "RShoulder", "RHip", "LHip", "Nose", "LEar", "REar")
+    pixels = np.array([[40.0, 50], [60, 50], [60, 90], [40, 90], [50, 30], [45, 35], [55, 35]])
+    seen = np.array([True, True, True, True, False, True, True])
+    torso = torso_mask(pixels, seen, names, (120, 100))
+    mask = skeleton_mask(pixels, seen, names, torso, scale=40.0)
+    assert mask[35, 50] and mask[25, 50]  # between the ears, and above them
+    assert not skeleton_mask(pixels, seen & (np.arange(7) < 4), names, torso, scale=40.0)[25, 50]  # no head point: no disk

@@ -7,7 +7,8 @@ Each frame's detections are drawn filled, in one of three shapes chosen by what 
   polygon of shoulders and hips, each limb as a thick segment, the head as a disk — widths in proportion
   to the subject's torso length in that camera (median over the frames), so near and far views get
   alike masks; keypoints without a neck or a head's centre (MediaPipe's, COCO's) get them between the
-  shoulders and between the ears, so the neck joins the head to the torso;
+  shoulders and between the ears, so the neck joins the head to the torso, and a head whose centre and
+  nose are not seen is drawn around its eyes and ears;
 - any other skeleton the file declares (a SLEAP skeleton's edges: a mouse's nose–head–spine–tail): each
   edge as a thick segment and each keypoint as a disk, as wide as ``BODY_WIDTH`` of the keypoints'
   extent (the largest distance between two of a frame's keypoints, median over the frames);
@@ -141,10 +142,14 @@ def skeleton_mask(pixels: np.ndarray, seen: np.ndarray, names: tuple[str, ...], 
     for a, b in LIMBS:
         if usable(a) and usable(b):
             cv2.line(canvas, tuple(fixed[index[a]]), tuple(fixed[index[b]]), 1, width, cv2.LINE_AA, shift=4)
-    for name in HEAD[:2]:  # the head's centre, else the nose: eyes and ears lie off the centre
-        if usable(name):
-            cv2.circle(canvas, tuple(fixed[index[name]]), round(HEAD_RADIUS * scale * 16), 1, -1, cv2.LINE_AA, shift=4)
-            break
+    # The head's centre, else the nose; else the eyes' and ears' mean, off the centre but on the head (a head seen from
+    # behind shows only its ears, and without a disk the head leaves that view's mask).
+    centre = next((pixels[index[name]] for name in HEAD[:2] if usable(name)), None)
+    rest = [pixels[index[name]] for name in HEAD[2:] if usable(name)]
+    if centre is None and rest:
+        centre = np.mean(rest, axis=0)
+    if centre is not None:
+        cv2.circle(canvas, tuple(_fixed(centre)), round(HEAD_RADIUS * scale * 16), 1, -1, cv2.LINE_AA, shift=4)
     return canvas.astype(bool)
 
 
