@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from fitting_scene import write_session
-from test_keypoints import FIGURE, FRAMES, figure_at
+from test_keypoints import FIGURE, FRAMES, UNDETECTED, figure_at, figure_named
 
 from mmcsplat.configuration.registry import default_registry
 from mmcsplat.pipeline.capture_session import keypoint_folder, keypoint_source
@@ -37,7 +37,7 @@ def write_xy(path: Path, reader: SessionReader, names: tuple[str, ...], columns:
             for number, name in enumerate(reader.camera_names):
                 camera = reader.camera(name)
                 for joint in FIGURE:
-                    if joint not in converted or (t == 1 and joint == "Nose"):
+                    if joint not in converted or (joint, t) == UNDETECTED:
                         continue
                     x, y = camera.project(figure_at(t)[[MODELS["BODY_25B"].index(joint)]])[0]
                     values = {"sync_index": t, "cam_id": number, "port": number, "frame_index": t, "frame_time": t / 30, "object_id": 0,
@@ -45,16 +45,6 @@ def write_xy(path: Path, reader: SessionReader, names: tuple[str, ...], columns:
                               "img_loc_x": f"{x:.6f}", "img_loc_y": f"{y:.6f}"}
                     writer.writerow({key: values.get(key, "") for key in columns})
     return path
-
-
-def expected(names: tuple[str, ...]) -> np.ndarray:
-    converted = [openpose_name(name) for name in names]
-    result = np.full((FRAMES, len(names), 3), np.nan)
-    for t in range(FRAMES):
-        for joint in FIGURE:
-            if joint in converted and not (t == 1 and joint == "Nose"):
-                result[t, converted.index(joint)] = figure_at(t)[MODELS["BODY_25B"].index(joint)]
-    return result
 
 
 @pytest.fixture(scope="module")
@@ -68,7 +58,7 @@ def test_an_rtmpose_halpe26_tracker_triangulates_to_the_joints_it_came_from(sess
     landmarks = default_registry().create("landmarks", "caliscope", path=str(path)).read(reader, range(FRAMES))
     assert landmarks.names[:6] == ("Nose", "LEye", "REye", "LEar", "REar", "LShoulder")
     assert landmarks.names[17:] == ("Head", "Neck", "MidHip", "LBigToe", "RBigToe", "LSmallToe", "RSmallToe", "LHeel", "RHeel")
-    np.testing.assert_allclose(landmarks.positions, expected(HALPE26), atol=1e-4)  # Caliscope writes 6 decimals
+    np.testing.assert_allclose(landmarks.positions, figure_named(HALPE26), atol=1e-4)  # Caliscope writes 6 decimals
 
 
 def test_a_mediapipe_holistic_file_before_caliscope_0_7_reads_its_body(session, tmp_path):
@@ -79,7 +69,7 @@ def test_a_mediapipe_holistic_file_before_caliscope_0_7_reads_its_body(session, 
         file.write("0,0,0,0.0,100,10.0,10.0,,\n")  # the right hand's wrist
     landmarks = default_registry().create("landmarks", "caliscope", path=str(path)).read(reader, range(FRAMES))
     assert len(landmarks.names) == 33
-    np.testing.assert_allclose(landmarks.positions, expected(MEDIAPIPE_BODY), atol=1e-4)
+    np.testing.assert_allclose(landmarks.positions, figure_named(MEDIAPIPE_BODY), atol=1e-4)
 
 
 def test_a_tracker_of_ones_own_is_named_by_its_model_card(session, tmp_path):
@@ -92,7 +82,7 @@ def test_a_tracker_of_ones_own_is_named_by_its_model_card(session, tmp_path):
     card.write_text('[model]\nname = "legs"\n\n[points]\n' + "".join(f"{name} = {k}\n" for k, name in enumerate(names)))
     landmarks = default_registry().create("landmarks", "caliscope", path=str(path), model_card=str(card)).read(reader, range(FRAMES))
     assert landmarks.names == ("LKnee", "RKnee", "LHip", "RHip")
-    np.testing.assert_allclose(landmarks.positions, expected(names), atol=1e-4)
+    np.testing.assert_allclose(landmarks.positions, figure_named(names), atol=1e-4)
 
 
 def test_what_cannot_be_read_is_named(session, tmp_path):

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import zarr
 from fitting_scene import write_session
-from test_keypoints import FIGURE, FRAMES, figure_at
+from test_keypoints import FIGURE, FRAMES, UNDETECTED, figure_at, figure_named
 
 from mmcsplat.configuration.registry import default_registry
 from mmcsplat.pipeline.capture_session import keypoint_folder, keypoint_source
@@ -46,22 +46,12 @@ def write_recording(root: Path, reader: SessionReader, order: list[str], names: 
         for t in range(FRAMES):
             for joint in FIGURE:
                 slot = _slot(names, joint)
-                if slot is not None and not (t == 1 and joint == "Nose"):
+                if slot is not None and (joint, t) != UNDETECTED:
                     data[row, t, slot, :2] = camera.project(figure_at(t)[[MODELS["BODY_25B"].index(joint)]])[0] + 0.5
                     data[row, t, slot, 2] = -40.0
     (root / RAW).mkdir(parents=True)
     np.save(root / RAW / FILE, data)
     return root / RAW / FILE
-
-
-def _expected(names: tuple[str, ...]) -> np.ndarray:
-    expected = np.full((FRAMES, len(names), 3), np.nan)
-    for t in range(FRAMES):
-        for joint in FIGURE:
-            slot = _slot(names, joint)
-            if slot is not None and not (t == 1 and joint == "Nose"):
-                expected[t, slot] = figure_at(t)[MODELS["BODY_25B"].index(joint)]
-    return expected
 
 
 @pytest.fixture(scope="module")
@@ -75,7 +65,7 @@ def test_mediapipe_keypoints_triangulate_to_the_joints_they_came_from(session, t
     landmarks = default_registry().create("landmarks", "freemocap", path=str(path)).read(reader, range(FRAMES))
     assert len(landmarks.names) == 33 and landmarks.names[:3] == ("Nose", "left_eye_inner", "LEye")
     assert {"LShoulder", "RHip", "LKnee", "RAnkle", "LHeel", "RBigToe", "left_pinky"} <= set(landmarks.names)
-    np.testing.assert_allclose(landmarks.positions, _expected(MEDIAPIPE_BODY), atol=1e-6)
+    np.testing.assert_allclose(landmarks.positions, figure_named(MEDIAPIPE_BODY), atol=1e-6)
 
 
 def test_yolos_coco_keypoints_are_read_too(session, tmp_path):
@@ -83,7 +73,7 @@ def test_yolos_coco_keypoints_are_read_too(session, tmp_path):
     path = write_recording(tmp_path / "recording", reader, sorted(reader.camera_names, key=str.lower), COCO, len(COCO))
     landmarks = default_registry().create("landmarks", "freemocap", path=str(path)).read(reader, range(FRAMES))
     assert landmarks.names[:6] == ("Nose", "LEye", "REye", "LEar", "REar", "LShoulder")
-    np.testing.assert_allclose(landmarks.positions, _expected(COCO), atol=1e-6)
+    np.testing.assert_allclose(landmarks.positions, figure_named(COCO), atol=1e-6)
 
 
 def test_a_recording_in_another_camera_order_is_read_with_camera_order(session, tmp_path):
@@ -92,9 +82,9 @@ def test_a_recording_in_another_camera_order_is_read_with_camera_order(session, 
     order = list(reversed(reader.camera_names))
     path = write_recording(tmp_path / "recording", reader, order)
     source = default_registry().create("landmarks", "freemocap", path=str(path))
-    assert np.nanmax(np.abs(source.read(reader, range(FRAMES)).positions - _expected(MEDIAPIPE_BODY))) > 0.05  # in name order: wrong
+    assert np.nanmax(np.abs(source.read(reader, range(FRAMES)).positions - figure_named(MEDIAPIPE_BODY))) > 0.05  # in name order: wrong
     landmarks = default_registry().create("landmarks", "freemocap", path=str(path), camera_order=order).read(reader, range(FRAMES))
-    np.testing.assert_allclose(landmarks.positions, _expected(MEDIAPIPE_BODY), atol=1e-6)
+    np.testing.assert_allclose(landmarks.positions, figure_named(MEDIAPIPE_BODY), atol=1e-6)
     with pytest.raises(InputError, match=r"camera_order \['cam_0'\] must list the session's cameras"):
         default_registry().create("landmarks", "freemocap", path=str(path), camera_order=["cam_0"]).read(reader, range(FRAMES))
 
@@ -132,7 +122,7 @@ def test_each_camera_is_the_video_it_was_ingested_from(tmp_path):
     for stem in reader.camera_names:  # the stand-ins named after the cameras give way to the recording's own names
         (tmp_path / "recording" / "synchronized_videos" / f"{stem}.mp4").rename(tmp_path / "recording" / "synchronized_videos" / videos[stem])
     landmarks = default_registry().create("landmarks", "freemocap", path=str(path)).read(SessionReader(session), range(FRAMES))
-    np.testing.assert_allclose(landmarks.positions, _expected(MEDIAPIPE_BODY), atol=1e-6)
+    np.testing.assert_allclose(landmarks.positions, figure_named(MEDIAPIPE_BODY), atol=1e-6)
 
 
 def test_keypoints_without_a_neck_get_one_for_the_masks_and_the_parts(session, tmp_path):

@@ -18,6 +18,7 @@ from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugins.landmarks.openpose import MODELS
 from mmcsplat.plugins.landmarks.subject import choose_subject
 from mmcsplat.plugins.segmenters.keypoints import skeleton_mask, torso_mask
+from mmcsplat.scene.human_skeleton import openpose_name
 from mmcsplat.storage.landmark_formats import read_trc
 from mmcsplat.storage.session import SessionReader, SessionUpdater
 
@@ -35,6 +36,22 @@ def figure_at(t: int) -> np.ndarray:
     for name, point in FIGURE.items():
         joints[MODELS["BODY_25B"].index(name)] = np.multiply(point, 2.0) + (0.01 * t, 0.0, 0.0)
     return joints
+
+
+#: (joint, frame) the detector files of the FreeMoCap and Caliscope tests leave out, as a tracker leaves out what it missed.
+UNDETECTED = ("Nose", 1)
+
+
+def figure_named(names: tuple[str, ...]) -> np.ndarray:
+    """[FRAMES, len(names), 3] the figure's joints at the keypoints ``names`` (a detector's, renamed as OpenPose's), NaN
+    where the figure has none and at :data:`UNDETECTED`."""
+    converted = [openpose_name(name) for name in names]
+    result = np.full((FRAMES, len(names), 3), np.nan)
+    for t in range(FRAMES):
+        for joint in FIGURE:
+            if joint in converted and (joint, t) != UNDETECTED:
+                result[t, converted.index(joint)] = figure_at(t)[MODELS["BODY_25B"].index(joint)]
+    return result
 
 
 def write_openpose(folder: Path, session: SessionReader) -> None:
