@@ -85,7 +85,7 @@ def test_a_recording_in_another_camera_order_is_read_with_camera_order(session, 
     assert np.nanmax(np.abs(source.read(reader, range(FRAMES)).positions - figure_named(MEDIAPIPE_BODY))) > 0.05  # in name order: wrong
     landmarks = default_registry().create("landmarks", "freemocap", path=str(path), camera_order=order).read(reader, range(FRAMES))
     np.testing.assert_allclose(landmarks.positions, figure_named(MEDIAPIPE_BODY), atol=1e-6)
-    with pytest.raises(InputError, match=r"camera_order \['cam_0'\] must list the session's cameras"):
+    with pytest.raises(InputError, match=r"camera_order \['cam_0'\] must name the file's 5 cameras once each"):
         default_registry().create("landmarks", "freemocap", path=str(path), camera_order=["cam_0"]).read(reader, range(FRAMES))
 
 

@@ -37,7 +37,7 @@ from mmcsplat.storage.session import SessionReader
 
 from .keypoint_models import COCO_WHOLEBODY_BODY, HALPE26, MEDIAPIPE_BODY
 from .subject import SUBJECT_DOC, subject_observations
-from .triangulation import TriangulatedKeypoints, people_to_session_pixels
+from .triangulation import DETECTED, TriangulatedKeypoints, people_to_session_pixels
 
 #: Each built-in body tracker's names by keypoint id, by a pattern its name matches.
 TRACKER_POINTS = ((re.compile(r"ONNX_.*halpe26$"), HALPE26), (re.compile(r"ONNX_.*coco_wholebody$"), COCO_WHOLEBODY_BODY),
@@ -93,7 +93,7 @@ def read_caliscope_xy(path: Path, names: dict[int, str]) -> tuple[tuple[str, ...
                 except (TypeError, ValueError):
                     raise InputError(f"{path}, line {line}: not numbers: {dict(row)}") from None
                 points = table.setdefault(camera, {}).setdefault(frame, np.zeros((len(ids), 3)))
-                points[column[point]] = (*xy, 1.0)
+                points[column[point]] = (*xy, DETECTED)
     except (OSError, UnicodeDecodeError, csv.Error) as error:
         raise InputError(f"{path}: not a readable CSV file ({error})") from None
     return tuple(openpose_name(names[index]) for index in ids), table
@@ -142,4 +142,4 @@ class CaliscopeKeypoints(TriangulatedKeypoints):
             seen = [rows[int(number)][None] if int(number) in rows else np.zeros((0, len(names), 3))
                     for number in session.source_frames(name, frames)]
             people.append(people_to_session_pixels(seen, recorded.get(name), session.camera(name)))
-        return subject_observations(session, frames, people, names, 0.5, subject=self.subject)
+        return subject_observations(session, frames, people, names, DETECTED, subject=self.subject)

@@ -41,7 +41,7 @@ from mmcsplat.storage.session import SessionReader
 
 from .keypoint_models import COCO, MEDIAPIPE_BODY
 from .subject import SUBJECT_DOC, subject_observations
-from .triangulation import TriangulatedKeypoints, people_to_session_pixels
+from .triangulation import DETECTED, TriangulatedKeypoints, people_to_session_pixels
 
 #: Where a recording keeps its videos, beside ``output_data``.
 VIDEOS = "synchronized_videos"
@@ -82,8 +82,8 @@ class FreeMoCapKeypoints(TriangulatedKeypoints):
                                              "the one beside the file's output_data)")
     camera_map: dict | None = parameter(None, doc="session camera name → its video's name (without .mp4), where a session not made from "
                                              "these videos names its cameras otherwise")
-    camera_order: tuple[str, ...] | None = parameter(None, doc="the session's cameras in the file's order, where FreeMoCap's order was "
-                                                              "not the videos' names sorted (recordings before FreeMoCap 1.6)")
+    camera_order: tuple[str, ...] | None = parameter(None, doc="the file's cameras in its order, by the session's names, where FreeMoCap's "
+                                                              "order was not the videos' names sorted (recordings before FreeMoCap 1.6)")
     subject: str | None = parameter(None, doc=SUBJECT_DOC)
 
     @property
@@ -99,9 +99,10 @@ class FreeMoCapKeypoints(TriangulatedKeypoints):
     def rows(self, session: SessionReader, count: int) -> dict[str, int]:
         """Each session camera's row of the file's ``count`` cameras."""
         if self.camera_order is not None:
-            if sorted(self.camera_order) != sorted(session.camera_names) or len(self.camera_order) != count:
-                raise InputError(f"{self.path}: camera_order {list(self.camera_order)} must list the session's cameras "
-                                 f"({', '.join(session.camera_names)}) once each, one for each of the file's {count}")
+            if len(set(self.camera_order)) != len(self.camera_order) or len(self.camera_order) != count or \
+                    not set(session.camera_names) <= set(self.camera_order):
+                raise InputError(f"{self.path}: camera_order {list(self.camera_order)} must name the file's {count} cameras once each, in "
+                                 f"its order, the session's ({', '.join(session.camera_names)}) among them")
             return {name: k for k, name in enumerate(self.camera_order)}
         folder = self._videos_folder()
         if not folder.is_dir():
@@ -135,7 +136,7 @@ class FreeMoCapKeypoints(TriangulatedKeypoints):
             for number in session.source_frames(name, frames):
                 found = table[number] if 0 <= number < len(table) else np.full((len(names), 2), np.nan)
                 detected = np.isfinite(found).all(axis=1)
-                seen.append(np.concatenate([np.where(detected[:, None], found, 0.0), detected[:, None].astype(np.float64)], axis=1)[None]
+                seen.append(np.concatenate([np.where(detected[:, None], found, 0.0), np.where(detected, DETECTED, 0.0)[:, None]], axis=1)[None]
                             if detected.any() else np.zeros((0, len(names), 3)))
             people.append(people_to_session_pixels(seen, recorded.get(name), camera))
-        return subject_observations(session, frames, people, names, 0.5, subject=self.subject)
+        return subject_observations(session, frames, people, names, DETECTED, subject=self.subject)

@@ -24,6 +24,9 @@ from mmcsplat.scene.camera import Camera
 from mmcsplat.scene.triangulation import triangulate
 from mmcsplat.storage.session import SessionReader
 
+#: The confidence of a keypoint from a tool that stores none, only whether it detected it (FreeMoCap, Caliscope).
+DETECTED = 1.0
+
 
 def to_session_pixels(points: np.ndarray, recorded: Camera, stored: Camera) -> np.ndarray:
     """[..., 2] pixels of the recorded (distorted) camera → the stored (undistorted) camera's pixels."""
