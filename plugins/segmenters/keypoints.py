@@ -38,7 +38,7 @@ from mmcsplat.plugin_api.interfaces import KeypointObservations
 from mmcsplat.plugin_api.parameters import above, at_least, one_of, parameter
 from mmcsplat.plugin_api.registration import PluginBuilder
 from mmcsplat.plugins.segmenters.postprocess import KEEP, PostProcessedSegmenter, dilate, open_close, present_frames
-from mmcsplat.scene.human_skeleton import HEAD, LIMB_BONES, MIDPOINTS, TORSO
+from mmcsplat.scene.human_skeleton import HEAD, LIMB_BONES, TORSO, with_midpoints
 from mmcsplat.scene.human_skeleton import torso_length as human_torso_length
 from mmcsplat.storage.session import SessionReader
 
@@ -71,17 +71,14 @@ def is_human(names: tuple[str, ...]) -> bool:
 
 
 def midpoint_keypoints(observed: KeypointObservations) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
-    """The observations' names, pixels [T, K', 2] and seen [T, K'] with the joints of
-    :data:`~mmcsplat.scene.human_skeleton.MIDPOINTS` they lack (a neck for MediaPipe's or COCO's keypoints) added,
-    seen where both ends are."""
-    index, seen = {name: j for j, name in enumerate(observed.names)}, observed.confidence > 0
-    added = [(name, a, b) for name, (a, b) in MIDPOINTS.items() if name not in index and a in index and b in index]
-    if not added:
-        return tuple(observed.names), observed.pixels, seen
-    pixels = [(observed.pixels[:, index[a]] + observed.pixels[:, index[b]]) / 2 for _, a, b in added]
-    shown = [seen[:, index[a]] & seen[:, index[b]] for _, a, b in added]
-    return ((*observed.names, *(name for name, _, _ in added)), np.concatenate([observed.pixels, np.stack(pixels, axis=1)], axis=1),
-            np.concatenate([seen, np.stack(shown, axis=1)], axis=1))
+    """The observations' names, pixels [T, K', 2] and seen [T, K'] with the joints
+    :func:`~mmcsplat.scene.human_skeleton.with_midpoints` adds (a neck for MediaPipe's or COCO's keypoints), seen where
+    both ends are."""
+    seen = observed.confidence > 0
+    joints = with_midpoints({name: np.where(seen[:, j, None], observed.pixels[:, j], np.nan) for j, name in enumerate(observed.names)})
+    pixels = np.stack(list(joints.values()), axis=1)
+    shown = np.isfinite(pixels).all(axis=-1)
+    return tuple(joints), np.where(shown[..., None], pixels, 0.0), shown
 
 
 def extent(observed: KeypointObservations) -> float | None:
