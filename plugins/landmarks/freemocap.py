@@ -41,7 +41,7 @@ from mmcsplat.storage.session import SessionReader
 
 from .keypoint_models import COCO, MEDIAPIPE_BODY
 from .subject import SUBJECT_DOC, subject_observations
-from .triangulation import DETECTED, TriangulatedKeypoints, people_to_session_pixels
+from .triangulation import DETECTED, TriangulatedKeypoints, detected_people, people_to_session_pixels
 
 #: Where a recording keeps its videos, beside ``output_data``.
 VIDEOS = "synchronized_videos"
@@ -53,8 +53,8 @@ PIXEL_CENTRE = 0.5
 
 
 def read_freemocap_2d(path: Path) -> tuple[tuple[str, ...], np.ndarray]:
-    """(keypoint names, [cameras, frames, K, 2] pixels with OpenCV's integer centres, NaN where undetected) of
-    the body in a FreeMoCap 2D file."""
+    """(keypoint names, [cameras, frames, K, 3] x, y with OpenCV's integer centres and :data:`DETECTED`, NaN where
+    undetected) of the body in a FreeMoCap 2D file."""
     try:
         data = np.load(path, allow_pickle=False)
     except (OSError, ValueError) as error:
@@ -69,7 +69,7 @@ def read_freemocap_2d(path: Path) -> tuple[tuple[str, ...], np.ndarray]:
         raise InputError(f"{path}: {data.shape[2]} points, neither MediaPipe Holistic's {MEDIAPIPE_POINTS} nor YOLO's {len(COCO)}: "
                          "no names known for them")
     pixels = data[:, :, :len(names), :2].astype(np.float64) - PIXEL_CENTRE
-    return tuple(openpose_name(name) for name in names), pixels
+    return tuple(openpose_name(name) for name in names), np.concatenate([pixels, np.full((*pixels.shape[:3], 1), DETECTED)], axis=-1)
 
 
 @attrs.frozen
@@ -126,17 +126,13 @@ class FreeMoCapKeypoints(TriangulatedKeypoints):
         path = Path(self.path)
         if not path.is_file():
             raise MissingFileError(f"freemocap keypoints: file {path} does not exist")
-        names, pixels = read_freemocap_2d(path)
-        rows = self.rows(session, len(pixels))
+        names, keypoints = read_freemocap_2d(path)
+        rows = self.rows(session, len(keypoints))
         recorded = session.recorded_cameras()
         people = []  # [camera][frame]: [P, L, 3] in the stored images' pixels
         for name in session.camera_names:
-            camera, table = session.camera(name), pixels[rows[name]]
-            seen = []
-            for number in session.source_frames(name, frames):
-                found = table[number] if 0 <= number < len(table) else np.full((len(names), 2), np.nan)
-                detected = np.isfinite(found).all(axis=1)
-                seen.append(np.concatenate([np.where(detected[:, None], found, 0.0), np.where(detected, DETECTED, 0.0)[:, None]], axis=1)[None]
-                            if detected.any() else np.zeros((0, len(names), 3)))
-            people.append(people_to_session_pixels(seen, recorded.get(name), camera))
+            table = keypoints[rows[name]]
+            seen = [detected_people(table[number][None]) if 0 <= number < len(table) else np.zeros((0, len(names), 3))
+                    for number in session.source_frames(name, frames)]
+            people.append(people_to_session_pixels(seen, recorded.get(name), session.camera(name)))
         return subject_observations(session, frames, people, names, DETECTED, subject=self.subject)

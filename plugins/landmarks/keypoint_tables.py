@@ -25,7 +25,7 @@ from mmcsplat.storage.camera_names import KEYPOINTS_CAMERA_MAP, match_cameras
 from mmcsplat.storage.session import SessionReader
 
 from .subject import SUBJECT_DOC, subject_observations
-from .triangulation import TriangulatedKeypoints, people_to_session_pixels
+from .triangulation import TriangulatedKeypoints, detected_people, people_to_session_pixels
 
 #: One camera's keypoints: (names, frame numbers [T], [T, P, L, 3] x, y, confidence of P animals or people;
 #: NaN where undetected).
@@ -110,14 +110,9 @@ class TableKeypoints(TriangulatedKeypoints):
             names = parts
             rows = {int(number): k for k, number in enumerate(numbers)}
             # The camera's video frames, which its table is numbered by (−1, never a row, where it lacks one).
-            seen = [_detected(table[rows[int(number)]]) if int(number) in rows else np.zeros((0, len(parts), 3))
+            seen = [detected_people(table[rows[int(number)]]) if int(number) in rows else np.zeros((0, len(parts), 3))
                     for number in session.source_frames(camera.name, frames)]
             people.append(people_to_session_pixels(seen, recorded.get(camera.name), camera))
             edges.append(self.read_edges(matched[camera.name]))
         return subject_observations(session, frames, people, names, self.min_confidence, edges, self.subject)
 
-
-def _detected(found: np.ndarray) -> np.ndarray:
-    """[P', L, 3] the animals of ``found`` [P, L, 3] with any keypoint detected, undetected keypoints zero (confidence 0)."""
-    known = np.all(np.isfinite(found), axis=-1)
-    return np.where(known[..., None], found, 0.0)[known.any(axis=1)]

@@ -33,6 +33,13 @@ def to_session_pixels(points: np.ndarray, recorded: Camera, stored: Camera) -> n
     return recorded.undistort(points, stored.K)
 
 
+def detected_people(found: np.ndarray) -> np.ndarray:
+    """[P', L, 3] the people (or animals) of ``found`` [P, L, 3] (x, y, confidence; NaN where undetected) with any keypoint
+    detected, undetected keypoints zero (confidence 0)."""
+    known = np.all(np.isfinite(found), axis=-1)
+    return np.where(known[..., None], found, 0.0)[known.any(axis=1)]
+
+
 def people_to_session_pixels(people: Sequence[np.ndarray], recorded: Camera | None, stored: Camera) -> list[np.ndarray]:
     """Each frame's people [P, L, 3] (x, y, confidence) with their pixels mapped by :func:`to_session_pixels`,
     every frame's in one call (undoing a lens iterates per point, not per call); unchanged where the session
