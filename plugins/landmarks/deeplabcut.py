@@ -28,7 +28,6 @@ The detections are mapped into the stored images and triangulated by :mod:`.tria
 from __future__ import annotations
 
 import csv
-import io
 import pickle
 from collections.abc import Sequence
 from pathlib import Path
@@ -39,6 +38,7 @@ import numpy as np
 
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.parameters import between, parameter
+from mmcsplat.storage.plain_pickle import load_plain
 
 from .keypoint_tables import KeypointTable, TableKeypoints
 
@@ -96,13 +96,6 @@ def read_deeplabcut_csv(path: Path, individual: str | None = None) -> KeypointTa
     return keypoint_table(path, columns, frames, values, individual)
 
 
-class _PlainUnpickler(pickle.Unpickler):
-    """Builds lists, tuples, strings and numbers only: a pickle that names any class or function is refused."""
-
-    def find_class(self, module: str, name: str):
-        raise pickle.UnpicklingError(f"it refers to {module}.{name}")
-
-
 def read_deeplabcut_h5(path: Path, individual: str | None = None) -> KeypointTable:
     """A DeepLabCut HDF5 file (pandas' table format) as :func:`read_deeplabcut_csv` reads a CSV."""
     import h5py
@@ -119,7 +112,7 @@ def read_deeplabcut_h5(path: Path, individual: str | None = None) -> KeypointTab
     except OSError as error:
         raise InputError(f"{path}: not a readable HDF5 file ({error})") from None
     try:
-        axes = _PlainUnpickler(io.BytesIO(labels.tobytes() if isinstance(labels, np.ndarray) else bytes(labels))).load()
+        axes = load_plain(labels.tobytes() if isinstance(labels, np.ndarray) else bytes(labels))
         columns = [tuple(str(level) for level in label) for label in dict(axes)[1]]
     except (pickle.UnpicklingError, EOFError, TypeError, ValueError, KeyError) as error:
         raise InputError(f"{path}: its column labels (non_index_axes) are not DeepLabCut's ({error})") from None
