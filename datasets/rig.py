@@ -23,6 +23,8 @@ from mmcsplat.storage.camera_names import match_cameras, natural_key
 from mmcsplat.storage.capture_files import read_mask
 from mmcsplat.storage.easymocap_calibration import easymocap_files
 from mmcsplat.storage.ground_truth import GROUND_TRUTH, GroundTruthReader
+from mmcsplat.storage.opencap_calibration import OPENCAP_CALIBRATION, opencap_files
+from mmcsplat.storage.opencap_session import SESSION_VIDEOS
 from mmcsplat.storage.qualisys_calibration import is_qualisys
 
 #: How a decoded size that differs from the calibration's is reconciled (see :func:`fit_camera`).
@@ -45,20 +47,21 @@ POSE2SIM_CONFIG = "Config.toml"
 
 def calibration_candidates(folder: Path) -> list[Path]:
     """The calibrations ``folder`` holds: its ``calibration.toml`` alone if it has one, else its ``*.toml``
-    files that hold cameras (not a Pose2Sim project's ``Config.toml``), its Qualisys ``*.qca.txt`` files and
-    its EasyMocap pair (as the pair's ``intri.yml``)."""
+    files that hold cameras (not a Pose2Sim project's ``Config.toml``), its Qualisys ``*.qca.txt`` files, its
+    EasyMocap pair (as the pair's ``intri.yml``) and the OpenCap files of its camera folders, or of an OpenCap
+    session's (in its ``Videos/``), as the first camera's."""
     default = folder / "calibration.toml"
     if default.is_file():
         return [default]
     pair = easymocap_files(folder)
     found = [path for path in folder.glob("*.toml") if is_camera_toml(path)] + [path for path in folder.glob("*") if is_qualisys(path)]
-    return sorted(found) + ([pair[0]] if pair and all(path.is_file() for path in pair) else [])
+    return sorted(found) + ([pair[0]] if pair and all(path.is_file() for path in pair) else []) + (opencap_files(folder) or opencap_files(folder / SESSION_VIDEOS))[:1]
 
 
 def find_calibration(source: Path, calibration: Path | None) -> Path:
     """``calibration`` when given (a folder: its one calibration; either EasyMocap file stands for the
-    pair, as its ``intri.yml``), else the one calibration of ``source``, else of ``source/calibration/``,
-    else, for a trial of a Pose2Sim batch (:data:`POSE2SIM_CONFIG` in it and in its parent), of the
+    pair, as its ``intri.yml``; one OpenCap camera's file, the rig), else the one calibration of ``source``, else of
+    ``source/calibration/``, else, for a trial of a Pose2Sim batch (:data:`POSE2SIM_CONFIG` in it and in its parent), of the
     session's ``calibration/``."""
     if calibration is None:
         folders = [source / name for name in CALIBRATION_FOLDERS]
@@ -83,7 +86,8 @@ def find_calibration(source: Path, calibration: Path | None) -> Path:
             hint = (f" (Pose2Sim's conversion of {qualisys[0]} to TOML divides its lens distortion by 64: the .qca.txt holds the lens as "
                     "Qualisys calibrated it, docs/ingest.md)") if qualisys and len(qualisys) < len(candidates) else ""
             raise InputError(f"{folder}: several calibration files ({names}); choose one with --calibration{hint}")
-    looked_for = "no calibration.toml, other single *.toml of cameras, Qualisys *.qca.txt, or EasyMocap intri.yml + extri.yml"
+    looked_for = ("no calibration.toml, other single *.toml of cameras, Qualisys *.qca.txt, EasyMocap intri.yml + extri.yml, "
+                  f"or OpenCap camera folders' {OPENCAP_CALIBRATION}")
     if calibration is not None:
         raise MissingFileError(f"calibration folder {calibration}: {looked_for} in it")
     raise MissingFileError(f"{source}: {looked_for} in it or in its calibration/ folder; pass --calibration")

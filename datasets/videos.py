@@ -11,6 +11,9 @@ a camera it states no image size for (EasyMocap's may not) takes its video's. A
 capture brings: ``SOURCE/masks/<camera>/`` holds one mask image per frame, the k-th in natural order
 (``0000.png``, ``0001.png``, …) being frame k; a camera with fewer masks than frames is an error.
 
+An OpenCap session (``SOURCE/Videos/CamN/``, :mod:`mmcsplat.storage.opencap_session`) gives one trial's
+synchronised video from each camera folder, named as the folder.
+
 Caliscope's ``timestamps.csv`` beside ``cam_N`` videos places each video's frames at their moments
 (:mod:`mmcsplat.datasets.caliscope_timing`): a camera that missed a moment the others hold would be out of
 sync frame by frame, so it is refused, or with ``missing_frames="absent"`` (``mmcsplat ingest
@@ -49,6 +52,7 @@ from mmcsplat.plugin_api.parameters import one_of, parameter
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.calibration import AUTO_UNITS, calibration_names, read_rig
 from mmcsplat.storage.camera_names import match_cameras
+from mmcsplat.storage.opencap_session import is_opencap_session, opencap_videos
 
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv")
 
@@ -145,7 +149,7 @@ class VideoReader(Reader):
                                                  "lacks the frame, the others keep it)", validator=one_of(*MISSING_FRAMES_POLICIES))
 
     def detect(self, source: Path) -> bool:
-        return Path(source).is_dir() and bool(video_files(Path(source)))
+        return Path(source).is_dir() and (bool(video_files(Path(source))) or is_opencap_session(Path(source)))
 
     def open(self, source: Path, calibration: Path | None = None, units: str = AUTO_UNITS) -> Recording:
         source = Path(source)
@@ -154,8 +158,11 @@ class VideoReader(Reader):
         calibration = find_calibration(source, calibration)
         # Matched by name first: a calibration stating no image size takes its videos' (read_rig's sizes).
         names = calibration_names(calibration, self.cameras)
-        matched = match_cameras(names, video_files(source), "video", source, self.camera_map, trial=self.trial)
-        paths = {name: camera_video(path) for name, path in matched.items()}
+        if is_opencap_session(source):
+            paths = opencap_videos(source, names, self.trial)
+        else:
+            matched = match_cameras(names, video_files(source), "video", source, self.camera_map, trial=self.trial)
+            paths = {name: camera_video(path) for name, path in matched.items()}
         infos = {name: probe(paths[name]) for name in names}
         rig = read_rig(calibration, units, names, {name: (info.width, info.height) for name, info in infos.items()})
         calibrated = rig.cameras

@@ -155,7 +155,7 @@ def test_the_pair_is_found_beside_the_capture_or_named(tmp_path: Path) -> None:
     write_calibration(source / "calibration" / "Calib_scene.toml", rig.ring_cameras(NAMES))
     with pytest.raises(InputError, match=r"several calibration files \(Calib_scene\.toml, intri\.yml\); choose one with --calibration"):
         find_calibration(source, None)
-    with pytest.raises(MissingFileError, match="no calibration.toml, other single .*toml of cameras, Qualisys .*qca.txt, or EasyMocap intri.yml . extri.yml in it"):
+    with pytest.raises(MissingFileError, match="no calibration.toml, other single .*toml of cameras, Qualisys .*qca.txt, EasyMocap intri.yml . extri.yml, or OpenCap camera folders. cameraIntrinsicsExtrinsics.pickle in it"):
         find_calibration(source, source)
 
 

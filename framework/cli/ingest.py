@@ -19,7 +19,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("out", help="the session to write (a path or URL ending in .zarr)")
     parser.add_argument("--format", choices=default_registry().names("reader"), help="the capture format (auto-detected when omitted)")
     parser.add_argument("--calibration", type=Path, help="calibration to use instead of the one in SOURCE: a .toml (anipose, Pose2Sim, Caliscope's camera_array.toml), "
-                        "Qualisys's .qca.txt, or EasyMocap's intri.yml or extri.yml (the other beside it) or their folder")
+                        "Qualisys's .qca.txt, EasyMocap's intri.yml or extri.yml (the other beside it) or their folder, or "
+                        "an OpenCap camera's cameraIntrinsicsExtrinsics.pickle (the rig: every camera folder beside it)")
     add_units(parser)
     add_frames(parser, "the frame indices to ingest (default: all)")
     parser.add_argument("--scale", type=scale_value, default=1.0, help="resize factor for the stored images, or auto: their longer side "

@@ -26,7 +26,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     parser.add_argument("capture", type=Path, help="the capture folder (videos or images and a calibration)")
     parser.add_argument("--out", required=True, type=Path, help="output directory (created; reused steps are skipped)")
-    parser.add_argument("--calibration", help="calibration .toml (anipose, Pose2Sim, Caliscope), Qualisys .qca.txt or EasyMocap intri.yml (default: the capture's own, see docs/ingest.md)")
+    parser.add_argument("--calibration", help="calibration .toml (anipose, Pose2Sim, Caliscope), Qualisys .qca.txt, EasyMocap intri.yml or an OpenCap "
+                        "camera's .pickle (default: the capture's own, see docs/ingest.md)")
     add_units(parser)
     parser.add_argument("--scale", type=scale_value, default=DEFAULT_SCALE, help="resize factor of the stored images, or auto (the "
                         f"default): their longer side at most {AUTO_LONGEST_SIDE} px, never enlarged (0.25 for 1080 × 1920 video)")

@@ -206,7 +206,7 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
         log(f"run: keypoints: {source['name']} from {keypoints}" + (f" ({', '.join(f'{key}={value}' for key, value in extra.items())})"
                                                                   if extra else ""))
     # Without a TRC or a synthetic truth, the 2D keypoints' own triangulation: what a capture with detections only has.
-    joints = joints_source(capture, settings.joints) or source
+    joints = joints_source(capture, settings.joints, reader_options.get("trial")) or source
     joint_params = {key: value for key, value in joints.items() if key != "name"} if joints else {}
     if joints is not None and joints is source:
         log("run: joints: the keypoints' own triangulation (the capture has no TRC): bound at the fitted frame, carried, and scored "

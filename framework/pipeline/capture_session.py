@@ -22,6 +22,7 @@ from mmcsplat.plugin_api.interfaces import LandmarkSource
 from mmcsplat.scene.human_skeleton import TORSO, TORSO_NAMINGS
 from mmcsplat.storage.calibration import AUTO_UNITS
 from mmcsplat.storage.ground_truth import GROUND_TRUTH, GroundTruthReader
+from mmcsplat.storage.opencap_session import opencap_markers
 
 #: The scale ``mmcsplat run`` ingests a capture at (a real rig's full-size frames fit too slowly on a CPU).
 DEFAULT_SCALE = AUTO_SCALE
@@ -82,17 +83,19 @@ def keypoint_folder(capture: Path, given: str | None) -> Path | None:
         or found(capture, None, FREEMOCAP_KEYPOINTS, "FreeMoCap 2D keypoints file") or caliscope_keypoints(capture)
 
 
-def joints_file(capture: Path, given: str | None) -> Path | None:
+def joints_file(capture: Path, given: str | None, trial: str | None = None) -> Path | None:
     """``given``, else the capture's single ``*.trc``, else the single one in today's Pose2Sim's ``pose-3d/``
-    (where its triangulation writes it); None when there is none."""
-    return found(capture, given, "*.trc", "joints TRC file") or found(capture, None, "pose-3d/*.trc", "joints TRC file")
+    (where its triangulation writes it), else an OpenCap session's markers of ``trial`` (its only trial when
+    None: :func:`~mmcsplat.storage.opencap_session.opencap_markers`); None when there is none."""
+    return found(capture, given, "*.trc", "joints TRC file") or found(capture, None, "pose-3d/*.trc", "joints TRC file") \
+        or opencap_markers(capture, trial)
 
 
-def joints_source(capture: Path, given: str | None) -> dict[str, str] | None:
+def joints_source(capture: Path, given: str | None, trial: str | None = None) -> dict[str, str] | None:
     """The landmarks plugin (``name``) and file (``path``) of the joints ``run`` carries and scores: a TRC
-    (:func:`joints_file`), else the true joints of a synthetic capture (its ``ground_truth.zarr``, written by
+    (:func:`joints_file`; ``trial`` the reader's), else the true joints of a synthetic capture (its ``ground_truth.zarr``, written by
     ``mmcsplat synth``); None when the capture has neither."""
-    trc = joints_file(capture, given)
+    trc = joints_file(capture, given, trial)
     if trc is not None:
         return {"name": "trc", "path": str(trc)}
     truth = capture / GROUND_TRUTH

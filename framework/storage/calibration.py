@@ -1,6 +1,7 @@
 """Read and write anipose ``calibration.toml`` files, and read Pose2Sim's variant of them, Caliscope's
-``camera_array.toml``, EasyMocap's ``intri.yml`` + ``extri.yml`` (parsed by :mod:`.easymocap_calibration`)
-and Qualisys Track Manager's ``.qca.txt`` (parsed by :mod:`.qualisys_calibration`).
+``camera_array.toml``, EasyMocap's ``intri.yml`` + ``extri.yml`` (parsed by :mod:`.easymocap_calibration`),
+Qualisys Track Manager's ``.qca.txt`` (parsed by :mod:`.qualisys_calibration`) and OpenCap's
+``CamN/cameraIntrinsicsExtrinsics.pickle`` files (parsed by :mod:`.opencap_calibration`).
 
 anipose (``CameraGroup.dump``) writes one ``[cam_N]`` table per camera with ``name``, ``size = [w, h]``,
 ``matrix`` (3×3 K), ``distortions`` (k1, k2, p1, p2, k3), ``rotation`` (a Rodrigues vector, world to
@@ -15,7 +16,7 @@ those it has not placed (no rotation or translation; files it wrote before write
 a missing value) are left out, as Caliscope's own export to anipose leaves them out.
 
 Translations in a file are in the calibration board's unit (``"m"`` or ``"mm"``; a Qualisys file's
-always millimetres), or ``"auto"``: whichever of the two puts the rig within :data:`RIG_RADIUS_M` — the two
+and an OpenCap session's always millimetres), or ``"auto"``: whichever of the two puts the rig within :data:`RIG_RADIUS_M` — the two
 readings differ a thousandfold, so at most one is a real rig. The cameras returned are always in metres. Tables named ``cam_N`` are ordered by N (``cam_10`` after ``cam_9``); a file whose
 tables are named otherwise keeps the file's order.
 """
@@ -36,6 +37,7 @@ from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.atomic import write_text_atomic
 from mmcsplat.storage.easymocap_calibration import easymocap_files, easymocap_names, read_easymocap
+from mmcsplat.storage.opencap_calibration import is_opencap, opencap_tables
 from mmcsplat.storage.qualisys_calibration import is_qualisys, qualisys_tables
 
 #: Metres per unit of a calibration file's translations.
@@ -79,11 +81,12 @@ class Rig:
 def read_rig(path: Path, units: str = AUTO_UNITS, cameras: Sequence[str] | None = None,
              sizes: Mapping[str, tuple[int, int]] | None = None) -> Rig:
     """The cameras of an anipose or Pose2Sim ``calibration.toml``, of Caliscope's ``camera_array.toml``, of EasyMocap's ``intri.yml`` and
-    ``extri.yml`` (``path`` either of them or their folder: :mod:`.easymocap_calibration`), or of Qualisys's ``.qca.txt``, in metres,
+    ``extri.yml`` (``path`` either of them or their folder: :mod:`.easymocap_calibration`), of Qualisys's ``.qca.txt``, or of
+    OpenCap's session (``path`` one camera's ``cameraIntrinsicsExtrinsics.pickle``: :mod:`.opencap_calibration`), in metres,
     and the units they were read in.
 
     ``units`` is the unit of the file's translations, or ``"auto"``: the one that puts the rig within
-    :data:`RIG_RADIUS_M` (module docstring); a Qualisys file's are millimetres whatever it says. ``cameras`` (names) keeps only those, in the file's
+    :data:`RIG_RADIUS_M` (module docstring); a Qualisys file's and OpenCap's are millimetres whatever it says. ``cameras`` (names) keeps only those, in the file's
     order, and checks only them: a broken camera left out (a copied table) does not stop the others.
     ``sizes`` (name → width, height) gives the image size of a camera whose file states none (EasyMocap's
     may not): the readers pass their decoded frames' sizes; a stated size wins. Errors name the file and
@@ -91,7 +94,7 @@ def read_rig(path: Path, units: str = AUTO_UNITS, cameras: Sequence[str] | None 
     """
     path = Path(path)
     metres_per_unit(units)  # unknown units are refused before the file is read
-    if is_qualisys(path):
+    if is_qualisys(path) or is_opencap(path):
         units = "mm"
     pair = easymocap_files(path)
     if pair:
@@ -168,6 +171,8 @@ def _tables(path: Path) -> list[tuple[str, str, dict[str, Any]]]:
     TOML file's ``cam_N`` by N, others in the file's order."""
     if is_qualisys(path):
         return qualisys_tables(path)
+    if is_opencap(path):
+        return opencap_tables(path)
     try:
         with path.open("rb") as file:
             document = tomllib.load(file)

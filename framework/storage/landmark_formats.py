@@ -14,6 +14,11 @@ then one row per frame: the frame number, the time in seconds and X, Y, Z per ma
 missing value). Units are ``m`` or ``mm``. Axes: Pose2Sim writes Y up, and in the calibration's world
 frame (mmcsplat's) a joint is (trc Z, trc X, trc Y); so with ``convention="pose2sim"`` world = (Z, X, Y)
 and the file's (X, Y, Z) = (world y, world z, world x). ``convention="none"`` keeps the axes as they are.
+OpenCap writes Y up too, turned from its calibration board's frame (the world of its cameras,
+:mod:`.opencap_calibration`) by the board's placement: ``"opencap-ground"`` (a board lying on the floor)
+world = (−Z, X, −Y), ``"opencap-wall"`` (a board upright on a wall) world = (−Z, −Y, −X), and
+``"opencap-wall-inverted"`` (the same board upside down) world = (Z, Y, −X) (:func:`.opencap_calibration.opencap_convention`
+tells them apart from the cameras). OpenCap's first line has a space after ``PathFileType``, not a tab.
 
 **CSV** (``.csv``): long format, one row per frame and landmark, columns ``frame,time,name,x,y,z`` in
 metres in mmcsplat's world frame, then any extra numeric columns (``spread_mm``, ``confidence``, …), one
@@ -55,10 +60,23 @@ import numpy as np
 from mmcsplat.plugin_api.errors import InputError, MissingFileError
 from mmcsplat.storage.atomic import atomic_path, write_text_atomic
 
-#: Axis conventions of TRC files: the world axis each file axis is taken from (file = world[..., TO_FILE]).
-TRC_CONVENTIONS = ("pose2sim", "none")
-_TO_FILE = {"pose2sim": (1, 2, 0), "none": (0, 1, 2)}  # trc (X, Y, Z) = (world y, world z, world x)
-_TO_WORLD = {"pose2sim": (2, 0, 1), "none": (0, 1, 2)}  # world (x, y, z) = (trc Z, trc X, trc Y)
+#: Axis conventions of TRC files (module docstring): world = AXES[convention] @ trc, a signed permutation,
+#: so trc = AXES[convention].T @ world.
+TRC_AXES = {
+    "pose2sim": np.array([[0, 0, 1], [1, 0, 0], [0, 1, 0]], dtype=np.float64),
+    "none": np.eye(3),
+    "opencap-ground": np.array([[0, 0, -1], [1, 0, 0], [0, -1, 0]], dtype=np.float64),
+    "opencap-wall": np.array([[0, 0, -1], [0, -1, 0], [-1, 0, 0]], dtype=np.float64),
+    "opencap-wall-inverted": np.array([[0, 0, 1], [0, 1, 0], [-1, 0, 0]], dtype=np.float64),
+}
+TRC_CONVENTIONS = tuple(TRC_AXES)
+
+
+def _turned(positions: np.ndarray, axes: np.ndarray) -> np.ndarray:
+    """``axes @ p`` for every point p of ``positions`` [..., 3], ``axes`` a signed permutation: by picking and
+    negating coordinates, so that a point missing one coordinate leaves the others as they were."""
+    index = np.abs(axes).argmax(axis=1)
+    return positions[..., index] * axes[np.arange(3), index]
 #: Length units, in metres.
 _UNITS = {"m": 1.0, "mm": 1e-3}
 _C3D_UNITS = {"m": 1.0, "cm": 1e-2, "mm": 1e-3}
@@ -199,8 +217,7 @@ def read_trc(path: str | os.PathLike, convention: str = "pose2sim") -> TrcData:
             raise InputError(f"{path}, line {number}: the file ends inside the TRC header ({len(lines)} line(s))")
         return lines[number - 1].split("\t")
 
-    first = line(1)
-    if first[0].strip() != "PathFileType":
+    if line(1)[0].split()[:1] != ["PathFileType"]:  # OpenCap's writes a space after it, not a tab
         raise InputError(f"{path}, line 1: not a TRC file (it starts {lines[0][:40]!r}, a TRC file with 'PathFileType')")
     keys, values = [cell.strip() for cell in line(2)], [cell.strip() for cell in line(3)]
     while keys and not keys[-1]:
@@ -252,7 +269,7 @@ def read_trc(path: str | os.PathLike, convention: str = "pose2sim") -> TrcData:
 
     positions = np.asarray(rows, dtype=np.float64).reshape(len(rows), len(names), 3) * _UNITS[units]
     return TrcData(names=names, frame_numbers=np.asarray(frame_numbers, dtype=np.int64), times=np.asarray(times, dtype=np.float64),
-                   positions=positions[..., list(_TO_WORLD[convention])], rate=rate, units=units,
+                   positions=_turned(positions, TRC_AXES[convention]), rate=rate, units=units,
                    incomplete=header.get(TRC_INCOMPLETE_KEY))
 
 
@@ -275,7 +292,7 @@ def write_trc(path: str | os.PathLike, names: Sequence[str], times: np.ndarray, 
     if "\t" in path.name or "\n" in path.name:
         raise InputError(f"{path}: a TRC file name may not hold a tab or a line break")
 
-    values = positions[..., list(_TO_FILE[convention])] / _UNITS[units]
+    values = _turned(positions, TRC_AXES[convention].T) / _UNITS[units]
     count = len(values)
     out = io.StringIO()
     out.write(f"PathFileType\t4\t(X/Y/Z)\t{path.name}\n")

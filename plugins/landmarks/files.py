@@ -21,7 +21,11 @@ from mmcsplat.plugin_api.interfaces import Landmarks, LandmarkSource
 from mmcsplat.plugin_api.parameters import non_empty, one_of, parameter
 from mmcsplat.storage.calibration import metres_per_unit
 from mmcsplat.storage.landmark_formats import CSV_SHORT_COLUMNS, TRC_CONVENTIONS, read_landmark_csv, read_trc
+from mmcsplat.storage.opencap_calibration import is_opencap, opencap_convention
 from mmcsplat.storage.session import SessionReader
+
+#: The TRC source's convention that lets the session decide (:meth:`TrcLandmarks.resolved_convention`).
+AUTO_CONVENTION = "auto"
 
 
 def _rows_at(table_frames: np.ndarray, positions: np.ndarray, wanted: np.ndarray) -> np.ndarray:
@@ -39,13 +43,24 @@ class TrcLandmarks(LandmarkSource):
     """Marker trajectories of a TRC file (units from its header)."""
 
     path: str = parameter(doc="the .trc file", validator=non_empty, kw_only=True)
-    convention: str = parameter("pose2sim", doc="axes: pose2sim (Y-up: a point is (Z, X, Y) in the calibration's frame) or none (as written)",
-                                validator=one_of(*TRC_CONVENTIONS))
+    convention: str = parameter(AUTO_CONVENTION, doc="axes: pose2sim (Y-up: a point is (Z, X, Y) in the calibration's frame), none (as "
+                                "written), opencap-ground, opencap-wall, opencap-wall-inverted (OpenCap's, by its board's placement), or "
+                                "auto: OpenCap's for a session calibrated by OpenCap, else pose2sim", validator=one_of(AUTO_CONVENTION, *TRC_CONVENTIONS))
 
     def read(self, session: SessionReader, frames: Sequence[int]) -> Landmarks:
-        data = read_trc(self.path, self.convention)
+        data = read_trc(self.path, self.resolved_convention(session))
         positions = _rows_at(np.arange(len(data.times)), data.positions, session.capture_frames(frames))
         return Landmarks(data.names, frames, positions, source=f"TRC {Path(self.path)}")
+
+    def resolved_convention(self, session: SessionReader) -> str:
+        """The convention, ``auto`` resolved: OpenCap's placement (from the session's cameras) where the
+        session was calibrated by OpenCap (:mod:`mmcsplat.storage.opencap_calibration`), else pose2sim."""
+        if self.convention != AUTO_CONVENTION:
+            return self.convention
+        calibration = session.provenance.get("reader", {}).get("calibration")
+        if calibration is None or not is_opencap(Path(calibration)):
+            return "pose2sim"
+        return opencap_convention([session.camera(name) for name in session.camera_names], f"TRC {self.path}")
 
 
 @attrs.frozen
