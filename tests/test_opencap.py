@@ -17,7 +17,7 @@ from mmcsplat.pipeline.ingest import detect_format, ingest
 from mmcsplat.plugin_api.errors import InputError, MissingFileError
 from mmcsplat.plugins.landmarks.files import TrcLandmarks
 from mmcsplat.scene.camera import Camera
-from mmcsplat.storage.calibration import read_rig, write_calibration
+from mmcsplat.storage.calibration import format_units, read_rig, write_calibration
 from mmcsplat.storage.landmark_formats import TRC_AXES, read_trc, write_trc
 from mmcsplat.storage.opencap_calibration import OPENCAP_CALIBRATION, TRC_PLACEMENTS, opencap_convention
 from mmcsplat.storage.opencap_session import opencap_markers, opencap_videos
@@ -52,6 +52,7 @@ def test_the_rig_is_every_camera_folder_in_number_order_in_metres(tmp_path: Path
         assert read.units == "mm"
         assert_same_cameras(read.cameras, [cameras[0], cameras[2], cameras[1]])
     assert [c.name for c in read_rig(first, cameras=["Cam2", "Cam10"]).cameras] == ["Cam2", "Cam10"]
+    assert read_rig(first, units="m").units == format_units(first) == "mm"  # OpenCap's unit, whatever --units says
     for given in (None, tmp_path, tmp_path / "Videos", first):
         assert find_calibration(tmp_path, given) == first
 

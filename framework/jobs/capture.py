@@ -62,7 +62,7 @@ from mmcsplat.pipeline.steps import BEFORE_FIELD, SettingsRecord, Step, StepTime
 from mmcsplat.plugin_api.errors import InputError, SubjectMaskError
 from mmcsplat.plugin_api.parameters import describe_parameters
 from mmcsplat.storage.atomic import write_json_atomic
-from mmcsplat.storage.calibration import AUTO_UNITS
+from mmcsplat.storage.calibration import AUTO_UNITS, format_units
 from mmcsplat.storage.run import LANDMARKS_CSV, LANDMARKS_INFO, METRICS_FILE, MOVEMENT_JSON, RENDERS_DIR, REPORT_FILE, RUN_INFO, TRACK_INFO, TRACKS_DIR
 from mmcsplat.training.frame_steps import AUTO_STEPS, FEWEST_STEPS, STEPS_PER_SECOND, steps_per_frame
 
@@ -281,9 +281,12 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
                                          cameras=list(settings.cameras) or None, holdout=list(settings.holdout), source=source,
                                          reader_options=reader_options, segmenter=segmenter, progress=progress)
         write_json_atomic(out / MASKS_FILE, choice)
-        chosen = units_chosen(SessionReader(partial), settings.units)
+        stored = SessionReader(partial)
+        chosen = units_chosen(stored, settings.units)
         if chosen:
-            log(f"run: calibration read in {chosen} (--units auto: in metres its rig would be implausible)")
+            calibration = stored.provenance.get("reader", {}).get("calibration")
+            why = "its format's unit" if calibration and format_units(Path(calibration)) else "--units auto: in metres its rig would be implausible"
+            log(f"run: calibration read in {chosen} ({why})")
         log(f"run: masks: {choice['detail']}")
 
     def fit() -> None:

@@ -94,8 +94,7 @@ def read_rig(path: Path, units: str = AUTO_UNITS, cameras: Sequence[str] | None 
     """
     path = Path(path)
     metres_per_unit(units)  # unknown units are refused before the file is read
-    if is_qualisys(path) or is_opencap(path):
-        units = "mm"
+    units = format_units(path) or units
     pair = easymocap_files(path)
     if pair:
         where = f"calibration {pair[0]} and {pair[1].name}"
@@ -110,6 +109,12 @@ def read_rig(path: Path, units: str = AUTO_UNITS, cameras: Sequence[str] | None 
     read = [camera.with_units(UNITS[units]) for camera in read]
     check_rig(read, where, units)
     return Rig(read, units)
+
+
+def format_units(path: Path) -> str | None:
+    """The unit a calibration's format always writes translations in (Qualisys's and OpenCap's millimetres),
+    or None where the file's unit varies with the board."""
+    return "mm" if is_qualisys(path) or is_opencap(path) else None
 
 
 def read_calibration(path: Path, units: str = AUTO_UNITS, cameras: Sequence[str] | None = None,
