@@ -76,6 +76,13 @@ def test_refine_against_plates_needs_plates(sessions):
         next(segmenter.segment(SessionReader(sessions[0]), "cam_0"))
 
 
+def test_two_cameras_are_refused_saying_how_else_to_give_masks(sessions, tmp_path):
+    """Two phones, no keypoints (OpenCap's usual rig): the floor needs a third camera to judge it."""
+    ingest(sessions[2], tmp_path / "two.zarr", cameras=["cam_0", "cam_1"], progress=False)
+    with pytest.raises(InputError, match=r"needs at least 3 cameras, got 2; give the masks another way: .*--keypoints PATH.*--segmenter NAME"):
+        default_registry().create("segmenter", "parallax").floor(SessionReader(tmp_path / "two.zarr"))
+
+
 def test_a_built_segmenter_refuses_parameters_it_would_not_use(sessions):
     built = BuiltSegmenter("parallax", default_registry().create("segmenter", "parallax"))
     with pytest.raises(ValueError, match="'parallax' is already built"):

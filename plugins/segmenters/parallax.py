@@ -317,8 +317,9 @@ class ParallaxSegmenter(PostProcessedSegmenter):
         if key not in self._cache:
             cameras = [session.camera(name) for name in session.camera_names]
             if len(cameras) < 3:
-                raise InputError(f"{session.url}: the parallax segmenter needs at least 3 cameras, got {len(cameras)}; "
-                                 "choose another segmenter (keypoints, background)")
+                raise InputError(f"{session.url}: the parallax segmenter needs at least 3 cameras, got {len(cameras)}; give the masks "
+                                 "another way: from 2D keypoints (the keypoints segmenter; mmcsplat run --keypoints PATH), clean plates "
+                                 "(background), or a person-segmentation plugin (--segmenter NAME)")
             medians = [median_image(session, name, SWEEP_SAMPLES) for name in session.camera_names]
             self._cache[key] = sweep_floor(cameras, medians, floor_normal(cameras))
         return self._cache[key]
