@@ -16,6 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from mmcsplat.analysis.movement import flexion
 from mmcsplat.cli import main
+from mmcsplat.outputs import landmark_export
 from mmcsplat.storage.landmark_formats import read_c3d, read_landmark_csv, read_trc, write_landmark_csv
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.storage.tracks import TrackWriter
@@ -110,6 +111,17 @@ def test_exports_read_back(scene, tmp_path):
     np.testing.assert_allclose(positions[:, :CARRIED], truth[:, :CARRIED], atol=1e-5)  # float32 millimetres
     assert np.isnan(positions[:, CARRIED]).all()
     assert read_landmark_csv(files["csv"])[0] == NAMES
+
+
+def test_a_trc_export_takes_the_axes_of_its_sessions_world(scene, tmp_path, monkeypatch):
+    """A session calibrated by OpenCap (its world the board's: storage.opencap_session.trc_convention) exports
+    in OpenCap's Y-up axes, not in Pose2Sim's, which take the world's z for up."""
+    run, path, truth = scene
+    assert main(["landmarks", str(run), "--source", "csv", "--set", f"path={path}"]) == 0
+    monkeypatch.setattr(landmark_export, "trc_convention", lambda session: "opencap-ground")
+    assert main(["export", str(run), f"--trc={tmp_path / 'joints.trc'}"]) == 0
+    np.testing.assert_allclose(read_trc(tmp_path / "joints.trc", "opencap-ground").positions[:, :CARRIED], truth[:, :CARRIED], atol=2e-6)
+    assert not np.allclose(read_trc(tmp_path / "joints.trc", "pose2sim").positions[:, :CARRIED], truth[:, :CARRIED], atol=1e-3)
 
 
 def test_no_landmark_near_the_subject_is_an_error(scene, tmp_path, capsys):

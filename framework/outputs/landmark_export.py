@@ -14,6 +14,7 @@ import numpy as np
 from mmcsplat.pipeline.run_frames import RunStates
 from mmcsplat.plugin_api.errors import InputError, MissingFileError, OutputExistsError
 from mmcsplat.storage.landmark_formats import CSV_INCOMPLETE_COLUMN, read_landmark_csv, write_c3d, write_landmark_csv, write_trc
+from mmcsplat.storage.opencap_session import trc_convention
 from mmcsplat.storage.run import LANDMARKS_CSV, LANDMARKS_INFO
 
 #: Where and with what each format's files begin (a C3D's second byte is 0x50, its first a block number):
@@ -68,15 +69,15 @@ def export_landmarks(run: str | Path, trc: str | Path | None = None, csv: str | 
     incomplete = f"incomplete run {run}: {'; '.join(problems)}" if problems else None
     if incomplete:
         extra = {**extra, CSV_INCOMPLETE_COLUMN: np.ones(positions.shape[:2])}
-    rate = RunStates(run).session.fps
+    session = RunStates(run).session
     written = []
     if trc is not None:
-        write_trc(trc, names, times, positions, rate, incomplete=incomplete)
+        write_trc(trc, names, times, positions, session.fps, convention=trc_convention(session), incomplete=incomplete)
         written.append(Path(trc))
     if csv is not None:
         write_landmark_csv(csv, names, frames, times, positions, extra=extra)
         written.append(Path(csv))
     if c3d is not None:
-        write_c3d(c3d, names, times, positions, rate, incomplete=incomplete)
+        write_c3d(c3d, names, times, positions, session.fps, incomplete=incomplete)
         written.append(Path(c3d))
     return written

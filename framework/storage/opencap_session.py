@@ -22,7 +22,8 @@ from pathlib import Path
 from mmcsplat.plugin_api.errors import InputError, MissingFileError
 from mmcsplat.storage.calibration import read_rig
 from mmcsplat.storage.camera_names import natural_key
-from mmcsplat.storage.opencap_calibration import opencap_convention, opencap_files
+from mmcsplat.storage.opencap_calibration import is_opencap, opencap_convention, opencap_files
+from mmcsplat.storage.session import SessionReader
 
 #: Where a session keeps its cameras' folders, and where a camera's folder keeps its trials' videos.
 SESSION_VIDEOS = "Videos"
@@ -101,3 +102,13 @@ def opencap_markers(source: Path, trial: str | None) -> Path | None:
                       "give markers without the lift with --joints", stacklevel=2)
         return None
     return path.resolve()
+
+
+def trc_convention(session: SessionReader) -> str:
+    """The axes a TRC of ``session``'s world takes (:data:`~.landmark_formats.TRC_AXES`): OpenCap's, by its
+    board's placement (:func:`~.opencap_calibration.opencap_convention`), where the session was calibrated
+    by OpenCap, so that its Y is up and its markers meet it; Pose2Sim's (a Z-up world) otherwise."""
+    calibration = session.provenance.get("reader", {}).get("calibration")
+    if calibration is None or not is_opencap(Path(calibration)):
+        return "pose2sim"
+    return opencap_convention([session.camera(name) for name in session.camera_names], f"session {session.url}")

@@ -21,7 +21,7 @@ from mmcsplat.plugin_api.interfaces import Landmarks, LandmarkSource
 from mmcsplat.plugin_api.parameters import non_empty, one_of, parameter
 from mmcsplat.storage.calibration import metres_per_unit
 from mmcsplat.storage.landmark_formats import CSV_SHORT_COLUMNS, TRC_CONVENTIONS, read_landmark_csv, read_trc
-from mmcsplat.storage.opencap_calibration import is_opencap, opencap_convention
+from mmcsplat.storage.opencap_session import trc_convention
 from mmcsplat.storage.session import SessionReader
 
 #: The TRC source's convention that lets the session decide (:meth:`TrcLandmarks.resolved_convention`).
@@ -53,14 +53,8 @@ class TrcLandmarks(LandmarkSource):
         return Landmarks(data.names, frames, positions, source=f"TRC {Path(self.path)}")
 
     def resolved_convention(self, session: SessionReader) -> str:
-        """The convention, ``auto`` resolved: OpenCap's placement (from the session's cameras) where the
-        session was calibrated by OpenCap (:mod:`mmcsplat.storage.opencap_calibration`), else pose2sim."""
-        if self.convention != AUTO_CONVENTION:
-            return self.convention
-        calibration = session.provenance.get("reader", {}).get("calibration")
-        if calibration is None or not is_opencap(Path(calibration)):
-            return "pose2sim"
-        return opencap_convention([session.camera(name) for name in session.camera_names], f"TRC {self.path}")
+        """The convention, ``auto`` resolved by the session (:func:`~mmcsplat.storage.opencap_session.trc_convention`)."""
+        return trc_convention(session) if self.convention == AUTO_CONVENTION else self.convention
 
 
 @attrs.frozen
