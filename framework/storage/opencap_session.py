@@ -10,7 +10,10 @@ the recorded size) is scaled to them by the reader's ``size_mismatch`` rule, wit
 A session holds several trials (a neutral pose beside the movements): one is chosen by the reader's
 ``trial`` parameter (``--reader-set trial=NAME``), or is the only one. The trial's markers, OpenCap's
 triangulation of its keypoints with the markers its model adds, are ``MarkerData/<trial>.trc``
-(:data:`~.landmark_formats.TRC_AXES` says how its axes lie).
+(:data:`~.landmark_formats.TRC_AXES` says how its axes lie, :func:`trc_convention` which of them a session takes).
+
+The phones' 2D keypoints (``Videos/CamN/OutputPkl/<trial>_keypoints.pkl``) are numbered by the uploads'
+frames, whose start in the synchronised videos the download does not keep: they are not read.
 """
 
 from __future__ import annotations
