@@ -71,12 +71,6 @@ TRC_AXES = {
 }
 TRC_CONVENTIONS = tuple(TRC_AXES)
 
-
-def _turned(positions: np.ndarray, axes: np.ndarray) -> np.ndarray:
-    """``axes @ p`` for every point p of ``positions`` [..., 3], ``axes`` a signed permutation: by picking and
-    negating coordinates, so that a point missing one coordinate leaves the others as they were."""
-    index = np.abs(axes).argmax(axis=1)
-    return positions[..., index] * axes[np.arange(3), index]
 #: Length units, in metres.
 _UNITS = {"m": 1.0, "mm": 1e-3}
 _C3D_UNITS = {"m": 1.0, "cm": 1e-2, "mm": 1e-3}
@@ -197,6 +191,13 @@ def _int_cell(text: str, where: str, what: str) -> int:
 
 
 # --- TRC -----------------------------------------------------------------------------------------------------
+
+
+def _turned(positions: np.ndarray, axes: np.ndarray) -> np.ndarray:
+    """``axes @ p`` for every point p of ``positions`` [..., 3], ``axes`` a signed permutation: by picking and
+    negating coordinates, so that a point missing one coordinate leaves the others as they were."""
+    index = np.abs(axes).argmax(axis=1)
+    return positions[..., index] * axes[np.arange(3), index]
 
 
 def _check_convention(convention: str) -> None:
