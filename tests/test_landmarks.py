@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import csv
 import json
+import warnings
 
 import numpy as np
 import pytest
@@ -17,7 +18,8 @@ from scipy.spatial.transform import Rotation
 from mmcsplat.analysis.movement import flexion
 from mmcsplat.cli import main
 from mmcsplat.outputs import landmark_export
-from mmcsplat.storage.landmark_formats import read_c3d, read_landmark_csv, read_trc, write_landmark_csv
+from mmcsplat.plugins.landmarks.files import TrcLandmarks
+from mmcsplat.storage.landmark_formats import read_c3d, read_landmark_csv, read_trc, write_landmark_csv, write_trc
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.storage.tracks import TrackWriter
 from mmcsplat.training.fitted_run import FittedRun
@@ -122,6 +124,18 @@ def test_a_trc_export_takes_the_axes_of_its_sessions_world(scene, tmp_path, monk
     assert main(["export", str(run), f"--trc={tmp_path / 'joints.trc'}"]) == 0
     np.testing.assert_allclose(read_trc(tmp_path / "joints.trc", "opencap-ground").positions[:, :CARRIED], truth[:, :CARRIED], atol=2e-6)
     assert not np.allclose(read_trc(tmp_path / "joints.trc", "pose2sim").positions[:, :CARRIED], truth[:, :CARRIED], atol=1e-3)
+
+
+def test_a_trc_at_another_rate_than_the_video_is_said(scene, tmp_path):
+    """A marker system's TRC (100 Hz) beside 30 fps video: row k is not frame k, and the reader says so."""
+    run, _, truth = scene
+    session = SessionReader(FittedRun.load(run).info.session)
+    for rate, said in ((session.fps, False), (session.fps * 1.005, False), (100.0, True)):
+        write_trc(tmp_path / "m.trc", NAMES, np.arange(len(truth)) / rate, truth, rate)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            TrcLandmarks(path=str(tmp_path / "m.trc")).read(session, [0])
+        assert any("DataRate 100 Hz, but session" in str(w.message) for w in caught) == said
 
 
 def test_no_landmark_near_the_subject_is_an_error(scene, tmp_path, capsys):

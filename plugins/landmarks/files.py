@@ -4,13 +4,15 @@
 
 A TRC file's rows are the capture's frames in order (row 1 = capture frame 0, as Pose2Sim writes them for
 a video's frames); session frames map to them through the session's capture frame numbers, so an
-ingest of ``--frames 10:50:2`` still meets the right rows. A CSV's ``frame`` column holds capture frame
+ingest of ``--frames 10:50:2`` still meets the right rows; a file whose DataRate is not the session's frame
+rate (a marker system's own, 100 Hz beside 60 fps video) is said, since its rows are then not the frames. A CSV's ``frame`` column holds capture frame
 numbers the same way; the one-frame form applies to the run's fitted frame, whichever it is.
 """
 
 from __future__ import annotations
 
 import csv
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -24,6 +26,9 @@ from mmcsplat.storage.landmark_formats import CSV_SHORT_COLUMNS, TRC_CONVENTIONS
 from mmcsplat.storage.opencap_session import trc_convention
 from mmcsplat.storage.session import SessionReader
 
+#: How far a TRC's DataRate may be from the session's frame rate, relative, before it is said (a phone's
+#: 59.94 or 59.98 fps against a file's 60 is the same rate).
+RATE_TOLERANCE = 0.01
 #: The TRC source's convention that lets the session decide (:meth:`TrcLandmarks.resolved_convention`).
 AUTO_CONVENTION = "auto"
 
@@ -49,6 +54,10 @@ class TrcLandmarks(LandmarkSource):
 
     def read(self, session: SessionReader, frames: Sequence[int]) -> Landmarks:
         data = read_trc(self.path, self.resolved_convention(session))
+        if abs(data.rate - session.fps) > RATE_TOLERANCE * session.fps:
+            warnings.warn(f"TRC {self.path}: DataRate {data.rate:g} Hz, but session {session.url} is at {session.fps:g} fps; its row k is "
+                          "taken as the capture's frame k, so if its rows are not the video's frames (a marker system's own rate), "
+                          "resample it to them", stacklevel=2)
         positions = _rows_at(np.arange(len(data.times)), data.positions, session.capture_frames(frames))
         return Landmarks(data.names, frames, positions, source=f"TRC {Path(self.path)}")
 
