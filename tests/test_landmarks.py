@@ -130,12 +130,12 @@ def test_a_trc_at_another_rate_than_the_video_is_said(scene, tmp_path):
     """A marker system's TRC (100 Hz) beside 30 fps video: row k is not frame k, and the reader says so."""
     run, _, truth = scene
     session = SessionReader(FittedRun.load(run).info.session)
-    for rate, said in ((session.fps, False), (session.fps * 1.005, False), (100.0, True)):
+    for rate, said in ((session.capture_fps, False), (session.capture_fps * 1.005, False), (100.0, True)):
         write_trc(tmp_path / "m.trc", NAMES, np.arange(len(truth)) / rate, truth, rate)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             TrcLandmarks(path=str(tmp_path / "m.trc")).read(session, [0])
-        assert any("DataRate 100 Hz, but session" in str(w.message) for w in caught) == said
+        assert any("DataRate 100 Hz, but the capture of session" in str(w.message) for w in caught) == said
 
 
 def test_no_landmark_near_the_subject_is_an_error(scene, tmp_path, capsys):

@@ -4,6 +4,7 @@ synchronised videos and trials, its markers' axes, and ingest beside the same ca
 from __future__ import annotations
 
 import pickle
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -181,3 +182,17 @@ def test_opencaps_trc_header_is_read(tmp_path: Path) -> None:
     text = (tmp_path / "m.trc").read_text()
     (tmp_path / "m.trc").write_text(text.replace("PathFileType\t4", "PathFileType  4", 1))
     assert read_trc(tmp_path / "m.trc").names == ("Neck",)
+
+
+def test_a_session_of_every_other_frame_keeps_the_captures_rate_for_its_markers(tmp_path: Path) -> None:
+    """Ingested with a step, the session runs at half the rate; its markers' rows are still the capture's frames."""
+    cameras = rig.ring_cameras(NAMES[:2])
+    write_session(tmp_path, cameras, {TRIAL: 4})
+    stored = ingest(tmp_path, tmp_path / "s.zarr", frames=slice(0, 4, 2), progress=False)
+    assert (stored.fps, stored.capture_fps) == (15.0, 30.0)
+    world = np.arange(12, dtype=float).reshape(4, 1, 3)
+    write_trc(tmp_path / "m.trc", ("Neck",), np.arange(4) / 30, world, 30, convention="opencap-ground")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        read = TrcLandmarks(path=str(tmp_path / "m.trc"), convention="opencap-ground").read(stored, [0, 1])
+    np.testing.assert_allclose(read.positions, world[[0, 2]], atol=1e-6)

@@ -54,10 +54,10 @@ class TrcLandmarks(LandmarkSource):
 
     def read(self, session: SessionReader, frames: Sequence[int]) -> Landmarks:
         data = read_trc(self.path, self.resolved_convention(session))
-        if abs(data.rate - session.fps) > RATE_TOLERANCE * session.fps:
-            warnings.warn(f"TRC {self.path}: DataRate {data.rate:g} Hz, but session {session.url} is at {session.fps:g} fps; its row k is "
-                          "taken as the capture's frame k, so if its rows are not the video's frames (a marker system's own rate), "
-                          "resample it to them", stacklevel=2)
+        if abs(data.rate - session.capture_fps) > RATE_TOLERANCE * session.capture_fps:
+            warnings.warn(f"TRC {self.path}: DataRate {data.rate:g} Hz, but the capture of session {session.url} is at {session.capture_fps:g} "
+                          "fps; its row k is taken as the capture's frame k, so if its rows are not the video's frames (a marker system's own "
+                          "rate), resample it to them", stacklevel=2)
         positions = _rows_at(np.arange(len(data.times)), data.positions, session.capture_frames(frames))
         return Landmarks(data.names, frames, positions, source=f"TRC {Path(self.path)}")
 

@@ -121,6 +121,11 @@ class SessionReader(SessionBase):
         self.cache = FrameCache(cache_bytes)
         self._arrays: dict[tuple[str, str], Any] = {}
 
+    @property
+    def capture_fps(self) -> float:
+        """The source capture's frame rate: the session's times the ``--frames`` step ingest took."""
+        return self.fps * (self.provenance.get("frames", [0, None, 1])[2] or 1)
+
     def capture_frames(self, frames: Sequence[int] | np.ndarray) -> np.ndarray:
         """The frame numbers in the source capture of session ``frames`` (ingest may have taken
         ``--frames START:STOP:STEP``)."""
