@@ -96,4 +96,7 @@ def mmcsplat_landmarks() -> list[Registration]:
                      "FreeMoCap's 2D keypoints of every camera (MediaPipe or YOLO, one .npy file), triangulated in the session's cameras"),
         Registration("caliscope", "mmcsplat.plugins.landmarks.caliscope:CaliscopeKeypoints",
                      "Caliscope's 2D keypoints of every camera (a body tracker's xy_TRACKER.csv), triangulated in the session's cameras"),
+        Registration("opencap", "mmcsplat.plugins.landmarks.opencap:OpencapKeypoints",
+                     "an OpenCap session's 2D keypoints of every phone (OutputPkl/TRIAL_keypoints.pkl), placed in its synchronised videos by "
+                     "the trial's markers, triangulated in the session's cameras"),
     ]

@@ -3,8 +3,10 @@ synchronised videos and trials, its markers' axes, and ingest beside the same ca
 
 from __future__ import annotations
 
+import logging
 import pickle
 import warnings
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -13,10 +15,11 @@ import rig_fixtures as rig
 from test_easymocap_calibration import assert_same_cameras
 
 from mmcsplat.datasets.rig import find_calibration
-from mmcsplat.pipeline.capture_session import joints_file
+from mmcsplat.pipeline.capture_session import joints_file, keypoint_folder, keypoint_source
 from mmcsplat.pipeline.ingest import detect_format, ingest
 from mmcsplat.plugin_api.errors import InputError, MissingFileError
 from mmcsplat.plugins.landmarks.files import TrcLandmarks
+from mmcsplat.plugins.landmarks.opencap import BODY_25, OpencapKeypoints
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.calibration import format_units, read_rig, write_calibration
 from mmcsplat.storage.landmark_formats import TRC_AXES, read_trc, write_trc
@@ -196,3 +199,69 @@ def test_a_session_of_every_other_frame_keeps_the_captures_rate_for_its_markers(
         warnings.simplefilter("error")
         read = TrcLandmarks(path=str(tmp_path / "m.trc"), convention="opencap-ground").read(stored, [0, 1])
     np.testing.assert_allclose(read.positions, world[[0, 2]], atol=1e-6)
+
+
+#: The joints of the markers the keypoint tests move, by BODY_25's names.
+MOVING = ("Neck", "RShoulder", "LShoulder", "RHip", "LHip", "RKnee", "LKnee", "RWrist")
+STARTS = {"Cam0": 3, "Cam10": 7, "Cam2": 0}
+
+
+def ground_ring(names: Sequence[str]) -> list[Camera]:
+    """The ring's cameras in the frame of a board lying on the floor (its z down)."""
+    board = np.diag([1.0, -1.0, -1.0])
+    return [Camera(c.name, c.width, c.height, c.K, c.R @ board, c.t, c.distortion) for c in rig.ring_cameras(names)]
+
+
+def keypoint_session(folder: Path, frames: int = 8) -> np.ndarray:
+    """An OpenCap session of three phones whose recordings are twice the synchronised videos' size and start
+    :data:`STARTS` frames before them, with their detections (a bystander in every frame) and the trial's
+    markers; returns the markers' world positions [T, len(MOVING), 3]."""
+    cameras = ground_ring(NAMES)
+    write_session(folder, cameras, {TRIAL: frames})
+    phase = 0.9 * np.arange(frames)[:, None] + np.arange(len(MOVING))[None]  # [T, J]: every joint swings its own way
+    rest = np.array([[0.0, 0.05 * i - 0.2, -0.4 - 0.05 * i] for i in range(len(MOVING))])
+    world = rest + 0.04 * np.stack([np.sin(phase), np.cos(0.8 * phase), np.zeros_like(phase)], axis=-1)
+    for camera in cameras:
+        recording = Camera(camera.name, 2 * camera.width, 2 * camera.height, np.diag([2.0, 2.0, 1.0]) @ camera.K + [[0, 0, 0.5], [0, 0, 0.5], [0, 0, 0]],
+                           camera.R, camera.t, camera.distortion)
+        (folder / "Videos" / camera.name / OPENCAP_CALIBRATION).write_bytes(pickle.dumps(calibration_content(recording)))
+        detections = []
+        for k in range(-STARTS[camera.name], frames + 2):
+            subject = np.zeros((25, 3))
+            if 0 <= k < frames:
+                subject[[BODY_25.index(name) for name in MOVING]] = np.column_stack([recording.project(world[k]), np.full(len(MOVING), 0.9)])
+            else:  # before and after the cut: someone else
+                subject[:, :2], subject[:, 2] = 50 + 7 * abs(k), 0.9
+            bystander = np.column_stack([np.full((25, 2), 5.0), np.full(25, 0.9)])
+            detections.append([{"person_id": [i], "pose_keypoints_2d": person.ravel().tolist()} for i, person in enumerate((bystander, subject))])
+        (folder / "Videos" / camera.name / "OutputPkl").mkdir()
+        (folder / "Videos" / camera.name / "OutputPkl" / f"{TRIAL}_keypoints.pkl").write_bytes(pickle.dumps(detections))
+    (folder / "MarkerData").mkdir()
+    write_trc(folder / "MarkerData" / f"{TRIAL}.trc", MOVING, np.arange(frames) / 30, world, 30, convention="opencap-ground")
+    return world
+
+
+def test_the_phones_keypoints_are_placed_by_the_markers_and_triangulate_to_them(tmp_path: Path, caplog) -> None:
+    session = tmp_path / "OpenCapData_1"
+    world = keypoint_session(session)
+    assert keypoint_folder(session, None) == session.resolve()
+    assert keypoint_source(session) == {"name": "opencap", "path": str(session)}
+    stored = ingest(session, tmp_path / "s.zarr", progress=False)
+    with caplog.at_level(logging.INFO, logger="mmcsplat.plugins.landmarks.opencap"):
+        read = OpencapKeypoints(path=str(session)).read(stored, list(range(stored.num_frames)))
+    for name, start in STARTS.items():
+        assert f"{name}/OutputPkl/{TRIAL}_keypoints.pkl: the synchronised video starts at its recording's frame {start} " in caplog.text
+    np.testing.assert_allclose(read.positions[:, [read.names.index(name) for name in MOVING]], world, atol=2e-3)
+
+
+def test_keypoints_that_no_start_places_near_the_markers_are_refused(tmp_path: Path) -> None:
+    keypoint_session(tmp_path)
+    stored = ingest(tmp_path, tmp_path / "s.zarr", progress=False)
+    markers = tmp_path / "MarkerData" / f"{TRIAL}.trc"
+    data = read_trc(markers, "opencap-ground")
+    write_trc(markers, data.names, data.times, data.positions + [0.0, 0.0, -0.5], 30, convention="opencap-ground")  # half a metre up
+    with pytest.raises(InputError, match=r"Cam0/OutputPkl/squat_keypoints.pkl: no start in its recording puts its detections within 10 px"):
+        OpencapKeypoints(path=str(tmp_path)).read(stored, [0])
+    markers.unlink()
+    with pytest.raises(MissingFileError, match=r"no MarkerData/squat.trc, by which OpenCap's keypoints of trial 'squat' are placed"):
+        OpencapKeypoints(path=str(tmp_path)).read(stored, [0])

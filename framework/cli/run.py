@@ -1,8 +1,8 @@
 """Run your own capture end to end: ingest, masks, plates, fit, track, evaluate, landmarks, renders, report.
 
 For a rig's own folder (a Pose2Sim project, an anipose session, videos beside a calibration): ingests it at
---scale, makes subject masks from its 2D keypoints (pose_2d/, pose/, pose-2d/, FreeMoCap's output_data/raw_data/, a Caliscope tracker's xy_*.csv
-or --keypoints: OpenPose, SLEAP, DeepLabCut, FreeMoCap or Caliscope; else against its
+--scale, makes subject masks from its 2D keypoints (pose_2d/, pose/, pose-2d/, FreeMoCap's output_data/raw_data/, a Caliscope tracker's xy_*.csv,
+an OpenCap session's phones' OutputPkl/, or --keypoints: OpenPose, SLEAP, DeepLabCut, FreeMoCap, Caliscope or OpenCap; else against its
 recorded plates; else from the subject's motion; or with the segmenter --segmenter names), estimates clean plates with the
 subject masked out and refines the masks against them (not --segmenter's), fits the first
 frame with the start region sized from the masks' visual hull, tracks the sequence, evaluates on the
@@ -35,7 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_names(parser, "--cameras", "use only these cameras (default: all): leaves out a broken one, which is then never read or checked")
     add_names(parser, "--holdout", "cameras kept for evaluation (default: the capture format's, else none)")
     parser.add_argument("--keypoints", help="2D keypoints: a folder of OpenPose JSON folders per camera, or of SLEAP (.slp, .analysis.h5) or "
-                        "DeepLabCut (.csv, .h5) files per camera, or one such file, or FreeMoCap's .npy or Caliscope's xy_TRACKER.csv of every camera (default: CAPTURE/pose_2d, else Pose2Sim's pose-associated, pose-sync or pose, else anipose's pose-2d-filtered or pose-2d, else FreeMoCap's output_data/raw_data/*2dData*.npy, else a Caliscope body tracker's TRACKER/xy_TRACKER.csv, when there is one)")
+                        "DeepLabCut (.csv, .h5) files per camera, or one such file, or FreeMoCap's .npy or Caliscope's xy_TRACKER.csv of every camera, or an OpenCap session's folder (default: CAPTURE/pose_2d, else Pose2Sim's pose-associated, pose-sync or pose, else anipose's pose-2d-filtered or pose-2d, else FreeMoCap's output_data/raw_data/*2dData*.npy, else a Caliscope body tracker's TRACKER/xy_TRACKER.csv, else an OpenCap session's Videos/*/OutputPkl/, when there is one)")
     add_settings(parser, "a parameter of the keypoints' source (`mmcsplat plugins --show landmarks:openpose`, sleap, deeplabcut), e.g. "
                  "camera_map={cam_01=\"left\"} where the keypoints' names differ from the calibration's; the reader's camera_map and "
                  "trial (--reader-set) name the keypoints' files too unless this gives theirs", dest="keypoint_options", flag="--keypoints-set")

@@ -13,7 +13,8 @@ triangulation of its keypoints with the markers its model adds, are ``MarkerData
 (:data:`~.landmark_formats.TRC_AXES` says how its axes lie, :func:`trc_convention` which of them a session takes).
 
 The phones' 2D keypoints (``Videos/CamN/OutputPkl/<trial>_keypoints.pkl``) are numbered by the uploads'
-frames, whose start in the synchronised videos the download does not keep: they are not read.
+frames, whose start in the synchronised videos the download does not keep: the ``opencap`` keypoint source
+places them by the trial's markers.
 """
 
 from __future__ import annotations
