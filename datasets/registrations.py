@@ -11,7 +11,8 @@ def mmcsplat_readers() -> list[Registration]:
         Registration("videos", "mmcsplat.datasets.videos:VideoReader",
                      "per-camera videos in SOURCE/videos/ (Pose2Sim), SOURCE/videos-raw/ (anipose), SOURCE/synchronized_videos/ (FreeMoCap), "
                      "SOURCE/ or one folder per camera, with an anipose/Pose2Sim/Caliscope calibration .toml, a Qualisys .qca.txt or EasyMocap "
-                     "intri.yml + extri.yml in SOURCE/ or SOURCE/calibration/ (a Pose2Sim batch trial: its session's calibration/)"),
+                     "intri.yml + extri.yml in SOURCE/ or SOURCE/calibration/ (a Pose2Sim batch trial: its session's calibration/), or OpenCap's "
+                     "camera folders' pickles; an OpenCap session's Videos/CamN/InputMedia/TRIAL/TRIAL_sync.mp4"),
         Registration("images", "mmcsplat.datasets.images:ImageSequenceReader",
                      "per-camera folders of images (in SOURCE/ or SOURCE/images/) with a calibration .toml, a Qualisys .qca.txt or EasyMocap "
                      "intri.yml + extri.yml in SOURCE/ or SOURCE/calibration/"),
