@@ -169,7 +169,7 @@ def test_run_finds_the_trials_markers_and_reads_them_in_opencaps_axes(tmp_path: 
 
 def test_markers_lifted_by_an_unknown_height_are_not_taken(tmp_path: Path) -> None:
     """A board on a wall (the ring's images' up along the board's −y): OpenCap lifts the markers by the
-    board's height, which its download does not keep."""
+    board's height, which its download does not keep; nor are they taken to place the phones' keypoints."""
     wall = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])  # board y = −world z
     cameras = [Camera(c.name, c.width, c.height, c.K, c.R @ wall.T, c.t, c.distortion) for c in rig.ring_cameras(NAMES[:2])]
     write_session(tmp_path, cameras, {TRIAL: 2})
@@ -177,6 +177,10 @@ def test_markers_lifted_by_an_unknown_height_are_not_taken(tmp_path: Path) -> No
     write_trc(tmp_path / "MarkerData" / f"{TRIAL}.trc", ("Neck",), np.arange(2) / 30, np.zeros((2, 1, 3)), 30, convention="opencap-wall")
     with pytest.warns(UserWarning, match=r"not taken as the joints: the session was calibrated on a board on a wall \(opencap-wall\)"):
         assert joints_file(tmp_path, None) is None
+    for camera in cameras:
+        (tmp_path / "Videos" / camera.name / "OutputPkl").mkdir()
+        (tmp_path / "Videos" / camera.name / "OutputPkl" / f"{TRIAL}_keypoints.pkl").write_bytes(pickle.dumps([[]] * 2))
+    assert keypoint_folder(tmp_path, None) is None
 
 
 def test_opencaps_trc_header_is_read(tmp_path: Path) -> None:

@@ -22,7 +22,7 @@ from mmcsplat.plugin_api.interfaces import LandmarkSource
 from mmcsplat.scene.human_skeleton import TORSO, TORSO_NAMINGS
 from mmcsplat.storage.calibration import AUTO_UNITS
 from mmcsplat.storage.ground_truth import GROUND_TRUTH, GroundTruthReader
-from mmcsplat.storage.opencap_session import is_opencap_session, opencap_markers
+from mmcsplat.storage.opencap_session import is_opencap_session, opencap_markers, placeable_keypoints
 
 #: The scale ``mmcsplat run`` ingests a capture at (a real rig's full-size frames fit too slowly on a CPU).
 DEFAULT_SCALE = AUTO_SCALE
@@ -59,8 +59,6 @@ FREEMOCAP_KEYPOINTS = "output_data/raw_data/*2dData_numCams_numFrames_numTracked
 FREEMOCAP_SUFFIX = ".npy"
 
 
-#: Where an OpenCap session's phones keep their trials' 2D keypoints.
-OPENCAP_KEYPOINTS = "Videos/*/OutputPkl/*_keypoints.pkl"
 #: Caliscope's body trackers (its calibration boards' aside), whose 2D keypoints a recording keeps in ``TRACKER/xy_TRACKER.csv``.
 CALISCOPE_BODY_TRACKERS = ("ONNX_*", "POSE", "HOLISTIC", "SIMPLE_HOLISTIC")
 #: How Caliscope names a tracker's 2D file, which :func:`keypoint_source` reads with the ``caliscope`` source.
@@ -80,10 +78,11 @@ def caliscope_keypoints(capture: Path) -> Path | None:
 def keypoint_folder(capture: Path, given: str | None) -> Path | None:
     """``given``, else the first of :data:`KEYPOINT_FOLDERS` that ``capture`` holds, else a FreeMoCap recording's
     2D file (:data:`FREEMOCAP_KEYPOINTS`), else a Caliscope recording's (:func:`caliscope_keypoints`), else an
-    OpenCap session itself where its phones keep keypoints (:data:`OPENCAP_KEYPOINTS`); None when it holds none."""
+    OpenCap session itself where its markers can place its phones' keypoints
+    (:func:`~mmcsplat.storage.opencap_session.placeable_keypoints`); None when it holds none."""
     return next((path for name in KEYPOINT_FOLDERS if (path := found(capture, given, name, "keypoints")) is not None), None) \
         or found(capture, None, FREEMOCAP_KEYPOINTS, "FreeMoCap 2D keypoints file") or caliscope_keypoints(capture) \
-        or (capture.resolve() if is_opencap_session(capture) and any(capture.glob(OPENCAP_KEYPOINTS)) else None)
+        or (capture.resolve() if placeable_keypoints(capture) else None)
 
 
 def joints_file(capture: Path, given: str | None, trial: str | None = None) -> Path | None:

@@ -36,6 +36,9 @@ INPUT_MEDIA = "InputMedia"
 SYNCHRONISED = "_sync.mp4"
 #: Where a session keeps each trial's markers, ``<trial>.trc``.
 MARKER_DATA = "MarkerData"
+#: Where a camera's folder keeps its trials' 2D keypoints, ``<trial>_keypoints.pkl``.
+OUTPUT_PKL = "OutputPkl"
+KEYPOINTS_SUFFIX = "_keypoints.pkl"
 
 
 def is_opencap_session(source: Path) -> bool:
@@ -106,6 +109,18 @@ def opencap_markers(source: Path, trial: str | None) -> Path | None:
                       "give markers without the lift with --joints", stacklevel=2)
         return None
     return path.resolve()
+
+
+def placeable_keypoints(source: Path) -> bool:
+    """Whether ``source`` is an OpenCap session whose phones' keypoints its markers can place: it keeps
+    keypoints (``Videos/CamN/OutputPkl/``) and markers, and was calibrated on a board lying on the floor (a
+    wall board's markers are lifted by an unknown height: :func:`opencap_markers`)."""
+    source = Path(source)
+    if not is_opencap_session(source) or not any(source.glob(f"{SESSION_VIDEOS}/*/{OUTPUT_PKL}/*{KEYPOINTS_SUFFIX}")) \
+            or not any((source / MARKER_DATA).glob("*.trc")):
+        return False
+    calibration = opencap_files(source / SESSION_VIDEOS)[0]
+    return opencap_convention(read_rig(calibration).cameras, f"calibration {calibration}") == "opencap-ground"
 
 
 def trc_convention(session: SessionReader) -> str:

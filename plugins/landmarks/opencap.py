@@ -36,7 +36,7 @@ from mmcsplat.plugin_api.parameters import between, finite_positive, parameter
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.calibration import read_rig
 from mmcsplat.storage.landmark_formats import read_trc
-from mmcsplat.storage.opencap_session import MARKER_DATA, SESSION_VIDEOS, opencap_trial, trc_convention
+from mmcsplat.storage.opencap_session import KEYPOINTS_SUFFIX, MARKER_DATA, OUTPUT_PKL, SESSION_VIDEOS, opencap_trial, trc_convention
 from mmcsplat.storage.plain_pickle import load_plain
 from mmcsplat.storage.session import SessionReader
 
@@ -45,8 +45,6 @@ from .subject import SUBJECT_DOC, subject_observations
 from .triangulation import TriangulatedKeypoints, people_to_session_pixels
 
 BODY_25 = MODELS["BODY_25"]
-#: Where a phone's folder keeps its trials' detections, ``<trial>_keypoints.pkl``.
-OUTPUT_PKL = "OutputPkl"
 #: The detections' least confidence that places the start (OpenCap's own threshold for triangulating them).
 PLACING_CONFIDENCE = 0.4
 
@@ -55,7 +53,7 @@ logger = logging.getLogger(__name__)
 
 def keypoints_file(session_folder: Path, camera: str, trial: str) -> Path:
     """Where an OpenCap session keeps ``camera``'s detections of ``trial``."""
-    return Path(session_folder) / SESSION_VIDEOS / camera / OUTPUT_PKL / f"{trial}_keypoints.pkl"
+    return Path(session_folder) / SESSION_VIDEOS / camera / OUTPUT_PKL / f"{trial}{KEYPOINTS_SUFFIX}"
 
 
 def read_opencap_keypoints(path: Path) -> list[np.ndarray]:
