@@ -101,8 +101,7 @@ def opencap_markers(source: Path, trial: str | None) -> Path | None:
     path = Path(source) / MARKER_DATA / f"{opencap_trial(Path(source), trial)}.trc"
     if not path.is_file():
         return None
-    calibration = opencap_files(Path(source) / SESSION_VIDEOS)[0]
-    placement = opencap_convention(read_rig(calibration).cameras, f"calibration {calibration}")
+    placement = _placement(source)
     if placement != "opencap-ground":
         warnings.warn(f"{path}: not taken as the joints: the session was calibrated on a board on a wall ({placement}), and OpenCap lifts "
                       "its markers by the board's height, which the download does not keep (Settings_<trial>.yaml's verticalOffset); "
@@ -119,8 +118,14 @@ def placeable_keypoints(source: Path) -> bool:
     if not is_opencap_session(source) or not any(source.glob(f"{SESSION_VIDEOS}/*/{OUTPUT_PKL}/*{KEYPOINTS_SUFFIX}")) \
             or not any((source / MARKER_DATA).glob("*.trc")):
         return False
-    calibration = opencap_files(source / SESSION_VIDEOS)[0]
-    return opencap_convention(read_rig(calibration).cameras, f"calibration {calibration}") == "opencap-ground"
+    return _placement(source) == "opencap-ground"
+
+
+def _placement(source: Path) -> str:
+    """The TRC convention of the OpenCap session ``source``'s markers, by its board's placement, told from its
+    cameras (:func:`~.opencap_calibration.opencap_convention`)."""
+    calibration = opencap_files(Path(source) / SESSION_VIDEOS)[0]
+    return opencap_convention(read_rig(calibration).cameras, f"calibration {calibration}")
 
 
 def trc_convention(session: SessionReader) -> str:
