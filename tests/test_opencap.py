@@ -269,3 +269,39 @@ def test_keypoints_that_no_start_places_near_the_markers_are_refused(tmp_path: P
     markers.unlink()
     with pytest.raises(MissingFileError, match=r"no MarkerData/squat.trc, by which OpenCap's keypoints of trial 'squat' are placed"):
         OpencapKeypoints(path=str(tmp_path)).read(stored, [0])
+
+
+def test_a_study_names_the_trial_of_a_session_with_several(tmp_path: Path, monkeypatch) -> None:
+    """A study's capture table takes the reader's options as run's --reader-set does: the trial chooses the videos
+    and the markers scored against; without it a session of several trials is refused, as by run."""
+    from mmcsplat.studies.sessions import prepare_session
+    from mmcsplat.studies.spec import StudyError, expand, load_study
+
+    session = tmp_path / "OpenCapData_1"
+    board = np.diag([1.0, -1.0, -1.0])
+    cameras = [Camera(c.name, c.width, c.height, c.K, c.R @ board, c.t, c.distortion) for c in rig.ring_cameras(NAMES[:2])]
+    write_session(session, cameras, {TRIAL: 2, "walk": 2})
+    (session / "MarkerData").mkdir()
+    for trial in (TRIAL, "walk"):
+        write_trc(session / "MarkerData" / f"{trial}.trc", ("Neck",), np.arange(2) / 30, np.zeros((2, 1, 3)), 30, convention="opencap-ground")
+
+    def study(capture: str) -> Path:
+        path = tmp_path / "study.toml"
+        path.write_text(f'[study]\nname = "trials"\n\n[sessions.phones.capture]\n{capture}\n\n[[variant]]\nname = "fit"\nconfig = "paper-masked"\n')
+        return path
+
+    with pytest.raises(StudyError, match=r"\[sessions.phones\] capture: OpenCap session .*: trials squat, walk; choose one"):
+        load_study(study(f'path = "{session}"'))
+    chosen = load_study(study(f'path = "{session}"\nreader = {{ trial = "walk" }}')).sessions[0].capture
+    assert chosen["reader"] == {"trial": "walk"} and chosen["joints"] == str((session / "MarkerData" / "walk.trc").resolve())
+    with pytest.raises(StudyError, match="capture: .*fps"):  # an option the reader does not take, before anything runs
+        load_study(study(f'path = "{session}"\nreader = {{ trial = "walk", fps = 30 }}'))
+    with pytest.raises(StudyError, match="capture reader must be a table"):
+        load_study(study(f'path = "{session}"\nreader = "walk"'))
+    cell = expand(load_study(study(f'path = "{session}"\nreader = {{ trial = "walk" }}')), tmp_path / "out")[0]
+    assert cell.plan.identity["capture"]["reader"] == {"trial": "walk"}
+    made = {}
+    monkeypatch.setattr("mmcsplat.pipeline.capture_session.prepare_capture_session",
+                        lambda capture, partial, **kwargs: (partial.mkdir(parents=True), made.update(kwargs)))
+    prepare_session(cell.plan, progress=False)
+    assert made["reader_options"] == {"trial": "walk"}

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from mmcsplat.configuration.registry import default_registry
-from mmcsplat.jobs.capture import CaptureSettings, keypoints_with, run_capture
-from mmcsplat.pipeline.capture_session import joints_file, missing_torso
+from mmcsplat.jobs.capture import CaptureSettings, run_capture
+from mmcsplat.pipeline.capture_session import joints_file, keypoints_with, missing_torso
 from mmcsplat.plugin_api.errors import InputError, MissingFileError
 from mmcsplat.plugin_api.interfaces import Landmarks, LandmarkSource
 from mmcsplat.storage.session import SessionReader

@@ -53,6 +53,7 @@ from mmcsplat.pipeline.capture_session import (
     joints_source,
     keypoint_folder,
     keypoint_source,
+    keypoints_with,
     missing_torso,
     prepare_capture_session,
 )
@@ -60,7 +61,6 @@ from mmcsplat.pipeline.image_scale import AUTO_SCALE, resolve_scale
 from mmcsplat.pipeline.ingest import units_chosen, units_read
 from mmcsplat.pipeline.steps import BEFORE_FIELD, SettingsRecord, Step, StepTime, fit_complete, fresh, made_in_place, run_steps
 from mmcsplat.plugin_api.errors import InputError, SubjectMaskError
-from mmcsplat.plugin_api.parameters import describe_parameters
 from mmcsplat.storage.atomic import write_json_atomic
 from mmcsplat.storage.calibration import AUTO_UNITS, format_units
 from mmcsplat.storage.run import LANDMARKS_CSV, LANDMARKS_INFO, METRICS_FILE, MOVEMENT_JSON, RENDERS_DIR, REPORT_FILE, RUN_INFO, TRACK_INFO, TRACKS_DIR
@@ -82,8 +82,6 @@ TRACK_LAMBDA_PARTS = 1.0
 #: reports 0.73 of their motion, and a fit that starts short does not close the gap, so the tracks lag and the lag
 #: adds up (docs/results.md, "The flow's shortfall").
 TRACK_FLOW_GAIN = 2.0
-#: The reader's parameters that say which file is whose: the keypoint source takes them too (:func:`keypoints_with`).
-NAMING_OPTIONS = ("camera_map", "trial")
 
 
 @attrs.frozen
@@ -130,19 +128,6 @@ def quoted_override(key: str, value: Any) -> str:
     """``KEY=VALUE`` for ``--set``, the value written as a TOML literal (:func:`toml_literal`), so that a path with
     quotes, backslashes or spaces, or a keypoint source's ``camera_map`` table, arrives as it is."""
     return f"{key}={toml_literal(value)}"
-
-
-def keypoints_with(source: dict[str, Any], options: dict[str, Any], reader_options: dict[str, Any]) -> dict[str, Any]:
-    """The keypoint source ``source`` (:func:`~mmcsplat.pipeline.capture_session.keypoint_source`) with the
-    parameters ``options`` (``--keypoints-set``). The reader's :data:`NAMING_OPTIONS` (``--reader-set``) name the
-    keypoint files too, where the source takes them and ``options`` gives none of its own: a rig's keypoint folders
-    and files are named after its videos (Pose2Sim's ``pose_2d/cam01`` beside ``videos/cam01.mp4``, anipose's
-    ``pose-2d/vid01-camA.h5`` beside ``videos-raw/vid01-camA.avi``)."""
-    from mmcsplat.configuration.registry import default_registry
-
-    taken = {info.name for info in describe_parameters(default_registry().get("landmarks", source["name"]).load()) or ()}
-    shared = {key: reader_options[key] for key in NAMING_OPTIONS if key in reader_options and key in taken}
-    return {**source, **shared, **options}
 
 
 def guidance_overrides(weight: float, source: dict[str, Any] | None, capture: Path) -> list[str]:

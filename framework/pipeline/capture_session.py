@@ -19,11 +19,14 @@ import numpy as np
 from mmcsplat.pipeline.image_scale import AUTO_SCALE
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.interfaces import LandmarkSource
+from mmcsplat.plugin_api.parameters import describe_parameters
 from mmcsplat.scene.human_skeleton import TORSO, TORSO_NAMINGS
 from mmcsplat.storage.calibration import AUTO_UNITS
 from mmcsplat.storage.ground_truth import GROUND_TRUTH, GroundTruthReader
 from mmcsplat.storage.opencap_session import is_opencap_session, opencap_markers, placeable_keypoints
 
+#: The reader's parameters that say which file is whose: the keypoint source takes them too (:func:`keypoints_with`).
+NAMING_OPTIONS = ("camera_map", "trial")
 #: The scale ``mmcsplat run`` ingests a capture at (a real rig's full-size frames fit too slowly on a CPU).
 DEFAULT_SCALE = AUTO_SCALE
 
@@ -117,6 +120,19 @@ def missing_torso(source: LandmarkSource, session: SessionReader, frame: int) ->
     named = [name for name in lacking if name in landmarks.names]
     return (f"{landmarks.source or 'the joints'} at frame {frame}: " + (f"{', '.join(named)} not known there" if named else
             f"no {', '.join(lacking)} among {', '.join(landmarks.names[:6])}{'…' if len(landmarks.names) > 6 else ''}"))
+
+
+def keypoints_with(source: dict[str, Any], options: dict[str, Any], reader_options: dict[str, Any]) -> dict[str, Any]:
+    """The keypoint source ``source`` (:func:`keypoint_source`) with the
+    parameters ``options`` (``--keypoints-set``). The reader's :data:`NAMING_OPTIONS` (``--reader-set``) name the
+    keypoint files too, where the source takes them and ``options`` gives none of its own: a rig's keypoint folders
+    and files are named after its videos (Pose2Sim's ``pose_2d/cam01`` beside ``videos/cam01.mp4``, anipose's
+    ``pose-2d/vid01-camA.h5`` beside ``videos-raw/vid01-camA.avi``)."""
+    from mmcsplat.configuration.registry import default_registry
+
+    taken = {info.name for info in describe_parameters(default_registry().get("landmarks", source["name"]).load()) or ()}
+    shared = {key: reader_options[key] for key in NAMING_OPTIONS if key in reader_options and key in taken}
+    return {**source, **shared, **options}
 
 
 def keypoint_source(path: Path) -> dict[str, Any]:

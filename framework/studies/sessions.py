@@ -63,16 +63,18 @@ def _captured(capture: dict, target: Path, segmenter: PluginChoice | None, progr
     """The capture folder made into the session ``target`` as ``mmcsplat run`` makes its own (ingested, masks
     and plates; the masks ``segmenter``'s when given, as with ``run --segmenter``), in a hidden sibling renamed
     into place."""
-    from mmcsplat.pipeline.capture_session import keypoint_source, prepare_capture_session
+    from mmcsplat.pipeline.capture_session import keypoint_source, keypoints_with, prepare_capture_session
     from mmcsplat.pipeline.segment import BuiltSegmenter
     from mmcsplat.pipeline.steps import made_in_place
+
+    reader = capture.get("reader", {})  # the reader's options (run's --reader-set); its naming ones name the keypoint files too
 
     def make(partial: Path) -> None:
         prepare_capture_session(Path(capture["path"]), partial, calibration=Path(capture["calibration"]) if capture["calibration"] else None,
                                 units=capture["units"], frames=slice(*capture["frames"]) if capture["frames"] else None, scale=capture["scale"],
                                 cameras=capture["cameras"] or None, holdout=capture["holdout"],
-                                source=keypoint_source(Path(capture["keypoints"])) if capture["keypoints"] else None,
-                                segmenter=BuiltSegmenter.of(segmenter) if segmenter else None, progress=progress)
+                                source=keypoints_with(keypoint_source(Path(capture["keypoints"])), {}, reader) if capture["keypoints"] else None,
+                                segmenter=BuiltSegmenter.of(segmenter) if segmenter else None, reader_options=reader or None, progress=progress)
 
     made_in_place(target, make)
 

@@ -37,7 +37,7 @@ STUDY_KEYS = {"study", "sessions", "variant"}
 HEADER_KEYS = {"name", "description", "folds", "seeds", "backends", "set"}
 SESSION_KEYS = {"path", "synthetic", "capture", "segmenter", "heldout", "folds", "ground_truth", "cameras", "perturb"}
 #: What a ``capture`` table may hold: the capture folder and what ``mmcsplat run`` takes to make a session of it.
-CAPTURE_KEYS = {"path", "calibration", "units", "scale", "frames", "cameras", "holdout", "keypoints", "joints"}
+CAPTURE_KEYS = {"path", "calibration", "units", "scale", "frames", "cameras", "holdout", "keypoints", "joints", "reader"}
 #: Session keys a capture session leaves to its ``capture`` table (cameras, joints); its ``segmenter`` is ``run --segmenter``'s.
 NOT_FOR_CAPTURES = ("ground_truth", "cameras", "perturb")
 VARIANT_KEYS = {"name", "config", "set", "grid", "segmenter", *VARIANT_PLUGIN_TABLES}
@@ -330,6 +330,7 @@ def capture_settings(table: Mapping[str, Any], where: str, folder: Path | None) 
     :func:`~mmcsplat.pipeline.capture_session.joints_file`) — so equal captures get equal identities."""
     from mmcsplat.pipeline.capture_session import DEFAULT_SCALE, joints_file, keypoint_folder
     from mmcsplat.pipeline.image_scale import AUTO_SCALE
+    from mmcsplat.pipeline.ingest import capture_reader
 
     _check_keys(table, CAPTURE_KEYS, where, "capture")
     if "path" not in table:
@@ -345,9 +346,12 @@ def capture_settings(table: Mapping[str, Any], where: str, folder: Path | None) 
     scale = table.get("scale", DEFAULT_SCALE)
     if scale != AUTO_SCALE and (not isinstance(scale, (int, float)) or isinstance(scale, bool) or not 0 < scale <= 1):
         raise StudyError(f"{where} capture scale must be a number in (0, 1] or {AUTO_SCALE!r}, got {scale!r}")
+    reader = dict(_table(table.get("reader", {}), f"{where} capture reader"))
     try:
+        if reader:  # an unknown or invalid option fails here, as run's --reader-set does
+            capture_reader(capture, reader_options=reader)
         keypoints = keypoint_folder(capture, paths["keypoints"])
-        joints = joints_file(capture, paths["joints"])
+        joints = joints_file(capture, paths["joints"], reader.get("trial"))
     except InputError as error:
         raise StudyError(f"{where} capture: {error}") from error
     # Metres by default, not run's auto: the units are part of every cell's key, so a study made before auto keeps its cells.
@@ -357,7 +361,9 @@ def capture_settings(table: Mapping[str, Any], where: str, folder: Path | None) 
     return {"path": str(capture), "calibration": paths["calibration"], "units": units, "scale": scale if scale == AUTO_SCALE else float(scale),
             "frames": list(frames), "cameras": list(_strings(table.get("cameras", []), f"{where} capture cameras")),
             "holdout": list(_strings(table.get("holdout", []), f"{where} capture holdout")),
-            "keypoints": str(keypoints) if keypoints else None, "joints": str(joints) if joints else None}
+            "keypoints": str(keypoints) if keypoints else None, "joints": str(joints) if joints else None,
+            # absent unless given, so that the cells of studies made before keep their keys
+            **({"reader": reader} if reader else {})}
 
 
 def _segmenter(value: Any, where: str) -> PluginChoice:
