@@ -221,6 +221,13 @@ def test_missing_file() -> None:
     (lambda t: t["matrix"][0].__setitem__(0, 0.0), "focal lengths 0, 500 pixels; both must be > 0"),
     (lambda t: t["matrix"][0].__setitem__(2, 5000.0), r"principal point \(5000, 240\) far outside its 640×480 image"),
     (lambda t: t.__setitem__("translation", [0, 0, 1e308]), "outside the 0.05–50 m of any real rig"),
+    (lambda t: t.__setitem__("matrix", [[500.0, 0, 0], [0, 500.0, 0], [320, 240, 1]]), r"camera 'c1': K .* is not an intrinsic matrix .*: "
+                                                                                     r"it is one transposed \(MATLAB's layout\)"),
+    (lambda t: t["matrix"][2].__setitem__(2, 2.0), r"camera 'c1': K .* is not an intrinsic matrix \[\[fx, skew, cx\], \[0, fy, cy\], \[0, 0, 1\]\]$"),
+    (lambda t: t.__setitem__("rotation", [[1.0, 0.3, 0], [0, 1.0, 0], [0, 0, 1.0]]), r"camera 'c1': R is not a rotation \(its rows are 0.3 "),
+    # cam_0's pose 5 mm aside: a camera whose translation was written in another unit lands beside another
+    (lambda t: t.update(rotation=[0.0, 0.0, 0.0], translation=[0.005, 0.0, 2.0]), "cameras 'c0' and 'c1' stand 5 mm apart read in m, closer "
+                                                                                  "than any two cameras of a rig"),
 ])
 def test_impossible_cameras_are_refused_naming_them(tmp_path: Path, edit, message) -> None:
     cameras = {f"cam_{i}": {**GOOD, "name": f"c{i}", "matrix": [list(row) for row in GOOD["matrix"]],

@@ -65,6 +65,8 @@ def _check_distortion(instance: Camera, attribute: attrs.Attribute, value: np.nd
         raise InputError(f"camera {instance.name!r}: distortion must be 0, 4 (k1 k2 p1 p2) or 5 (… k3) values, got {value.tolist()}")
 
 
+#: How far R·Rᵀ may be from the identity: a matrix written to 4 decimals is within 1e-4 of it.
+ORTHONORMAL_TOLERANCE = 1e-3
 #: Undoing a distortion iterates; OpenCV's default stops after 5 steps, short of a strong lens's exact inverse.
 _UNDISTORT_CRITERIA = (3, 100, 1e-12)  # cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, steps, tolerance
 
@@ -107,6 +109,13 @@ class Camera:
             raise InputError(f"camera {self.name!r}: image size must be positive, got {self.width}×{self.height}")
         if abs(np.linalg.det(self.R) - 1.0) > 1e-4:
             raise InputError(f"camera {self.name!r}: R is not a rotation (det {np.linalg.det(self.R):.6f})")
+        # A determinant of 1 lets a shear or a stretch through, which moves the camera's centre and bends its rays.
+        if (off := float(np.abs(self.R @ self.R.T - np.eye(3)).max())) > ORTHONORMAL_TOLERANCE:
+            raise InputError(f"camera {self.name!r}: R is not a rotation (its rows are {off:.3g} from orthonormal)")
+        if not np.allclose(self.K[2], (0.0, 0.0, 1.0), atol=1e-9) or self.K[1, 0] != 0.0:
+            transposed = np.allclose(self.K.T[2], (0.0, 0.0, 1.0), atol=1e-9) and self.K.T[1, 0] == 0.0
+            raise InputError(f"camera {self.name!r}: K {np.round(self.K, 3).tolist()} is not an intrinsic matrix [[fx, skew, cx], [0, fy, cy], "
+                             "[0, 0, 1]]" + (": it is one transposed (MATLAB's layout)" if transposed else ""))
 
     @property
     def rvec(self) -> np.ndarray:

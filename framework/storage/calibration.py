@@ -52,6 +52,8 @@ _REQUIRED = ("size", "matrix", "distortions", "rotation", "translation")
 #: The plausible extent of a rig, metres: its farthest camera from the cameras' centroid (a mouse arena's
 #: cameras ~0.3 m, a motion-capture hall's ~10 m).
 RIG_RADIUS_M = (0.05, 50.0)
+#: The least distance between two cameras' centres, metres: two camera bodies cannot stand closer.
+MIN_CAMERA_GAP_M = 0.01
 #: How much radial distortion may scale a radius within the image: beyond it the coefficients are wrong
 #: (strong wide-angle lenses scale their corners by 0.6–0.8; a fisheye's scale from θ to tan θ is its model's).
 RADIAL_SCALE = (1 / 3, 3.0)
@@ -287,7 +289,8 @@ def _check_fisheye(camera: Camera, where: str) -> None:
 def check_rig(cameras: Sequence[Camera], where: str, units: str) -> None:
     """Refuse a rig no real capture has: a focal length ≤ 0, a principal point far outside its image,
     implausible distortion (:func:`check_distortion`), two
-    cameras with the same pose (a copy-paste error), or a rig whose extent (the farthest camera from the
+    cameras with the same pose (a copy-paste error), two closer than :data:`MIN_CAMERA_GAP_M` (one camera's
+    translation in another unit), or a rig whose extent (the farthest camera from the
     cameras' centroid) is outside :data:`RIG_RADIUS_M` — then the units are most likely wrong."""
     for camera in cameras:
         fx, fy, cx, cy = camera.K[0, 0], camera.K[1, 1], camera.K[0, 2], camera.K[1, 2]
@@ -311,6 +314,12 @@ def check_rig(cameras: Sequence[Camera], where: str, units: str) -> None:
         hint = f"; if the file is in {other}, pass --units {other}" if other else ""
         raise InputError(f"{where}: the cameras lie up to {radius:.4g} m from their centre read in {units}, outside the {low:g}–{high:g} m "
                          f"of any real rig{hint}")
+    centres = np.array([camera.center for camera in cameras])
+    gaps = np.linalg.norm(centres[:, None] - centres[None], axis=-1) + np.diag(np.full(len(cameras), np.inf))
+    first, second = np.unravel_index(np.argmin(gaps), gaps.shape)
+    if gaps[first, second] < MIN_CAMERA_GAP_M:
+        raise InputError(f"{where}: cameras {cameras[first].name!r} and {cameras[second].name!r} stand {gaps[first, second] * 1000:.3g} mm apart "
+                         f"read in {units}, closer than any two cameras of a rig: is one camera's translation in another unit?")
 
 
 def _camera(path: Path, name: str, section: str, table: dict[str, Any]) -> Camera:
