@@ -54,14 +54,23 @@ def figure_named(names: tuple[str, ...]) -> np.ndarray:
     return result
 
 
-def write_openpose(folder: Path, session: SessionReader) -> None:
-    """One folder per camera of OpenPose files: the figure's projection (confidence 0.9), and a fainter
-    second person (confidence 0.2) the source must not take."""
+def figure_in(model: str, t: int) -> np.ndarray:
+    """[25, 3] the figure's joints at frame t in ``model``'s order; BODY_25's MidHip a detector's estimate of the
+    hips' midpoint (5 mm below it)."""
+    joints = figure_at(t)
+    named = {name: joints[MODELS["BODY_25B"].index(name)] for name in MODELS["BODY_25B"]}
+    named["MidHip"] = (named["LHip"] + named["RHip"]) / 2 - (0.0, 0.0, 0.005)
+    return np.array([named.get(name, np.full(3, np.nan)) for name in MODELS[model]])
+
+
+def write_openpose(folder: Path, session: SessionReader, model: str = "BODY_25B") -> None:
+    """One folder per camera of OpenPose files of ``model``: the figure's projection (confidence 0.9), and a
+    fainter second person (confidence 0.2) the source must not take."""
     for camera in session.cameras:
         out = folder / f"{camera.name.replace('_', '')}_json"
         out.mkdir(parents=True)
         for t in range(FRAMES):
-            joints = figure_at(t)
+            joints = figure_in(model, t)
             known = np.all(np.isfinite(joints), axis=1)
             pixels = camera.project(np.where(known[:, None], joints, 0.0))
             person = np.column_stack([pixels, np.where(known, 0.9, 0.0)])
@@ -88,6 +97,33 @@ def test_keypoints_triangulate_to_the_joints_they_came_from(scene):
     observed = source.observations(SessionReader(session), range(FRAMES))
     assert [o.camera for o in observed] == list(SessionReader(session).camera_names)
     assert observed[0].confidence.max() == pytest.approx(0.9)  # the confident person, not the stranger
+
+
+def test_openposes_own_body_25_is_told_from_body_25b_by_its_midhip(scene, tmp_path):
+    """OpenPose's default model, BODY_25, has as many keypoints as Pose2Sim's BODY_25B in another order: read as
+    BODY_25B its knees would be ankles. The source tells them apart by keypoint 8 (BODY_25's MidHip, between
+    its hips), unless the model is named; too few detections to tell by are read as BODY_25B, with a warning."""
+    session, b_folder = scene
+    reader = SessionReader(session)
+    folder = tmp_path / "body_25"
+    write_openpose(folder, reader, "BODY_25")
+    landmarks = default_registry().create("landmarks", "openpose", folder=str(folder)).read(reader, range(FRAMES))
+    assert landmarks.names == MODELS["BODY_25"]
+    for t in range(FRAMES):
+        np.testing.assert_allclose(landmarks.positions[t], figure_in("BODY_25", t), atol=1e-6)
+    assert default_registry().create("landmarks", "openpose", folder=str(b_folder)).read(reader, range(FRAMES)).names == MODELS["BODY_25B"]
+    named = default_registry().create("landmarks", "openpose", folder=str(folder), model="BODY_25B").read(reader, range(FRAMES))
+    assert named.names == MODELS["BODY_25B"]  # as told, wrong as it is
+    # The whole folder decides, not the frames read: one frame read is read as the folder's model.
+    assert default_registry().create("landmarks", "openpose", folder=str(folder)).read(reader, range(1)).names == MODELS["BODY_25"]
+    one_frame = tmp_path / "one_frame"
+    for camera in folder.iterdir():
+        (one_frame / camera.name).mkdir(parents=True)
+        first = sorted(camera.glob("*.json"))[0]
+        (one_frame / camera.name / first.name).write_bytes(first.read_bytes())
+    with pytest.warns(UserWarning, match="too few confident detections to tell BODY_25 from BODY_25B: read as BODY_25B"):
+        few = default_registry().create("landmarks", "openpose", folder=str(one_frame)).read(reader, range(1))
+    assert few.names == MODELS["BODY_25B"]
 
 
 def test_the_subject_is_the_person_the_cameras_agree_on_not_the_most_confident(scene, tmp_path):

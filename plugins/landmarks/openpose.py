@@ -8,7 +8,10 @@ image's position from 0). OpenPose run on an image folder names each file after 
 (``frame_0001_keypoints.json``): where a session made from images still finds its images, such a file is the
 frame of the image it is named after, whatever the first image's number (ffmpeg numbers from 1). Each file lists ``people``, each with ``pose_keypoints_2d`` = [x, y, confidence] × K
 in the source video's pixels; the ``model`` names the K keypoints (BODY_25B, the model Pose2Sim's demo
-uses, or BODY_25). A frame missing a file or a person has no detections (confidence 0).
+uses, or BODY_25, OpenPose's default), or ``auto`` tells them apart by the detections: both have 25
+keypoints, and BODY_25's keypoint 8 (MidHip) lies between its 9 and 12 (the hips), where BODY_25B's
+(a right elbow) lies far from the midpoint of its 9 and 12 (a left wrist and a right hip): read as the other,
+each model's knees would be taken for ankles. A frame missing a file or a person has no detections (confidence 0).
 
 Several people: the subject is the person the cameras agree on (:mod:`.subject`): the detections of one
 person triangulate consistently, followed from frame to frame, and a camera that sees only others gives no
@@ -19,7 +22,9 @@ The detections are mapped into the stored images and triangulated by :mod:`.tria
 
 from __future__ import annotations
 
+import functools
 import json
+import logging
 import re
 import warnings
 from collections.abc import Sequence
@@ -37,6 +42,8 @@ from mmcsplat.storage.session import SessionReader
 from .subject import SUBJECT_DOC, subject_observations
 from .triangulation import TriangulatedKeypoints, people_to_session_pixels
 
+logger = logging.getLogger(__name__)
+
 #: Keypoint names by index, per model (OpenPose's documented orders).
 MODELS = {
     "BODY_25B": ("Nose", "LEye", "REye", "LEar", "REar", "LShoulder", "RShoulder", "LElbow", "RElbow", "LWrist", "RWrist",
@@ -46,6 +53,45 @@ MODELS = {
                 "RAnkle", "LHip", "LKnee", "LAnkle", "REye", "LEye", "REar", "LEar", "LBigToe", "LSmallToe", "LHeel",
                 "RBigToe", "RSmallToe", "RHeel"),
 }
+
+
+#: The keypoint count every model of :data:`MODELS` has.
+KEYPOINT_COUNT = 25
+AUTO_MODEL = "auto"
+#: BODY_25's MidHip lies within this share of the hips' distance from their midpoint (its median over the detections), where
+#: BODY_25B's keypoint 8 does not: on the Pose2Sim demo's BODY_25B detections that median is 1.08; BODY_25's MidHip is
+#: OpenPose's estimate of that very midpoint.
+MIDHIP_SHARE = 0.5
+#: Person-frames with keypoints 8, 9 and 12 confident that :func:`body_model` needs to tell the models apart.
+MODEL_EVIDENCE = 10
+#: Files of each camera's folder that ``auto`` reads to tell the models apart, spread over its frames.
+MODEL_SAMPLE = 30
+
+
+def body_model(people: Sequence[np.ndarray], min_confidence: float) -> str | None:
+    """``BODY_25`` or ``BODY_25B`` as the detections ``people`` (each file's [P, 25, 3]) show it (module
+    docstring); None with fewer than :data:`MODEL_EVIDENCE` person-frames to tell by."""
+    rows = np.concatenate([np.zeros((0, KEYPOINT_COUNT, 3)), *people])
+    rows = rows[(rows[:, [8, 9, 12], 2] >= min_confidence).all(axis=1)]
+    if len(rows) < MODEL_EVIDENCE:
+        return None
+    span = np.linalg.norm(rows[:, 9, :2] - rows[:, 12, :2], axis=1)
+    share = np.linalg.norm(rows[:, 8, :2] - (rows[:, 9, :2] + rows[:, 12, :2]) / 2, axis=1) / np.maximum(span, 1e-9)
+    return "BODY_25" if np.median(share) < MIDHIP_SHARE else "BODY_25B"
+
+
+@functools.lru_cache(maxsize=16)
+def folder_model(folder: Path, files: tuple[Path, ...], min_confidence: float) -> str:
+    """:func:`body_model` of the keypoint ``files`` (a sample of ``folder``'s), BODY_25B with a warning where
+    they cannot tell: the same answer for every frame range read, found (and said) once however often a run
+    reads the folder (masks, guidance, scoring)."""
+    model = body_model([read_people(path, KEYPOINT_COUNT) for path in files], min_confidence)
+    if model is None:
+        warnings.warn(f"openpose keypoints {folder}: too few confident detections to tell BODY_25 from BODY_25B: read as BODY_25B "
+                      "(set the source's model to say which)", stacklevel=2)
+        return "BODY_25B"
+    logger.info("openpose keypoints %s: read as %s (keypoint 8 %s the hips' midpoint)", folder, model, "at" if model == "BODY_25" else "away from")
+    return model
 
 
 def frame_number(path: Path) -> int | None:
@@ -96,7 +142,8 @@ class OpenPoseKeypoints(TriangulatedKeypoints):
     """OpenPose JSON keypoints per camera, triangulated (module docstring)."""
 
     folder: str = parameter(doc="the folder of per-camera keypoint folders (Pose2Sim: pose_2d)", kw_only=True)
-    model: str = parameter("BODY_25B", doc="the keypoint model, which names the keypoints", validator=one_of(*MODELS))
+    model: str = parameter(AUTO_MODEL, doc="the keypoint model, which names the keypoints: BODY_25B (Pose2Sim's), BODY_25 (OpenPose's "
+                                        "default), or auto: told apart by where keypoint 8 lies", validator=one_of(AUTO_MODEL, *MODELS))
     min_confidence: float = parameter(0.3, doc="detections below this confidence are not used", validator=between(0, 1))
     camera_map: dict | str | None = parameter(None, doc="session camera name → its keypoint folder's name, where the names differ; or "
                                                "\"order\": the cameras, in the calibration's order, to the folders in name order")
@@ -104,14 +151,13 @@ class OpenPoseKeypoints(TriangulatedKeypoints):
 
     @property
     def described(self) -> str:
-        return f"OpenPose keypoints {self.folder} ({self.model})"
+        return f"OpenPose keypoints {self.folder} ({self.resolved_model})"
 
     def observations(self, session: SessionReader, frames: Sequence[int]) -> list[KeypointObservations]:
         """The subject's keypoints (:mod:`.subject`) in every camera with a folder, in the stored images' pixels."""
         folder = Path(self.folder)
         if not folder.is_dir():
             raise MissingFileError(f"openpose keypoints: folder {folder} does not exist")
-        names = MODELS[self.model]
         cameras = [session.camera(name) for name in session.camera_names]
         # OpenPose and older Pose2Sim name a camera's folder CAMERA_json: the suffix is not part of the name.
         by_label = {folder / re.sub(r"_json$", "", path.name): path for path in folder.iterdir() if path.is_dir()}
@@ -130,6 +176,21 @@ class OpenPoseKeypoints(TriangulatedKeypoints):
             if len(held) and not any(int(number) in files for number in held):
                 raise MissingFileError(f"{folders[camera.name]}: no keypoint file numbered like the session's frames "
                                        f"{int(held[0])}–{int(held[-1])}")
-            seen = [read_people(files[int(number)], len(names)) if int(number) in files else np.zeros((0, len(names), 3)) for number in numbers]
+            seen = [read_people(files[int(number)], KEYPOINT_COUNT) if int(number) in files else np.zeros((0, KEYPOINT_COUNT, 3))
+                    for number in numbers]
             people.append(people_to_session_pixels(seen, recorded.get(camera.name), camera))
-        return subject_observations(session, frames, people, names, self.min_confidence, subject=self.subject)
+        return subject_observations(session, frames, people, MODELS[self.resolved_model], self.min_confidence, subject=self.subject)
+
+    @property
+    def resolved_model(self) -> str:
+        """The model named, or the one the detections of the folder's camera folders show, whichever frames are
+        read (:func:`folder_model` over up to :data:`MODEL_SAMPLE` files of each, spread over it); BODY_25B,
+        with a warning, where they are too few to tell."""
+        folder = Path(self.folder)
+        if self.model != AUTO_MODEL or not folder.is_dir():
+            return self.model
+        sample = []
+        for camera in sorted(path for path in folder.iterdir() if path.is_dir()):
+            found = sorted(camera.glob("*.json"), key=lambda path: natural_key(path.name))
+            sample += [found[int(i)] for i in np.unique(np.linspace(0, len(found) - 1, MODEL_SAMPLE).round())] if found else []
+        return folder_model(folder, tuple(sample), self.min_confidence)
