@@ -223,6 +223,18 @@ def test_the_error_fixture_itself_reads(tmp_path):
     assert data.names == ("A", "B") and data.positions[0, 1].tolist() == [4, 5, 6] and np.isnan(data.positions[1, 1]).all()
 
 
+@pytest.mark.parametrize(("start", "first_time", "frame"), [
+    ("0", "0.0333", 0),  # Pose2Sim before its trimming: Frame# 1, 2, … and OrigDataStartFrame 0 (the demo's TRC)
+    ("12", "0.4", 12),   # today's Pose2Sim, a trial trimmed to where the subject is seen: frame 12 on
+    ("1", "0.0333", 1),  # today's Pose2Sim from frame 1: its first row one frame in
+    ("1", "0.0", 0),     # OpenCap, OpenSim, mmcsplat's export: numbered from 1, the first row at time 0
+])
+def test_a_trcs_first_row_is_the_capture_frame_its_writer_meant(tmp_path, start, first_time, frame):
+    path = tmp_path / "start.trc"
+    path.write_text(GOOD_TRC.replace("30\t30\t2\t2\tm\t30\t1\t2", f"30\t30\t2\t2\tm\t30\t{start}\t2").replace("1\t0.0\t1", f"1\t{first_time}\t1"))
+    assert read_trc(path, convention="none").first_frame == frame
+
+
 @pytest.mark.parametrize(("text", "line", "words"), [
     ("name,x,y,z\nA,1,2,3\n", 1, "not a TRC file"),
     (GOOD_TRC.replace("DataRate\tCameraRate\tNumFrames", "Rate\tCameraRate\tFrames"), 2, "lack"),

@@ -138,6 +138,24 @@ def test_a_trc_at_another_rate_than_the_video_is_said(scene, tmp_path):
         assert any("DataRate 100 Hz, but the capture of session" in str(w.message) for w in caught) == said
 
 
+def test_a_trc_of_later_frames_is_read_at_them_and_what_it_lacks_is_said(scene, tmp_path):
+    """Pose2Sim trims a trial to where the subject is seen and writes its first frame as OrigDataStartFrame: its
+    rows are those frames, not the capture's from 0; frames a TRC does not cover are NaN, and said."""
+    run, _, truth = scene
+    session = SessionReader(FittedRun.load(run).info.session)
+    frames = list(range(len(truth)))
+    write_trc(tmp_path / "m.trc", NAMES, np.arange(len(truth) - 1) / session.capture_fps, truth[1:], session.capture_fps)
+    text = (tmp_path / "m.trc").read_text().splitlines()
+    values = text[2].split("\t")
+    values[6] = "1"  # OrigDataStartFrame 1 with its first row one frame in: Pose2Sim's frame 1
+    rows = [f"{k + 1}\t{(k + 1) / session.capture_fps}\t" + row.split("\t", 2)[2] for k, row in enumerate(text[5:])]
+    (tmp_path / "m.trc").write_text("\n".join([*text[:2], "\t".join(values), *text[3:5], *rows]) + "\n")
+    with pytest.warns(UserWarning, match=r"rows are the capture's frames 1–\d+ \(its OrigDataStartFrame\); 1 of the \d+ frames asked for \(0…0\)"):
+        read = TrcLandmarks(path=str(tmp_path / "m.trc")).read(session, frames)
+    assert np.isnan(read.positions[0]).all()
+    np.testing.assert_allclose(read.positions[1:], truth[1:], atol=1e-6, equal_nan=True)
+
+
 def test_no_landmark_near_the_subject_is_an_error(scene, tmp_path, capsys):
     run, _, _ = scene
     far = tmp_path / "far.csv"

@@ -19,6 +19,13 @@ OpenCap writes Y up too, turned from its calibration board's frame (the world of
 world = (−Z, X, −Y), ``"opencap-wall"`` (a board upright on a wall) world = (−Z, −Y, −X), and
 ``"opencap-wall-inverted"`` (the same board upside down) world = (Z, Y, −X) (:func:`.opencap_calibration.opencap_convention`
 tells them apart from the cameras). OpenCap's first line has a space after ``PathFileType``, not a tab.
+Which frame of the capture a TRC's first row is (``TrcData.first_frame``) is told by its writer's habit:
+Pose2Sim writes the capture's 0-based frame numbers in ``Frame#``, ``Time`` = frame / rate and the first in
+``OrigDataStartFrame`` (a trial it trimmed to where the subject is seen starts later than frame 0; the
+versions before wrote ``Frame#`` 1, 2, … and ``OrigDataStartFrame`` 0); OpenCap and OpenSim number from 1
+(``OrigDataStartFrame`` 1, ``Time`` 0 at the first row). So an ``OrigDataStartFrame`` of 2 or more is the
+first row's frame, 1 is frame 1 where the first row's time is one frame in (Pose2Sim's) and frame 0
+otherwise, and 0 or none is frame 0.
 
 **CSV** (``.csv``): long format, one row per frame and landmark, columns ``frame,time,name,x,y,z`` in
 metres in mmcsplat's world frame, then any extra numeric columns (``spread_mm``, ``confidence``, …), one
@@ -97,6 +104,8 @@ class TrcData:
     units: str
     #: What was unfinished in the run the file was exported from (its ``Incomplete`` header), else ``None``.
     incomplete: str | None = None
+    #: The capture's frame of the first row (module docstring), 0-based.
+    first_frame: int = 0
 
 
 def _one_line(text: str) -> str:
@@ -269,9 +278,12 @@ def read_trc(path: str | os.PathLike, convention: str = "pose2sim") -> TrcData:
         raise InputError(f"{path}, line 3: NumFrames is {num_frames} but the file has {len(rows)} frame row(s) (truncated?)")
 
     positions = np.asarray(rows, dtype=np.float64).reshape(len(rows), len(names), 3) * _UNITS[units]
+    start = _int_cell(header["OrigDataStartFrame"], f"{path}, line 3", "OrigDataStartFrame") if header.get("OrigDataStartFrame") else 0
+    if start == 1:  # Pose2Sim's frame 1 (its first row one frame in), or a 1-based writer's first frame
+        start = int(bool(times) and abs(times[0] * rate - 1) < 0.5)
     return TrcData(names=names, frame_numbers=np.asarray(frame_numbers, dtype=np.int64), times=np.asarray(times, dtype=np.float64),
                    positions=_turned(positions, TRC_AXES[convention]), rate=rate, units=units,
-                   incomplete=header.get(TRC_INCOMPLETE_KEY))
+                   incomplete=header.get(TRC_INCOMPLETE_KEY), first_frame=max(start, 0))
 
 
 def write_trc(path: str | os.PathLike, names: Sequence[str], times: np.ndarray, positions: np.ndarray, rate: float,

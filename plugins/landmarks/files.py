@@ -58,7 +58,14 @@ class TrcLandmarks(LandmarkSource):
             warnings.warn(f"TRC {self.path}: DataRate {data.rate:g} Hz, but the capture of session {session.url} is at {session.capture_fps:g} "
                           "fps; its row k is taken as the capture's frame k, so if its rows are not the video's frames (a marker system's own "
                           "rate), resample it to them", stacklevel=2)
-        positions = _rows_at(np.arange(len(data.times)), data.positions, session.capture_frames(frames))
+        wanted = session.capture_frames(frames)
+        held = data.first_frame + np.arange(len(data.times))  # the capture's frame of each row
+        outside = wanted[~np.isin(wanted, held)]
+        if len(outside) and len(held):
+            start = " (its OrigDataStartFrame)" if data.first_frame else ""
+            warnings.warn(f"TRC {self.path}: its rows are the capture's frames {held[0]}–{held[-1]}{start}; {len(outside)} of the {len(wanted)} "
+                          f"frames asked for ({outside[0]}…{outside[-1]}) have no landmarks there", stacklevel=2)
+        positions = _rows_at(held, data.positions, wanted)
         return Landmarks(data.names, frames, positions, source=f"TRC {Path(self.path)}")
 
     def resolved_convention(self, session: SessionReader) -> str:
