@@ -285,7 +285,8 @@ def _set_status(run: Path, status: str) -> None:
     (run / "run.json").write_text(json.dumps({**info, "status": status}))
 
 
-@pytest.mark.parametrize("command", [["evaluate"], ["report"], ["landmarks", "--source", "synthetic"], ["export", "--ply", "PLY"]])
+@pytest.mark.parametrize("command", [["evaluate"], ["report"], ["landmarks", "--source", "synthetic"], ["export", "--ply", "PLY"],
+                                     ["render", "--novel", "--no-progress"]])
 def test_an_unfinished_fit_is_refused(fitted, tmp_path, capsys, command):
     _, run = fitted
     _set_status(run, "running")
@@ -294,6 +295,7 @@ def test_an_unfinished_fit_is_refused(fitted, tmp_path, capsys, command):
     err = capsys.readouterr().err
     assert f"run {run} is unfinished: its fit is 'running' at iteration 0 (run.json)" in err and "--allow-incomplete" in err
     assert not (run / "metrics.json").exists() and not (run / "report.html").exists() and not (tmp_path / "ply").exists()
+    assert not (run / "renders").exists()
 
 
 def test_allow_incomplete_labels_every_output(fitted, tmp_path, capsys):
@@ -505,3 +507,23 @@ def test_plausible_distortion_is_accepted():
     camera = rig.ring_cameras(("c1",))[0]
     for distortion in ([-0.35, 0.18, 0.0, 0.0, -0.05], [-0.05, 0.15, 0.0, 0.001], [0.1, 0.0, 0.0, 0.0]):  # as in real calibrations (Pose2Sim, anipose)
         check_distortion(attrs.evolve(camera, distortion=distortion), "test")
+
+
+def test_replaced_tracks_take_what_they_made_with_them(fitted, tmp_path, capsys):
+    """Scores, landmarks, renders and the report made from tracks describe those tracks: replacing the tracks
+    removes them (export, evaluate and the report would read them as the new tracks'), and says so."""
+    _, run = fitted
+    track = ["track", str(run), "--dynamics", "iterative", "--set", "dynamics.iterations=1", "--no-progress"]
+    assert main(track) == 0 and main(["evaluate", str(run)]) == 0 and _carry_landmarks(run, tmp_path) == 0
+    (run / "renders").mkdir()
+    (run / "renders" / "novel.mp4").write_bytes(b"old")
+    made = {path.name for path in run.iterdir()}
+    assert {"metrics.json", "landmarks.csv", "landmarks.json", "movement.json", "movement.csv", "renders"} <= made
+    capsys.readouterr()
+    assert main([*track, "--overwrite"]) == 0
+    out = capsys.readouterr().out
+    assert "removed metrics.json, landmarks.csv, landmarks.json, movement.json, movement.csv, renders: made from the tracks replaced" in out
+    assert not {"metrics.json", "landmarks.csv", "landmarks.json", "movement.json", "movement.csv", "renders"} & {p.name for p in run.iterdir()}
+    assert json.loads((run / "track.json").read_text())["removed"] == ["metrics.json", "landmarks.csv", "landmarks.json", "movement.json",
+                                                                      "movement.csv", "renders"]
+    assert main(["export", str(run), f"--trc={tmp_path / 'j.trc'}"]) == 2  # no landmarks to export until carried again

@@ -9,6 +9,7 @@ with, so tracking sees the same targets as the first frame did.
 
 from __future__ import annotations
 
+import shutil
 import time
 from collections.abc import Iterable, Mapping
 from pathlib import Path
@@ -22,7 +23,7 @@ from mmcsplat.plugin_api.errors import InputError, OutputExistsError, PluginErro
 from mmcsplat.plugin_api.interfaces import Dynamics, TrackingContext
 from mmcsplat.storage.atomic import write_json_atomic
 from mmcsplat.storage.locking import run_lock
-from mmcsplat.storage.run import RUN_INFO, TRACK_INFO, TRACKING_UNFINISHED, TRACKS_DIR
+from mmcsplat.storage.run import MADE_FROM_TRACKS, RUN_INFO, TRACK_INFO, TRACKING_UNFINISHED, TRACKS_DIR
 from mmcsplat.storage.run_info import RunInfo
 from mmcsplat.storage.run_log import run_log
 from mmcsplat.storage.session import SessionReader
@@ -73,6 +74,22 @@ def require_cameras_per_frame(run: Path, session: SessionReader, cameras: Iterab
         raise InputError(f"{run}: dynamics {method!r} fits each frame from that frame's own images and needs {needed} training cameras "
                          f"at a frame, but session {session.url!r} images most frames with {int(np.median(counts))} (one moving camera?): "
                          "track it with --dynamics deformation, which trains over every (frame, camera) image of the sequence")
+
+
+def remove_made_from_tracks(run: Path) -> list[str]:
+    """Remove what ``run``'s tracks made (:data:`~mmcsplat.storage.run.MADE_FROM_TRACKS`: scores, landmarks,
+    renders, report) once new tracks replace them; returns the names removed."""
+    removed = []
+    for name in MADE_FROM_TRACKS:
+        path = run / name
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path)
+        elif path.exists() or path.is_symlink():
+            path.unlink()
+        else:
+            continue
+        removed.append(name)
+    return removed
 
 
 def track_run(
@@ -155,6 +172,10 @@ def track_run(
         wall = time.perf_counter() - began
         context.curve.write(run)
         log.info("tracked %d frames in %.1f s", len(context.frames), wall)
+        # Until the marker below goes, export and evaluate refuse the run: a kill here leaves nothing read as current.
+        removed = remove_made_from_tracks(run) if before is not None else []
+        if removed:
+            log.info("removed what the replaced tracks made: %s", ", ".join(removed))
         record = {
             "method": choice.name,
             "method_default": defaulted,
@@ -166,6 +187,7 @@ def track_run(
             "wall_s_per_frame": round(wall / (len(context.frames) - 1), 3),
             "summary": summary,
             "recording": session.fingerprint,
+            "removed": removed,
         }
         write_json_atomic(run / TRACK_INFO, record)
         (run / TRACKING_UNFINISHED).unlink()

@@ -43,3 +43,5 @@ RENDERS_DIR = "renders"
 NOVEL_VIDEO = "novel.mp4"
 #: The HTML report.
 REPORT_FILE = "report.html"
+#: What is made from a run's tracks: replacing the tracks removes them, so that none describes tracks gone.
+MADE_FROM_TRACKS = (METRICS_FILE, LANDMARKS_CSV, LANDMARKS_INFO, MOVEMENT_JSON, MOVEMENT_CSV, LANDMARKS_TRC, RENDERS_DIR, REPORT_FILE)
