@@ -193,3 +193,28 @@ def test_the_overlay_video_and_the_report_show_them(scene):
     assert "3D error where the landmark moved" in page and "landmarks_cam_0.mp4" in page
     assert "<h3>Joint angles</h3>" in page and "joint angles over time" in page and "0° with the leg straight" in page
     assert "right knee flexion (no right hip among the landmarks)" in page and "joint angle error, median (°)" in page
+
+
+def test_a_stop_while_the_landmarks_are_written_leaves_all_four_new(scene, tmp_path, monkeypatch):
+    """Ctrl-C between landmarks.csv and the record beside it waits until the four files are written: never a
+    new landmarks.csv beside the old landmarks.json and movement measures."""
+    import os
+    import signal
+
+    import mmcsplat.pipeline.landmarks as landmarks_step
+
+    run, path, _ = scene
+    assert main(["landmarks", str(run), "--source", "csv", "--set", f"path={path}"]) == 0
+    names = ("landmarks.csv", "landmarks.json", "movement.json", "movement.csv")
+    for name in names:
+        (run / name).write_text("old")
+    written = landmarks_step.write_landmark_csv
+
+    def then_stop(*args, **kwargs):
+        written(*args, **kwargs)
+        os.kill(os.getpid(), signal.SIGINT)
+
+    monkeypatch.setattr(landmarks_step, "write_landmark_csv", then_stop)
+    with pytest.raises(KeyboardInterrupt):
+        landmarks_step.track_landmarks(run, "csv", {"path": str(path)})
+    assert all((run / name).read_text() != "old" for name in names)

@@ -36,7 +36,7 @@ from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.interfaces import KeypointObservations, Landmarks, LandmarkSource
 from mmcsplat.scene.camera import Camera
 from mmcsplat.scene.landmark_anchors import ANCHORS, BIND_FRAMES, MAX_DISTANCE, bind_over_frames, carry, subject_gaussians
-from mmcsplat.storage.atomic import write_json_atomic, write_text_atomic
+from mmcsplat.storage.atomic import signals_deferred, write_json_atomic, write_text_atomic
 from mmcsplat.storage.completeness import require_finished
 from mmcsplat.storage.landmark_formats import CSV_INCOMPLETE_COLUMN, write_landmark_csv
 from mmcsplat.storage.locking import run_lock
@@ -139,8 +139,6 @@ def track_landmarks(run: str | Path, source: str, params: dict[str, Any] | None 
         slips = slipped(session, states.info.train_cameras, frames, points, carried, rule)
         times = session.frame_times[frames]
         labels = {CSV_INCOMPLETE_COLUMN: np.ones(spread.shape)} if unfinished else {}
-        write_landmark_csv(run / LANDMARKS_CSV, reference.names, frames, times, carried,
-                           extra={"spread_mm": spread * 1000, "confidence": confidence(spread), **labels})
         info: dict[str, Any] = {
             "source": source, "params": {key: str(value) if isinstance(value, Path) else value for key, value in (params or {}).items()},
             "described": reference.source, "names": list(reference.names), "frames": [int(frames[0]), int(frames[-1]) + 1],
@@ -160,9 +158,12 @@ def track_landmarks(run: str | Path, source: str, params: dict[str, Any] | None 
         if keypoints is not None:
             info["accuracy_2d"] = _accuracy_2d(registry, keypoints, keypoint_params, session, set(states.info.heldout_cameras), frames,
                                                reference, carried, slice(bind_frames if len(frames) > bind_frames else 0, None), body)
-        write_json_atomic(run / LANDMARKS_INFO, info)
         movement = movement_summary(reference.names, times, carried) | {"incomplete": bool(unfinished), "unfinished": unfinished}
-        write_movement(run, movement)
+        with signals_deferred():  # each file atomic, and a stop never leaves new ones beside old ones
+            write_landmark_csv(run / LANDMARKS_CSV, reference.names, frames, times, carried,
+                               extra={"spread_mm": spread * 1000, "confidence": confidence(spread), **labels})
+            write_json_atomic(run / LANDMARKS_INFO, info)
+            write_movement(run, movement)
         log.info("landmarks from %s: %d bound, %s unbound; %d frames", source, int(binding.bound.sum()), binding.unbound or "none", len(frames))
         if binding.unbound:
             warnings.warn(f"landmarks {', '.join(binding.unbound)}: no subject Gaussian within {max_distance * 100:.0f} cm at frame "
