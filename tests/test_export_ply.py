@@ -73,6 +73,23 @@ def test_a_run_without_tracks_exports_its_first_frame(runs, tmp_path):
     np.testing.assert_allclose(vertices["x"], params["means"][:, 0].numpy(), atol=1e-6)
 
 
+def test_a_ply_export_replaces_its_own_folder_whole_and_nothing_else(runs, tmp_path, capsys):
+    """Exporting a shorter run into a longer one's folder leaves none of the longer one's frames; a folder holding
+    anything an export did not write (notes, a file named like a frame that is no PLY) is refused, untouched."""
+    out = tmp_path / "ply"
+    assert main(["export", str(runs[0]), "--ply", str(out), "--no-progress"]) == 0
+    assert main(["export", str(runs[1]), "--ply", str(out), "--no-progress"]) == 0
+    assert [path.name for path in out.iterdir()] == ["frame_0000.ply"]
+    for name, text in (("notes.txt", "mine"), ("frame_0003.ply", "mine too")):
+        (out / name).write_text(text)
+        capsys.readouterr()
+        assert main(["export", str(runs[0]), "--ply", str(out), "--no-progress"]) == 2
+        assert f"holds {name}, which no export of this kind wrote" in capsys.readouterr().err
+        assert (out / name).read_text() == text and (out / "frame_0000.ply").is_file()
+        (out / name).unlink()
+    assert not [path for path in tmp_path.iterdir() if path.name.startswith(".")]  # no staging left beside it
+
+
 def test_export_of_a_directory_that_is_no_run_fails_clearly(tmp_path, capsys):
     assert main(["export", str(tmp_path / "missing"), "--ply", str(tmp_path / "out")]) == 2
     assert "does not exist" in capsys.readouterr().err

@@ -1,6 +1,7 @@
 """Export a run's Gaussians for 3DGS viewers and tools: per-frame PLY files, or the reference trainer's model folder.
 
---ply DIR writes one PLY per run frame (frame_NNNN.ply, by session frame): position, SH degree-0 colour,
+--ply DIR writes one PLY per run frame (frame_NNNN.ply, by session frame; DIR replaced whole, and refused when it holds
+anything but an earlier export's frames): position, SH degree-0 colour,
 logit opacity, log scales, quaternion. --full-sh writes them in the reference 3DGS layout instead: the
 same properties plus f_rest_0..44, zero (SH degree 3; the fit's colour is view-independent).
 

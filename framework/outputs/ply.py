@@ -14,6 +14,7 @@ tools built on that layout require.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -22,7 +23,7 @@ import torch
 
 from mmcsplat.pipeline.run_frames import RunStates
 from mmcsplat.plugin_api.errors import InputError
-from mmcsplat.storage.atomic import atomic_path, new_files
+from mmcsplat.storage.atomic import atomic_path, replaced_folder
 
 SH_C0 = 0.28209479177387814  # the degree-0 real spherical harmonic, 1 / (2 √π)
 MAX_SH_DEGREE = 3
@@ -77,17 +78,26 @@ def write_ply(path: str | Path, params: Mapping[str, torch.Tensor], sh_degree: i
         handle.write(vertices.tobytes())
 
 
+def _exported_frame(path: Path) -> bool:
+    """Whether ``path`` is a frame an earlier PLY export wrote: a ``frame_NNNN.ply`` file that is a PLY."""
+    if not (path.is_file() and re.fullmatch(r"frame_\d{4,}\.ply", path.name)):
+        return False
+    with open(path, "rb") as handle:
+        return handle.read(4) == b"ply\n"
+
+
 def export_ply(run: str | Path, out: str | Path, progress: bool = True, sh_degree: int = 0, comments: Sequence[str] = ()) -> list[Path]:
     """One PLY per frame of ``run`` (its tracks, or the first-frame fit) in ``out``, named
     ``frame_NNNN.ply`` by session frame number, in the layout of ``sh_degree`` with header ``comments``;
-    returns the paths. The files are written beside ``out`` and moved in once all are whole."""
+    returns the paths. The files are written beside ``out``, which replaces ``out`` once all are whole; ``out``
+    may hold only an earlier export's frames (anything else is refused, naming it)."""
     from tqdm import tqdm
 
     properties(sh_degree)  # a bad degree fails before the run is read
     states = RunStates(run)
     out = Path(out)
     names = [f"frame_{states.first_frame + k:04d}.ply" for k in range(states.num_frames)]
-    with new_files(out) as staging:
+    with replaced_folder(out, _exported_frame) as staging:
         for k in tqdm(range(states.num_frames), desc="export ply", unit="frame", disable=not progress):
             write_ply(staging / names[k], states.params(k), sh_degree, comments)
     return [out / name for name in names]

@@ -11,7 +11,7 @@ import shutil
 import signal
 import tempfile
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -124,22 +124,32 @@ def new_folder(path: str | os.PathLike) -> Iterator[Path]:
 
 
 @contextmanager
-def new_files(folder: str | os.PathLike) -> Iterator[Path]:
-    """Yield a temporary folder beside ``folder`` to write files into; on success each is moved into
-    ``folder`` (created if needed; same-named files replaced, others kept), on error the temporary folder is
-    removed: a failed export leaves no file behind that looks whole."""
-    from mmcsplat.plugin_api.errors import NotAFolderError
+def replaced_folder(folder: str | os.PathLike, own: Callable[[Path], bool]) -> Iterator[Path]:
+    """Yield a temporary folder beside ``folder`` to fill; on success it replaces ``folder`` as a whole (an
+    earlier export with more files leaves none behind), on error it is removed: a failed export leaves no file
+    that looks whole. ``folder`` may hold only entries ``own`` accepts (what an earlier export wrote): anything
+    else is an error naming it, so nothing the user made is replaced."""
+    from mmcsplat.plugin_api.errors import NotAFolderError, OutputExistsError
 
     folder = Path(folder)
     if folder.exists() and not folder.is_dir():
         raise NotAFolderError(f"{folder} is a file, not a folder to write into: give a folder")
+    strangers = sorted(path.name for path in folder.iterdir() if not own(path)) if folder.is_dir() else []
+    if strangers:
+        raise OutputExistsError(f"{folder} holds {', '.join(strangers[:3])}{' …' if len(strangers) > 3 else ''}, which no export of this kind "
+                                "wrote: it replaces only a folder of its own files — move them or give another folder")
     folder.parent.mkdir(parents=True, exist_ok=True)
     temporary = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".tmp", dir=folder.parent))
+    os.chmod(temporary, 0o777 & ~_umask())
     try:
         yield temporary
-        folder.mkdir(exist_ok=True)
-        for path in sorted(temporary.iterdir()):
-            os.replace(path, folder / path.name)
+        if folder.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".old", dir=folder.parent))
+            os.replace(folder, old / folder.name)
+            os.replace(temporary, folder)
+            remove_local_tree(old)
+        else:
+            os.replace(temporary, folder)
     finally:
         remove_local_tree(temporary)
 
