@@ -663,3 +663,15 @@ def test_a_head_seen_only_by_its_ears_keeps_its_disk():
     mask = skeleton_mask(pixels, seen, names, torso, scale=40.0)
     assert mask[35, 50] and mask[25, 50]  # between the ears, and above them
     assert not skeleton_mask(pixels, seen & (np.arange(7) < 4), names, torso, scale=40.0)[25, 50]  # no head point: no disk
+
+
+def test_a_null_point_is_no_detection_whatever_its_confidence(tmp_path):
+    """A writer of OpenPose's format that has no point writes null for it (read as NaN): it is undetected, not a
+    confident point at NaN that breaks the triangulation."""
+    from mmcsplat.plugins.landmarks.openpose import read_people
+
+    row = [10.0, 20.0, 0.9] * 25
+    row[3:6] = [None, 21.0, 0.8]
+    (tmp_path / "f.json").write_text(json.dumps({"people": [{"pose_keypoints_2d": row}]}))
+    people = read_people(tmp_path / "f.json", 25)
+    assert people[0, 1].tolist() == [0.0, 0.0, 0.0] and people[0, 0].tolist() == [10.0, 20.0, 0.9]

@@ -125,7 +125,8 @@ def image_named(session: SessionReader, camera: str, files: Sequence[Path]) -> d
 
 
 def read_people(path: Path, count: int) -> np.ndarray:
-    """[P, count, 3] (x, y, confidence) of every person in one OpenPose JSON file."""
+    """[P, count, 3] (x, y, confidence) of every person in one OpenPose JSON file; a point with a null or NaN
+    value is undetected (all zero)."""
     try:
         people = json.loads(path.read_text())["people"]
         rows = [np.asarray(person["pose_keypoints_2d"], dtype=np.float64) for person in people]
@@ -134,7 +135,9 @@ def read_people(path: Path, count: int) -> np.ndarray:
     for index, row in enumerate(rows):
         if row.size != 3 * count:
             raise InputError(f"{path}: person {index} has {row.size // 3} keypoints, the model has {count}")
-    return np.stack(rows).reshape(len(rows), count, 3) if rows else np.zeros((0, count, 3))
+    detected = np.stack(rows).reshape(len(rows), count, 3) if rows else np.zeros((0, count, 3))
+    detected[~np.isfinite(detected).all(axis=-1)] = 0.0  # a writer's null or NaN for a point it did not find: no detection
+    return detected
 
 
 @attrs.frozen
