@@ -15,7 +15,7 @@ from fitting_scene import write_session
 from mmcsplat.cli import main
 from mmcsplat.configuration.registry import default_registry
 from mmcsplat.plugin_api.errors import InputError
-from mmcsplat.plugins.landmarks.openpose import MODELS
+from mmcsplat.plugins.landmarks.openpose import MODELS, read_people
 from mmcsplat.plugins.landmarks.subject import choose_subject
 from mmcsplat.plugins.segmenters.keypoints import skeleton_mask, torso_mask
 from mmcsplat.scene.human_skeleton import openpose_name
@@ -668,8 +668,6 @@ def test_a_head_seen_only_by_its_ears_keeps_its_disk():
 def test_a_null_point_is_no_detection_whatever_its_confidence(tmp_path):
     """A writer of OpenPose's format that has no point writes null for it (read as NaN): it is undetected, not a
     confident point at NaN that breaks the triangulation."""
-    from mmcsplat.plugins.landmarks.openpose import read_people
-
     row = [10.0, 20.0, 0.9] * 25
     row[3:6] = [None, 21.0, 0.8]
     (tmp_path / "f.json").write_text(json.dumps({"people": [{"pose_keypoints_2d": row}]}))
