@@ -86,8 +86,8 @@ def test_resolve_scale_sizes_the_longer_side_and_never_enlarges() -> None:
     assert resolve_scale(AUTO_SCALE, [camera(3840, 2160), camera(1920, 1080)]) == 0.125  # the largest camera decides
     assert resolve_scale(AUTO_SCALE, [camera(256, 192)]) == 1.0
     assert resolve_scale(0.5, []) == 0.5
-    for bad in (0, -1.0, "half"):
-        with pytest.raises(InputError, match="scale must be a positive number or 'auto'"):
+    for bad in (0, -1.0, "half", 50, float("inf")):  # 50 meant as per cent
+        with pytest.raises(InputError, match=r"scale must be a number in \(0, 1\], the share of the recorded size"):
             resolve_scale(bad, [])
 
 

@@ -23,7 +23,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "an OpenCap camera's cameraIntrinsicsExtrinsics.pickle (the rig: every camera folder beside it)")
     add_units(parser)
     add_frames(parser, "the frame indices to ingest (default: all)")
-    parser.add_argument("--scale", type=scale_value, default=1.0, help="resize factor for the stored images, or auto: their longer side "
+    parser.add_argument("--scale", type=scale_value, default=1.0, help="resize factor in (0, 1] for the stored images, or auto: their longer side "
                         f"at most {AUTO_LONGEST_SIDE} px, never enlarged; K is scaled to match (default: 1)")
     add_names(parser, "--cameras", "ingest only these cameras, in this order")
     add_names(parser, "--holdout", "cameras kept for evaluation, not training", default=[])

@@ -27,15 +27,15 @@ def frame_range(text: str) -> slice:
 
 
 def scale_value(text: str) -> float | str:
-    """A positive resize factor, or ``auto`` (an argparse type; :func:`mmcsplat.pipeline.image_scale.resolve_scale`)."""
+    """A resize factor in (0, 1], or ``auto`` (an argparse type; :func:`mmcsplat.pipeline.image_scale.resolve_scale`)."""
     from mmcsplat.pipeline.image_scale import AUTO_SCALE, checked_scale
-    from mmcsplat.plugin_api.errors import InputError
 
     word = text.strip().lower()
     try:
         return checked_scale(word if word == AUTO_SCALE else float(word))
-    except (ValueError, InputError):
-        raise argparse.ArgumentTypeError(f"expected a positive number or {AUTO_SCALE!r}, got {text!r}") from None
+    except ValueError:  # InputError is one
+        raise argparse.ArgumentTypeError(f"expected a number in (0, 1], the share of the recorded size (0.5: half), or {AUTO_SCALE!r}; "
+                                         f"got {text!r}") from None
 
 
 def add_names(parser: argparse.ArgumentParser, flag: str, help: str, **kwargs) -> None:

@@ -29,7 +29,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--calibration", help="calibration .toml (anipose, Pose2Sim, Caliscope), Qualisys .qca.txt, EasyMocap intri.yml or an OpenCap "
                         "camera's .pickle (default: the capture's own, see docs/ingest.md)")
     add_units(parser)
-    parser.add_argument("--scale", type=scale_value, default=DEFAULT_SCALE, help="resize factor of the stored images, or auto (the "
+    parser.add_argument("--scale", type=scale_value, default=DEFAULT_SCALE, help="resize factor in (0, 1] of the stored images, or auto (the "
                         f"default): their longer side at most {AUTO_LONGEST_SIDE} px, never enlarged (0.25 for 1080 × 1920 video)")
     add_frames(parser, "the frame indices to use (default: all)")
     add_names(parser, "--cameras", "use only these cameras (default: all): leaves out a broken one, which is then never read or checked")

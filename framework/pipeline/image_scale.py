@@ -18,9 +18,11 @@ AUTO_LONGEST_SIDE = 480
 
 
 def checked_scale(scale: float | str) -> float | str:
-    """``scale`` when it is a positive number or :data:`AUTO_SCALE`, else an error."""
-    if scale != AUTO_SCALE and (isinstance(scale, str) or not scale > 0):
-        raise InputError(f"scale must be a positive number or {AUTO_SCALE!r}, got {scale!r}")
+    """``scale`` when it is a number in (0, 1] or :data:`AUTO_SCALE`, else an error: the stored images are the
+    recorded ones or smaller (an upscaled image adds pixels and no detail; 50 meant as per cent would ask for
+    2 500 times the memory)."""
+    if scale != AUTO_SCALE and (isinstance(scale, str) or not 0 < scale <= 1):
+        raise InputError(f"scale must be a number in (0, 1], the share of the recorded size (0.5: half), or {AUTO_SCALE!r}; got {scale!r}")
     return scale
 
 
