@@ -77,6 +77,14 @@ def test_frames_scale_subset_and_holdout(tmp_path: Path) -> None:
         assert abs(float(np.median(rgb)) - rig.background_level(t)) < 10
 
 
+def test_frames_past_the_end_are_said_and_a_holdout_outside_the_cameras_is_named(tmp_path: Path) -> None:
+    rig.make_capture(tmp_path / "capture", names=("c1", "c2", "c3"), frames=6)
+    with pytest.warns(UserWarning, match=r"--frames 4:200: .* has 6 frames; taking frames 4–5 \(2\)"):
+        assert _ingest(tmp_path / "capture", tmp_path / "out.zarr", frames=slice(4, 200)).num_frames == 2
+    with pytest.raises(InputError, match="--holdout: c2 not among the selected cameras c3, c1"):
+        _ingest(tmp_path / "capture", tmp_path / "other.zarr", cameras=["c3", "c1"], holdout=["c2"])
+
+
 def test_resolve_scale_sizes_the_longer_side_and_never_enlarges() -> None:
     def camera(width: int, height: int) -> object:
         return type("Sized", (), {"width": width, "height": height})()

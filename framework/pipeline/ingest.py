@@ -19,6 +19,7 @@ undistorted like the frames and stored with the session, for fits that composite
 from __future__ import annotations
 
 import os
+import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -266,6 +267,9 @@ def ingest(
         if not (attrs.has(type(reader)) and "missing_frames" in attrs.fields_dict(type(reader))):
             raise InputError(f"--skip-missing: the {name} reader has no missing_frames option: it lists no image files that could be missing")
         reader = attrs.evolve(reader, missing_frames="absent")
+    outside = [camera for camera in holdout or () if cameras is not None and camera not in cameras]
+    if outside:  # before the reader reads only the cameras asked for, which would not know these at all
+        raise InputError(f"--holdout: {', '.join(outside)} not among the selected cameras {', '.join(cameras)}")
     if cameras is not None and attrs.has(type(reader)) and "cameras" in attrs.fields_dict(type(reader)):
         # A reader of a calibration reads and checks only the cameras asked for: a broken one left out stays out.
         reader = attrs.evolve(reader, cameras=tuple(cameras))
@@ -282,6 +286,9 @@ def ingest(
         indices = range(*(frames or slice(None)).indices(recording.num_frames))
         if not indices:
             raise InputError(f"the frames asked for select none of the {recording.num_frames} frames of {source}")
+        if frames is not None and frames.stop is not None and frames.stop > recording.num_frames:
+            warnings.warn(f"--frames {frames.start or ''}:{frames.stop}: {source} has {recording.num_frames} frames; taking frames "
+                          f"{indices[0]}–{indices[-1]} ({len(indices)})", stacklevel=2)
         by_name = {camera.name: camera for camera in recording.cameras}
         plates_folder = Path(plates) if plates is not None else source / PLATES_FOLDER
         if plates is not None and not plates_folder.is_dir():

@@ -115,7 +115,8 @@ def match_cameras(names: Sequence[str], paths: Iterable[Path], what: str, where:
         raise InputError(f"{where}: cameras {', '.join(map(repr, names))} both match {path.name}; say which is which with camera_map ({set_by})")
     unused = sorted(set(by_stem.values()) - set(matched.values()))
     if unused:
-        warnings.warn(f"{where}: ignoring {what}s of no calibrated camera: {', '.join(p.name for p in unused)}", stacklevel=3)
+        warnings.warn(f"{where}: ignoring {what}s of none of the cameras read ({', '.join(names)}): {', '.join(p.name for p in unused)}",
+                      stacklevel=3)
     return matched
 
 
