@@ -92,6 +92,8 @@ class VideoInfo:
     fps: float
     width: int
     height: int
+    #: Degrees the file's rotation tag turns its frames by (a phone's upright video), which decoding applies.
+    rotation: int = 0
 
 
 def probe(path: Path) -> VideoInfo:
@@ -110,7 +112,8 @@ def probe(path: Path) -> VideoInfo:
             frames = 1
             while capture.grab():
                 frames += 1
-        return VideoInfo(path, frames, float(capture.get(cv2.CAP_PROP_FPS)), image.shape[1], image.shape[0])
+        return VideoInfo(path, frames, float(capture.get(cv2.CAP_PROP_FPS)), image.shape[1], image.shape[0],
+                         int(capture.get(cv2.CAP_PROP_ORIENTATION_META)) % 360)
     finally:
         capture.release()
 
@@ -164,6 +167,11 @@ class VideoReader(Reader):
             matched = match_cameras(names, video_files(source), "video", source, self.camera_map, trial=self.trial)
             paths = {name: camera_video(path) for name, path in matched.items()}
         infos = {name: probe(paths[name]) for name in names}
+        for info in infos.values():
+            if info.rotation:  # a 180° turn keeps the size, so no size check would tell a calibration of the unturned frames
+                warnings.warn(f"video {info.path}: its rotation tag turns its frames by {info.rotation}°; they are read turned, as players "
+                              "and OpenCV show them (and calibrate them): a calibration made from the frames unturned would not fit them",
+                              stacklevel=2)
         rig = read_rig(calibration, units, names, {name: (info.width, info.height) for name, info in infos.items()})
         calibrated = rig.cameras
         timing = caliscope_frames(paths, self.missing_frames)
