@@ -103,6 +103,15 @@ def test_synth_overwrite_replaces_only_a_synthetic_capture(tmp_path, capsys):
     assert "(session.zarr)" in capsys.readouterr().err and (capture / "session.zarr").is_dir()
 
 
+def test_a_synth_cleans_what_a_killed_one_left_beside_its_capture(tmp_path):
+    killed = tmp_path / ".capture.k1ll3d.partial"
+    (killed / "videos").mkdir(parents=True)
+    (tmp_path / ".capture..capture.x.partial.old").mkdir()
+    (tmp_path / ".other.k1ll3d.partial").mkdir()  # another capture's: not this writer's to take
+    assert main(["synth", str(tmp_path / "capture"), *SYNTH]) == 0
+    assert sorted(path.name for path in tmp_path.iterdir()) == [".other.k1ll3d.partial", "capture"]
+
+
 def test_ingest_overwrite_refuses_a_session_holding_a_run(capture, tmp_path, capsys):
     session = tmp_path / "s.zarr"
     assert main(["ingest", str(capture), str(session)]) == 0

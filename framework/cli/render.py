@@ -41,6 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from mmcsplat.cli.main import CommandError
     from mmcsplat.pipeline.run_frames import RunStates
+    from mmcsplat.storage.atomic import remove_local_tree
     from mmcsplat.storage.completeness import require_finished
     from mmcsplat.storage.locking import run_lock
 
@@ -54,8 +55,13 @@ def run(args: argparse.Namespace) -> int:
     if args.trajectories or args.depth or args.landmarks:
         states.camera(args.camera)  # an unknown camera fails before anything is rendered
     out = args.out or args.run / RENDERS_DIR
+    if out.exists() and not out.is_dir():
+        raise CommandError(f"--out {out} is a file, not a folder to write the renders into: name a folder")
     inside = Path(os.path.abspath(out)).is_relative_to(os.path.abspath(args.run))
     with run_lock(args.run) if inside else contextlib.nullcontext():
+        if inside:  # what a killed render left in the run's folder (only a holder of its lock may take it away)
+            for leftover in out.glob(".*.tmp"):
+                remove_local_tree(leftover)
         return _render(args, states, out)
 
 

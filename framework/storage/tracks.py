@@ -85,7 +85,7 @@ class TrackWriter(Transaction):
         if not run.is_dir():
             raise MissingFileError(f"run directory {run} does not exist")
         if self.target.exists() and not overwrite:
-            raise OutputExistsError(f"{self.target} already exists (overwrite it explicitly)")
+            raise OutputExistsError(f"{self.target} already exists (--overwrite replaces it)")
         if num_frames < 1:
             raise InputError(f"{self.target}: num_frames must be ≥ 1, got {num_frames}")
         unknown = sorted(set(static) - set(GAUSSIAN_PARAMETERS))
@@ -153,7 +153,7 @@ class TrackWriter(Transaction):
             self._group.attrs["complete"] = True
             if self.target.exists():
                 if not self._overwrite:
-                    raise OutputExistsError(f"{self.target} appeared while the tracks were written (overwrite it explicitly)")
+                    raise OutputExistsError(f"{self.target} appeared while the tracks were written (--overwrite replaces it)")
                 replaced = self.target.parent / f".{TRACKS_DIR}.replaced-{uuid.uuid4().hex[:8]}"
                 os.replace(self.target, replaced)
                 os.replace(self._partial, self.target)

@@ -3,6 +3,7 @@ hidden temporary folder beside the output and moved into place only when complet
 
 from __future__ import annotations
 
+import glob
 import shutil
 import tempfile
 from collections.abc import Sequence
@@ -13,7 +14,9 @@ import numpy as np
 
 from mmcsplat.plugin_api.errors import OutputExistsError
 from mmcsplat.scene.camera import Camera
+from mmcsplat.storage.atomic import remove_local_tree
 from mmcsplat.storage.ground_truth import GROUND_TRUTH
+from mmcsplat.storage.locking import WriterLock
 from mmcsplat.synthetic.scene import Image
 
 VIDEOS = "videos"
@@ -76,6 +79,10 @@ class CaptureWriter:
         self.overwrite = overwrite
         check_output(self.out_dir, overwrite)
         self.out_dir.parent.mkdir(parents=True, exist_ok=True)
+        self._lock = WriterLock(self.out_dir.parent / f".{self.out_dir.name}.lock", f"capture {self.out_dir}")
+        for pattern in (".partial", ".old"):  # what a killed writer of this capture left (the lock is ours: none is running)
+            for leftover in self.out_dir.parent.glob(f".{glob.escape(self.out_dir.name)}.*{pattern}"):
+                remove_local_tree(leftover)
         self.cameras = list(cameras)
         self.num_frames = num_frames
         self.temp = Path(tempfile.mkdtemp(prefix=f".{self.out_dir.name}.", suffix=".partial", dir=self.out_dir.parent))
@@ -139,10 +146,9 @@ class CaptureWriter:
             old = self.out_dir.with_name(f".{self.out_dir.name}.{self.temp.name}.old")
             self.out_dir.rename(old)
         self.temp.rename(self.out_dir)
-        if old is not None and old.is_dir():
-            shutil.rmtree(old)
-        elif old is not None:
-            old.unlink()
+        if old is not None:
+            remove_local_tree(old)
+        self._lock.release()
 
     def abort(self) -> None:
         """Stop the encoders and remove the temporary folder."""
@@ -153,6 +159,7 @@ class CaptureWriter:
                 pass
         self.streams = []
         shutil.rmtree(self.temp, ignore_errors=True)
+        self._lock.release()
 
 
 def check_output(out_dir: Path, overwrite: bool) -> None:

@@ -89,7 +89,7 @@ class SessionWriter(Transaction):
         self._target = local_path(url)
         if self._target is not None:
             if self._target.exists() and not overwrite:
-                raise OutputExistsError(f"{self.url} already exists (overwrite it explicitly)")
+                raise OutputExistsError(f"{self.url} already exists (--overwrite replaces it)")
             if self._target.exists() and not is_session_store(self._target):
                 raise OutputExistsError(f"{self.url} exists and is not an mmcsplat session: overwrite replaces only a session, never other files")
             self._refuse_foreign()
@@ -109,7 +109,7 @@ class SessionWriter(Transaction):
             try:  # in place: "w" clears what was there, "w-" refuses it
                 self._group = open_group(url, "w" if overwrite else "w-", storage_options)
             except (FileExistsError, zarr.errors.ContainsGroupError, zarr.errors.ContainsArrayError) as error:
-                raise OutputExistsError(f"{self.url} already exists (overwrite it explicitly)") from error
+                raise OutputExistsError(f"{self.url} already exists (--overwrite replaces it)") from error
         try:
             self._group.attrs.update(
                 {
