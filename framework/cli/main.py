@@ -138,7 +138,10 @@ def _warning_format(command: str) -> Callable[..., str]:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the process exit status (2 for a user's error, 130 for Ctrl-C, 143 for SIGTERM)."""
-    args = build_parser().parse_args(argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except KeyboardInterrupt as interrupt:  # while the commands are still being loaded: nothing was written
+        return _interrupted(interrupt)
     previous = signal.signal(signal.SIGTERM, _terminate) if threading.current_thread() is threading.main_thread() else None
     try:
         handlers = _log_to(args.verbose, args.log_file)
