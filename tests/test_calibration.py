@@ -299,3 +299,20 @@ def test_caliscope_files_without_placed_cameras_or_with_unnumbered_tables_are_re
     path.write_text(tomli_w.dumps({"cameras": {"0": {**_caliscope_table(_cameras()[0], 0, "rodrigues"), "rotation": [1.0, 2.0]}}}))
     with pytest.raises(ValueError, match=r"\[cameras.0\]: rotation must be a Rodrigues vector \[3\] or a matrix \[3, 3\]"):
         read_calibration(path)
+
+
+@needs_shared
+def test_a_camera_whose_pose_is_inverted_is_said_and_no_real_rig_warns(tmp_path: Path) -> None:
+    """A pose written camera-to-world (R and t of the inverse) puts a camera where it cannot see what the others
+    look at; every camera of the real rigs sees it."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no real rig's camera is taken for an inverted one
+        for name, _, _ in REAL_SAMPLES:
+            read_rig(_sample(name))
+    cameras = read_calibration(_sample("Calib_qualisys.toml"))
+    inverted = [*cameras[:2], attrs.evolve(cameras[2], R=cameras[2].R.T, t=cameras[2].center), *cameras[3:]]
+    write_calibration(tmp_path / "calibration.toml", inverted)
+    with pytest.warns(UserWarning, match=r"camera 'cam_03' does not see the point the other cameras look at .*: is its pose the inverse"):
+        read_rig(tmp_path / "calibration.toml")

@@ -26,6 +26,7 @@ from __future__ import annotations
 import logging
 import re
 import tomllib
+import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -35,6 +36,7 @@ import numpy as np
 
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.scene.camera import Camera
+from mmcsplat.scene.rig import rig_center
 from mmcsplat.storage.atomic import write_text_atomic
 from mmcsplat.storage.easymocap_calibration import easymocap_files, easymocap_names, read_easymocap
 from mmcsplat.storage.opencap_calibration import is_opencap, opencap_tables
@@ -52,6 +54,8 @@ _REQUIRED = ("size", "matrix", "distortions", "rotation", "translation")
 #: The plausible extent of a rig, metres: its farthest camera from the cameras' centroid (a mouse arena's
 #: cameras ~0.3 m, a motion-capture hall's ~10 m).
 RIG_RADIUS_M = (0.05, 50.0)
+#: How far outside its image (in image sizes) a camera may see the point the other cameras look at.
+UNSEEN_MARGIN = 0.5
 #: The least distance between two cameras' centres, metres: two camera bodies cannot stand closer.
 MIN_CAMERA_GAP_M = 0.01
 #: How much radial distortion may scale a radius within the image: beyond it the coefficients are wrong
@@ -314,12 +318,35 @@ def check_rig(cameras: Sequence[Camera], where: str, units: str) -> None:
         hint = f"; if the file is in {other}, pass --units {other}" if other else ""
         raise InputError(f"{where}: the cameras lie up to {radius:.4g} m from their centre read in {units}, outside the {low:g}–{high:g} m "
                          f"of any real rig{hint}")
+    _warn_unseen_centre(cameras, where)
     centres = np.array([camera.center for camera in cameras])
     gaps = np.linalg.norm(centres[:, None] - centres[None], axis=-1) + np.diag(np.full(len(cameras), np.inf))
     first, second = np.unravel_index(np.argmin(gaps), gaps.shape)
     if gaps[first, second] < MIN_CAMERA_GAP_M:
         raise InputError(f"{where}: cameras {cameras[first].name!r} and {cameras[second].name!r} stand {gaps[first, second] * 1000:.3g} mm apart "
                          f"read in {units}, closer than any two cameras of a rig: is one camera's translation in another unit?")
+
+
+def _warn_unseen_centre(cameras: Sequence[Camera], where: str) -> None:
+    """Warn about a camera that does not see the point the others look at (:func:`~mmcsplat.scene.rig.rig_center`
+    of the others, where their axes are not parallel): it lies behind it, or projects more than half an image
+    outside its image. A pose written camera-to-world (the inverse of the world-to-camera one the formats hold)
+    turns a camera so: on the Pose2Sim demo's rig each camera so inverted sees it 0.9–1.6 images off its edge,
+    where every camera of ../shared/data's six real rigs sees it inside its image."""
+    if len(cameras) < 3:
+        return
+    for camera in cameras:
+        try:
+            centre = rig_center([other for other in cameras if other is not camera])
+        except InputError:  # the others' axes are parallel: no point they all look at
+            continue
+        seen = camera.R @ centre + camera.t
+        pixel = (camera.K @ (seen / seen[2]))[:2] if seen[2] > 0 else None
+        size = np.array([camera.width, camera.height])
+        if pixel is None or np.any(pixel < -UNSEEN_MARGIN * size) or np.any(pixel > (1 + UNSEEN_MARGIN) * size):
+            at = "lies behind it" if pixel is None else f"projects to ({pixel[0]:.0f}, {pixel[1]:.0f}), outside its {camera.width}×{camera.height} image"
+            warnings.warn(f"{where}: camera {camera.name!r} does not see the point the other cameras look at (it {at}): is its pose the "
+                          "inverse (camera-to-world) of the world-to-camera one the file should hold?", stacklevel=4)
 
 
 def _camera(path: Path, name: str, section: str, table: dict[str, Any]) -> Camera:
