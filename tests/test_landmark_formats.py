@@ -292,3 +292,11 @@ def test_other_errors_are_one_line_and_name_the_file(tmp_path):
     with pytest.raises(InputError, match="units"):
         write_trc(out, NAMES, times, positions, rate=30, units="cm")
     assert not out.exists() and not (tmp_path / "out.csv").exists()
+
+
+@pytest.mark.parametrize("first", [0, 1, 12])
+def test_a_written_trc_says_which_capture_frame_it_starts_at(tmp_path, first):
+    """``mmcsplat export --trc`` of a session that starts later in its capture: read back, its rows are those frames."""
+    times, positions = _trajectories()
+    write_trc(tmp_path / "j.trc", NAMES, times + first / 30.0, positions, 30.0, first_frame=first)
+    assert read_trc(tmp_path / "j.trc").first_frame == first

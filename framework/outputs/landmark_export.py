@@ -72,7 +72,8 @@ def export_landmarks(run: str | Path, trc: str | Path | None = None, csv: str | 
     session = RunStates(run).session
     written = []
     if trc is not None:
-        write_trc(trc, names, times, positions, session.fps, convention=trc_convention(session), incomplete=incomplete)
+        write_trc(trc, names, times, positions, session.fps, convention=trc_convention(session), incomplete=incomplete,
+                  first_frame=int(session.capture_frames(frames[:1])[0]) if len(frames) else 0)
         written.append(Path(trc))
     if csv is not None:
         write_landmark_csv(csv, names, frames, times, positions, extra=extra)

@@ -287,13 +287,15 @@ def read_trc(path: str | os.PathLike, convention: str = "pose2sim") -> TrcData:
 
 
 def write_trc(path: str | os.PathLike, names: Sequence[str], times: np.ndarray, positions: np.ndarray, rate: float,
-              convention: str = "pose2sim", units: str = "m", incomplete: str | None = None) -> None:
+              convention: str = "pose2sim", units: str = "m", incomplete: str | None = None, first_frame: int = 0) -> None:
     """Write ``positions`` [T, L, 3] (world metres, NaN where missing) as a TRC file (module docstring), atomically.
 
-    Frame numbers are 1..T as Pose2Sim writes them, ``times`` [T] the Time column, ``rate`` the DataRate
+    Frame numbers are 1..T, ``times`` [T] the Time column (the capture's times), ``rate`` the DataRate
     (and CameraRate, OrigDataRate); line 1 names the file itself. ``convention`` maps world axes to the
     file's (``"pose2sim"``: file (X, Y, Z) = (world y, world z, world x), Y up); ``units`` ``"m"`` or ``"mm"``.
-    ``incomplete``, what is unfinished in the run exported, becomes the header key ``Incomplete``."""
+    ``incomplete``, what is unfinished in the run exported, becomes the header key ``Incomplete``. ``first_frame``,
+    the capture's frame of the first row, is written as ``OrigDataStartFrame`` so that :func:`read_trc` places
+    the rows again: 1 for frame 0 (OpenSim's numbering from 1), the frame itself after it (Pose2Sim's)."""
     path = Path(path)
     _check_convention(convention)
     if units not in _UNITS:
@@ -309,7 +311,7 @@ def write_trc(path: str | os.PathLike, names: Sequence[str], times: np.ndarray, 
     count = len(values)
     out = io.StringIO()
     out.write(f"PathFileType\t4\t(X/Y/Z)\t{path.name}\n")
-    header = {**dict(zip(TRC_HEADER_KEYS, [_rate_text(rate), _rate_text(rate), str(count), str(len(names)), units, _rate_text(rate), "1",
+    header = {**dict(zip(TRC_HEADER_KEYS, [_rate_text(rate), _rate_text(rate), str(count), str(len(names)), units, _rate_text(rate), str(max(first_frame, 1)),
                                             str(count)], strict=True)),
               **({TRC_INCOMPLETE_KEY: _one_line(incomplete)} if incomplete else {})}
     out.write("\t".join(header) + "\n")
