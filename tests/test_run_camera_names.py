@@ -143,3 +143,19 @@ def test_body_parts_are_held_only_where_the_joints_name_a_torso_at_the_fitted_fr
     mouse = ("snout", "ear_left", "ear_right", "tailbase")
     assert missing_torso(_Joints(mouse, [True] * 4), None, 0) == ("the joints at frame 0: no LShoulder, RShoulder, RHip, LHip among "
                                                                   "snout, ear_left, ear_right, tailbase")
+
+
+def test_run_starts_where_a_trimmed_trcs_joints_start(tmp_path):
+    """Today's Pose2Sim trims a trial to where the subject is seen: its TRC starts at OrigDataStartFrame. run
+    starts there, so the fitted frame binds the joints; a --frames start before it is refused, naming it."""
+    from mmcsplat.jobs.capture import frames_with_joints
+    from mmcsplat.storage.landmark_formats import write_trc
+
+    trc = tmp_path / "trial_3-10.trc"
+    write_trc(trc, ["Neck"], (3 + np.arange(7)) / 30, np.zeros((7, 1, 3)), 30, first_frame=3)
+    said = []
+    assert frames_with_joints(CaptureSettings(), trc, said.append).frames == (3, None, None)
+    assert said == [f"run: frames from 3 on, where the joints of {trc} start (its OrigDataStartFrame)"]
+    assert frames_with_joints(CaptureSettings(frames=(5, 9, None)), trc, said.append).frames == (5, 9, None)
+    with pytest.raises(InputError, match=r"--frames 0:9: the joints .* start at the capture's frame 3 .*: give --frames 3:9"):
+        frames_with_joints(CaptureSettings(frames=(0, 9, None)), trc, said.append)

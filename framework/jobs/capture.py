@@ -63,6 +63,7 @@ from mmcsplat.pipeline.steps import BEFORE_FIELD, SettingsRecord, Step, StepTime
 from mmcsplat.plugin_api.errors import InputError, SubjectMaskError
 from mmcsplat.storage.atomic import write_json_atomic
 from mmcsplat.storage.calibration import AUTO_UNITS, format_units
+from mmcsplat.storage.landmark_formats import read_trc
 from mmcsplat.storage.run import LANDMARKS_CSV, LANDMARKS_INFO, METRICS_FILE, MOVEMENT_JSON, RENDERS_DIR, REPORT_FILE, RUN_INFO, TRACK_INFO, TRACKS_DIR
 from mmcsplat.training.frame_steps import AUTO_STEPS, FEWEST_STEPS, STEPS_PER_SECOND, steps_per_frame
 
@@ -128,6 +129,21 @@ def quoted_override(key: str, value: Any) -> str:
     """``KEY=VALUE`` for ``--set``, the value written as a TOML literal (:func:`toml_literal`), so that a path with
     quotes, backslashes or spaces, or a keypoint source's ``camera_map`` table, arrives as it is."""
     return f"{key}={toml_literal(value)}"
+
+
+def frames_with_joints(settings: CaptureSettings, trc: Path, log: Callable[[str], None]) -> CaptureSettings:
+    """``settings`` whose frames start where the joints of ``trc`` do (:attr:`~mmcsplat.storage.landmark_formats.TrcData.first_frame`:
+    today's Pose2Sim trims a trial to where the subject is seen): the fitted frame binds them. Without ``--frames``
+    the run starts there, said; a ``--frames`` start before it is an error naming it."""
+    first = read_trc(trc).first_frame
+    start, stop, step = settings.frames
+    if first <= (start or 0):
+        return settings
+    if start is not None:
+        raise InputError(f"--frames {start}:{stop if stop is not None else ''}: the joints {trc} start at the capture's frame {first} (its "
+                         f"OrigDataStartFrame), so the fitted frame {start} has none: give --frames {first}:{stop if stop is not None else ''}")
+    log(f"run: frames from {first} on, where the joints of {trc} start (its OrigDataStartFrame)")
+    return attrs.evolve(settings, frames=(first, stop, step))
 
 
 def guidance_overrides(weight: float, source: dict[str, Any] | None, capture: Path) -> list[str]:
@@ -196,6 +212,8 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     if joints is not None and joints is source:
         log("run: joints: the keypoints' own triangulation (the capture has no TRC): bound at the fitted frame, carried, and scored "
             "against it and the keypoints")
+    if joints is not None and joints["name"] == "trc":
+        settings = frames_with_joints(settings, Path(joints["path"]), log)
     tracking = [f"dynamics.means_lr={settings.track_means_lr}", f"dynamics.flow_gain={settings.track_flow_gain}"]
     if settings.track_keypoints:  # a negative weight is refused by the dynamics' own check below
         tracking += guidance_overrides(settings.track_keypoints, source, capture)
