@@ -18,7 +18,7 @@ from scipy.spatial.transform import Rotation
 from mmcsplat.analysis.movement import flexion
 from mmcsplat.cli import main
 from mmcsplat.outputs import landmark_export
-from mmcsplat.plugins.landmarks.files import TrcLandmarks
+from mmcsplat.plugins.landmarks.files import CsvLandmarks, TrcLandmarks
 from mmcsplat.storage.landmark_formats import read_c3d, read_landmark_csv, read_trc, write_landmark_csv, write_trc
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.storage.tracks import TrackWriter
@@ -154,6 +154,15 @@ def test_a_trc_of_later_frames_is_read_at_them_and_what_it_lacks_is_said(scene, 
         read = TrcLandmarks(path=str(tmp_path / "m.trc")).read(session, frames)
     assert np.isnan(read.positions[0]).all()
     np.testing.assert_allclose(read.positions[1:], truth[1:], atol=1e-6, equal_nan=True)
+
+
+def test_a_csv_that_lacks_frames_asked_for_says_so(scene, tmp_path):
+    run, _, truth = scene
+    session = SessionReader(FittedRun.load(run).info.session)
+    write_landmark_csv(tmp_path / "later.csv", NAMES, np.arange(1, len(truth)), np.arange(1, len(truth)) / 30, truth[1:])
+    with pytest.warns(UserWarning, match=r"CSV .*later.csv: its rows are the capture's frames 1–\d+; 1 of the \d+ frames asked for \(0…0\)"):
+        read = CsvLandmarks(path=str(tmp_path / "later.csv")).read(session, range(len(truth)))
+    assert np.isnan(read.positions[0]).all() and np.isfinite(read.positions[1:]).any()
 
 
 def test_no_landmark_near_the_subject_is_an_error(scene, tmp_path, capsys):

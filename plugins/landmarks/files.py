@@ -43,6 +43,14 @@ def _rows_at(table_frames: np.ndarray, positions: np.ndarray, wanted: np.ndarray
     return result
 
 
+def _say_uncovered(what: str, held: np.ndarray, wanted: np.ndarray, note: str = "") -> None:
+    """Warn when the capture frames ``wanted`` are not all among the file's ``held`` ones (sorted): they are NaN."""
+    outside = wanted[~np.isin(wanted, held)]
+    if len(outside) and len(held):
+        warnings.warn(f"{what}: its rows are the capture's frames {held[0]}–{held[-1]}{note}; {len(outside)} of the {len(wanted)} frames "
+                      f"asked for ({outside[0]}…{outside[-1]}) have no landmarks there", stacklevel=3)
+
+
 @attrs.frozen
 class TrcLandmarks(LandmarkSource):
     """Marker trajectories of a TRC file (units from its header)."""
@@ -60,13 +68,8 @@ class TrcLandmarks(LandmarkSource):
                           "rate), resample it to them", stacklevel=2)
         wanted = session.capture_frames(frames)
         held = data.first_frame + np.arange(len(data.times))  # the capture's frame of each row
-        outside = wanted[~np.isin(wanted, held)]
-        if len(outside) and len(held):
-            start = " (its OrigDataStartFrame)" if data.first_frame else ""
-            warnings.warn(f"TRC {self.path}: its rows are the capture's frames {held[0]}–{held[-1]}{start}; {len(outside)} of the {len(wanted)} "
-                          f"frames asked for ({outside[0]}…{outside[-1]}) have no landmarks there", stacklevel=2)
-        positions = _rows_at(held, data.positions, wanted)
-        return Landmarks(data.names, frames, positions, source=f"TRC {Path(self.path)}")
+        _say_uncovered(f"TRC {self.path}", held, wanted, " (its OrigDataStartFrame)" if data.first_frame else "")
+        return Landmarks(data.names, frames, _rows_at(held, data.positions, wanted), source=f"TRC {Path(self.path)}")
 
     def resolved_convention(self, session: SessionReader) -> str:
         """The convention, ``auto`` resolved by the session (:func:`~mmcsplat.storage.opencap_session.trc_convention`)."""
@@ -89,4 +92,6 @@ class CsvLandmarks(LandmarkSource):
             at = np.full((len(frames), len(names), 3), np.nan)
             at[0] = positions[0]
             return Landmarks(names, frames, at, source=f"CSV {Path(self.path)} (one frame)")
-        return Landmarks(names, frames, _rows_at(table_frames, positions, session.capture_frames(frames)), source=f"CSV {Path(self.path)}")
+        wanted = session.capture_frames(frames)
+        _say_uncovered(f"CSV {self.path}", np.unique(table_frames), wanted)
+        return Landmarks(names, frames, _rows_at(table_frames, positions, wanted), source=f"CSV {Path(self.path)}")
