@@ -4,7 +4,7 @@ Writes OUT_DIR/videos/<camera>.mp4 (lossless H.264), OUT_DIR/calibration.toml (a
 cameras), OUT_DIR/plates/<camera>.png (the empty mat) and OUT_DIR/ground_truth.zarr (per-frame infant masks and depth in the videos' pixels, labelled
 surface points and joint centres over time). The folder appears only once complete. The adult's leg is
 on by default: the reference study's captures show adults beside the mat, and the subject mask never
-includes it, so it tests largest-component masking at no cost to the ground truth.
+includes it, so it tests which component the segmenters keep (central by default) at no cost to the ground truth.
 """
 
 from __future__ import annotations
