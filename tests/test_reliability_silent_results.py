@@ -510,11 +510,14 @@ def test_plausible_distortion_is_accepted():
 
 
 def test_replaced_tracks_take_what_they_made_with_them(fitted, tmp_path, capsys):
-    """Scores, landmarks, renders and the report made from tracks describe those tracks: replacing the tracks
-    removes them (export, evaluate and the report would read them as the new tracks'), and says so."""
+    """Scores, landmarks, renders and the report describe the tracks (or the fit alone) they were made of: new tracks
+    remove them (export, evaluate, view and the report would read them as the new tracks'), and say so."""
     _, run = fitted
     track = ["track", str(run), "--dynamics", "iterative", "--set", "dynamics.iterations=1", "--no-progress"]
-    assert main(track) == 0 and main(["evaluate", str(run)]) == 0 and _carry_landmarks(run, tmp_path) == 0
+    assert main(["evaluate", str(run)]) == 0 and _carry_landmarks(run, tmp_path) == 0  # of the fit alone: one frame
+    assert main(track) == 0
+    assert not (run / "metrics.json").exists() and not (run / "landmarks.csv").exists()  # the first tracks take them too
+    assert main(["evaluate", str(run)]) == 0 and _carry_landmarks(run, tmp_path) == 0
     (run / "renders").mkdir()
     (run / "renders" / "novel.mp4").write_bytes(b"old")
     made = {path.name for path in run.iterdir()}
@@ -522,7 +525,7 @@ def test_replaced_tracks_take_what_they_made_with_them(fitted, tmp_path, capsys)
     capsys.readouterr()
     assert main([*track, "--overwrite"]) == 0
     out = capsys.readouterr().out
-    assert "removed metrics.json, landmarks.csv, landmarks.json, movement.json, movement.csv, renders: made from the tracks replaced" in out
+    assert "removed metrics.json, landmarks.csv, landmarks.json, movement.json, movement.csv, renders: made before these tracks" in out
     assert not {"metrics.json", "landmarks.csv", "landmarks.json", "movement.json", "movement.csv", "renders"} & {p.name for p in run.iterdir()}
     assert json.loads((run / "track.json").read_text())["removed"] == ["metrics.json", "landmarks.csv", "landmarks.json", "movement.json",
                                                                       "movement.csv", "renders"]

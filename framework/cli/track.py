@@ -21,7 +21,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_settings(parser, "override a configuration value, e.g. --set dynamics.iterations=300 (repeatable)")
     parser.add_argument("--backend", help="renderer backend by name (default: the one that fitted)")
     add_frames(parser, "session frames to track, from the fitted one: :STOP tracks up to frame STOP − 1 (default: all)")
-    parser.add_argument("--overwrite", action="store_true", help="replace existing RUN/tracks.zarr, and remove what they made (metrics.json, landmarks, movement, renders/, report.html)")
+    parser.add_argument("--overwrite", action="store_true", help="replace existing RUN/tracks.zarr (new tracks always remove what was made before them: metrics.json, landmarks, movement, renders/, report.html)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -37,6 +37,6 @@ def run(args: argparse.Namespace) -> int:
           f"in {record['wall_s']:.1f} s "
           f"({record['wall_s_per_frame']:.2f} s per frame){f', resumed from iteration {resumed}' if resumed is not None else ''}")
     if record["removed"]:
-        print(f"{args.run}: removed {', '.join(record['removed'])}: made from the tracks replaced (evaluate, landmarks, render and report "
+        print(f"{args.run}: removed {', '.join(record['removed'])}: made before these tracks (evaluate, landmarks, render and report "
               "make them again)")
     return 0

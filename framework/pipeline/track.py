@@ -76,9 +76,10 @@ def require_cameras_per_frame(run: Path, session: SessionReader, cameras: Iterab
                          "track it with --dynamics deformation, which trains over every (frame, camera) image of the sequence")
 
 
-def remove_made_from_tracks(run: Path) -> list[str]:
-    """Remove what ``run``'s tracks made (:data:`~mmcsplat.storage.run.MADE_FROM_TRACKS`: scores, landmarks,
-    renders, report) once new tracks replace them; returns the names removed."""
+def remove_made_before(run: Path) -> list[str]:
+    """Remove what was made of ``run`` before its new tracks (:data:`~mmcsplat.storage.run.MADE_FROM_TRACKS`:
+    scores, landmarks, renders, report — of the tracks replaced, or of the fit alone, one frame of a run that now
+    has many) once they are in; returns the names removed."""
     removed = []
     for name in MADE_FROM_TRACKS:
         path = run / name
@@ -173,9 +174,9 @@ def track_run(
         context.curve.write(run)
         log.info("tracked %d frames in %.1f s", len(context.frames), wall)
         # Until the marker below goes, export and evaluate refuse the run: a kill here leaves nothing read as current.
-        removed = remove_made_from_tracks(run) if before is not None else []
+        removed = remove_made_before(run)
         if removed:
-            log.info("removed what the replaced tracks made: %s", ", ".join(removed))
+            log.info("removed what was made before these tracks: %s", ", ".join(removed))
         record = {
             "method": choice.name,
             "method_default": defaulted,

@@ -43,5 +43,6 @@ RENDERS_DIR = "renders"
 NOVEL_VIDEO = "novel.mp4"
 #: The HTML report.
 REPORT_FILE = "report.html"
-#: What is made from a run's tracks: replacing the tracks removes them, so that none describes tracks gone.
+#: What is made from a run's tracks (or its fit alone, before it has any): new tracks remove them, so that none
+#: describes tracks gone or a run of one frame.
 MADE_FROM_TRACKS = (METRICS_FILE, LANDMARKS_CSV, LANDMARKS_INFO, MOVEMENT_JSON, MOVEMENT_CSV, LANDMARKS_TRC, RENDERS_DIR, REPORT_FILE)
