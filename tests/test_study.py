@@ -98,6 +98,17 @@ BAD_STUDIES = [
     ('[study]\nseeds = [0.5]\n[sessions.s]\npath = "s.zarr"\n[[variant]]\nname = "a"\nconfig = "paper-masked"\n', "list of integers"),
     ('[study]\nbackends = ["no-such-renderer"]\n[sessions.s]\npath = "s.zarr"\n[[variant]]\nname = "a"\nconfig = "paper-masked"\n',
      "unknown renderer 'no-such-renderer'"),
+    # A misspelt parameter of a variant's plugin, in its table or its set, before anything runs (each cell failed on it).
+    ('[sessions.s]\npath = "s.zarr"\n[[variant]]\nname = "a"\nconfig = "paper-masked"\ndensifier = { name = "budget", capp = 3 }\n',
+     r"variant 'a': densifier 'budget': unknown parameter\(s\) capp; known: cap"),
+    ('[sessions.s]\npath = "s.zarr"\n[[variant]]\nname = "a"\nconfig = "visual-hull"\nset = { "initializer.visual-hull.num_pointz" = 3 }\n',
+     r"variant 'a': initializer 'visual-hull': unknown parameter\(s\) num_pointz"),
+    ('[sessions.s]\npath = "s.zarr"\n[[variant]]\nname = "a"\nconfig = "paper-masked"\ndynamics = { name = "iterative", iterationz = 3 }\n',
+     r"bad.toml: variant 'a': dynamics 'iterative': unknown parameter\(s\) iterationz"),
+    ('[sessions.s]\npath = "s.zarr"\nsegmenter = { name = "background", methd = "median" }\n[[variant]]\nname = "a"\nconfig = "paper-masked"\n',
+     r"segmenter 'background': unknown parameter\(s\) methd"),
+    # A stored session that is not there: refused when the study loads, not kept as every cell's failure.
+    ('[sessions.s]\npath = "s.zarr"\n[[variant]]\nname = "a"\nconfig = "paper-masked"\n', r"\[sessions.s\] path: no session at .*s.zarr"),
 ]
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 import importlib
 import inspect
 import warnings
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from functools import cache
 from importlib.metadata import EntryPoint, entry_points
 from typing import Any
@@ -29,7 +29,7 @@ from mmcsplat.plugin_api.errors import (
     UnknownPluginError,
 )
 from mmcsplat.plugin_api.kinds import KIND_NAMES, KINDS
-from mmcsplat.plugin_api.parameters import REGISTRY_PARAMETER, build_from_table
+from mmcsplat.plugin_api.parameters import REGISTRY_PARAMETER, build_from_table, checked_table
 from mmcsplat.plugin_api.registration import Registration
 
 ENTRY_POINT_GROUP = "mmcsplat"
@@ -163,6 +163,18 @@ class Registry:
         """Whether ``entry`` is a third-party plugin under a built-in's name (the built-in is used)."""
         return entry.distribution != BUILTIN_DISTRIBUTION and any(
             other.distribution == BUILTIN_DISTRIBUTION and other.kind == entry.kind and other.name == entry.name for other in self.entries)
+
+    def check_parameters(self, kind: str, name: str, params: Mapping[str, Any]) -> None:
+        """The configuration's parameters of ``name`` checked against its fields without building it (as
+        :meth:`create` checks them), so that a misspelt key fails before anything runs; a plugin not usable
+        here is left to :meth:`create` to refuse."""
+        entry = self.get(kind, name)
+        if entry.unavailable_reason():
+            return
+        factory = entry.load()
+        if isinstance(factory, type) and attrs.has(factory):
+            injected = (REGISTRY_PARAMETER,) if REGISTRY_PARAMETER in inspect.signature(factory).parameters else ()
+            checked_table(factory, params, f"{kind} {name!r}", injected)
 
     def create(self, kind: str, name: str, **params: Any) -> Any:
         """Build the implementation ``name`` of ``kind`` with the configuration's parameters (checked

@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 import types
 import typing
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
 import attrs
@@ -102,10 +102,21 @@ def configurable_fields(cls: type) -> list[attrs.Attribute]:
 
 def build_from_table(cls: Callable[..., Any], table: Mapping[str, Any], owner: str, **injected: Any) -> Any:
     """``cls(**table, **injected)`` after checking the table's keys and value types against ``cls``'s
-    fields when it is an attrs class (any other factory is called as it is). Errors name ``owner`` (e.g.
-    "dynamics 'iterative'") and the key at fault."""
+    fields when it is an attrs class (any other factory is called as it is; :func:`checked_table`). Errors
+    name ``owner`` (e.g. "dynamics 'iterative'") and the key at fault."""
     if not (isinstance(cls, type) and attrs.has(cls)):
         return cls(**table, **injected)
+    checked = checked_table(cls, table, owner, injected)
+    try:
+        return cls(**checked, **injected)
+    except (ValueError, TypeError) as error:
+        raise InputError(f"{owner}: {error}") from error
+
+
+def checked_table(cls: type, table: Mapping[str, Any], owner: str, injected: Iterable[str] = ()) -> dict[str, Any]:
+    """``table`` with its values checked against the attrs plugin class ``cls``'s fields, without building it:
+    an unknown key, a required one missing (unless ``injected``) or a value of the wrong type is an error
+    naming ``owner`` and the key, before anything runs."""
     fields = {field.name: field for field in configurable_fields(cls)}
     unknown = sorted(set(table) - set(fields))
     if unknown:
@@ -114,11 +125,7 @@ def build_from_table(cls: Callable[..., Any], table: Mapping[str, Any], owner: s
     if missing:
         wanted = "; ".join(f"set {field.name}=… ({field.metadata.get(DOC) or _type_text(field.type)})" for field in missing)
         raise InputError(f"{owner}: {wanted}, a required parameter (--set {missing[0].name}=VALUE, or in its configuration table)")
-    checked = {key: _checked(value, fields[key].type, owner, key) for key, value in table.items()}
-    try:
-        return cls(**checked, **injected)
-    except (ValueError, TypeError) as error:
-        raise InputError(f"{owner}: {error}") from error
+    return {key: _checked(value, fields[key].type, owner, key) for key, value in table.items()}
 
 
 def describe_parameters(cls: Callable[..., Any]) -> list[ParameterInfo] | None:

@@ -435,7 +435,7 @@ def flatten(table: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
 
 
 def _validate(study: Study, registry: Registry) -> None:
-    """Fail before anything runs: unknown plugins, malformed plugin tables, unknown ``[fit]`` keys."""
+    """Fail before anything runs: unknown plugins or parameters, malformed plugin tables, unknown ``[fit]`` keys."""
     from mmcsplat.training.settings import FitSettings
 
     try:
@@ -443,8 +443,8 @@ def _validate(study: Study, registry: Registry) -> None:
             registry.get("renderer", backend)
         for segmenter in [s.segmenter for s in study.sessions] + [v.segmenter for v in study.variants]:
             if segmenter is not None:
-                registry.get("segmenter", segmenter.name)
-    except PluginError as error:
+                registry.check_parameters("segmenter", segmenter.name, segmenter.params)
+    except (PluginError, InputError) as error:
         raise StudyError(f"{study.source}: {error}") from error
     for variant in study.variants:
         try:
@@ -453,10 +453,13 @@ def _validate(study: Study, registry: Registry) -> None:
                 raise ConfigError(f"{variant.config.source}: at most one [dynamics] table")
             for kind in VARIANT_PLUGIN_TABLES:
                 for choice in variant.config.plugins(kind):
-                    registry.get(kind, choice.name)
+                    registry.check_parameters(kind, choice.name, choice.params)  # a misspelt key before anything runs
             FitSettings.from_config(variant.config)
         except (ConfigError, PluginError, TypeError, ValueError) as error:
             raise StudyError(f"{study.source}: variant {variant.name!r}: {error}") from error
+    for spec in study.sessions:  # before anything runs, not as cells' failures kept after the session appears
+        if spec.path is not None and "://" not in spec.path and not Path(spec.path).is_dir():
+            raise StudyError(f"{study.source}: [sessions.{spec.name}] path: no session at {spec.path} (`mmcsplat ingest` makes one)")
 
 
 # ----------------------------------------------------------------------------------------- expansion
