@@ -172,3 +172,48 @@ def test_builtin_tracking_ablation_adds_one_option_a_row():
     assert options[-1]["keypoints"] == {"name": "synthetic"}  # the synthetic capture's projected true joints
     assert study.sessions[0].synthetic["motion"] == "fast-kicks"
     assert [cell.spec.flow for cell in expand(study, "out")] == [None, *[flow_module.DEFAULT_PRESET] * 4]
+
+
+def test_a_pool_workers_warnings_are_one_line_as_the_studys_own(tmp_path, capfd):
+    """Cells run in spawned workers print their warnings as the command does, ``mmcsplat compare: warning: …``,
+    not in Python's two-line form (the format was the study's process's alone)."""
+    from mmcsplat.cli.main import main
+
+    variant = ('\n[[variant]]\nname = "fit"\nconfig = "visual-hull"\nrenderer = { name = "torch-reference" }\n'
+               'set = { "fit.iterations" = 2, "initializer.visual-hull.num_points" = 200 }\n')
+    study = write_study(tmp_path, variant, f"synthetic = {{ {TINY} }}")  # four cameras, one held out: three train
+    assert main(["compare", study, "--out", str(tmp_path / "out"), "--workers", "1", "--no-progress"]) == 0
+    err = capfd.readouterr().err
+    assert "mmcsplat compare: warning: only 3 training cameras" in err and "UserWarning" not in err
+
+
+def test_a_synthetic_session_whose_held_out_cameras_change_is_ingested_again(tmp_path):
+    """The synthesized capture is kept when only the held-out cameras change, but its ingest holds them out: a cell
+    of the new held-out camera ran on the old one's session, its results scored on the old camera."""
+    variants = iterative("cv", 'predict = "constant-velocity"')
+    for heldout in ("cam_0", "cam_2"):
+        study = load_study(write_study(tmp_path, variants, f'synthetic = {{ {TINY} }}\nheldout = ["{heldout}"]', fold=heldout))
+        cell = expand(study, tmp_path / "out")[0]
+        prepare_session(cell.plan, progress=False)
+        assert SessionReader(cell.plan.url).heldout == (heldout,)
+
+
+def test_a_stop_while_a_studys_results_are_written_leaves_them_all_new(tmp_path, monkeypatch):
+    """results.json, .csv and .md describe the same cells: Ctrl-C after the tables waits until results.md is written
+    too (a stop there left a variant in results.json that results.md and `mmcsplat report` did not show)."""
+    import os
+    import signal
+
+    import mmcsplat.studies.runner as runner
+
+    written = runner.write_tables
+
+    def then_stop(out, *args, **kwargs):
+        written(out, *args, **kwargs)
+        os.kill(os.getpid(), signal.SIGINT)
+
+    monkeypatch.setattr(runner, "write_tables", then_stop)
+    study = load_study(write_study(tmp_path, iterative("cv", 'predict = "constant-velocity"'), f"synthetic = {{ {TINY} }}"))
+    with pytest.raises(KeyboardInterrupt):
+        run_study(study, tmp_path / "out", workers=0, progress=False)
+    assert "cv" in (tmp_path / "out" / "results.md").read_text()

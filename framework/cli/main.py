@@ -11,7 +11,6 @@ import signal
 import sys
 import threading
 import warnings
-from collections.abc import Callable
 
 from mmcsplat import __version__
 from mmcsplat.cli.options import add_output_options
@@ -125,15 +124,17 @@ def _log_to(verbose: bool, log_file: str | None) -> list[logging.Handler]:
     return handlers
 
 
-def _warning_format(command: str) -> Callable[..., str]:
+class OneLineWarning:
     """A :func:`warnings.formatwarning` that prints a warning as one line in mmcsplat's voice —
     ``mmcsplat COMMAND: warning: MESSAGE`` — without Python's category and source location. Only the
-    text changes: the warnings stay warnings, filtered and caught (``pytest.warns``) as any other."""
+    text changes: the warnings stay warnings, filtered and caught (``pytest.warns``) as any other. A
+    class, not a closure, so that a study's worker processes can be handed it (it pickles)."""
 
-    def format_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int, line: str | None = None) -> str:
-        return f"mmcsplat {command}: warning: {' '.join(str(message).split())}\n"
+    def __init__(self, command: str) -> None:
+        self.command = command
 
-    return format_warning
+    def __call__(self, message: Warning | str, category: type[Warning], filename: str, lineno: int, line: str | None = None) -> str:
+        return f"mmcsplat {self.command}: warning: {' '.join(str(message).split())}\n"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -148,7 +149,7 @@ def main(argv: list[str] | None = None) -> int:
     except OSError as error:
         print(f"mmcsplat {args.command}: error: --log-file: {error}", file=sys.stderr)
         return 2
-    previous_format, warnings.formatwarning = warnings.formatwarning, _warning_format(args.command)
+    previous_format, warnings.formatwarning = warnings.formatwarning, OneLineWarning(args.command)
     try:
         return int(args._run(args) or 0)
     except KeyboardInterrupt as interrupt:

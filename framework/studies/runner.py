@@ -12,14 +12,15 @@ from __future__ import annotations
 import os
 import shutil
 import sys
-from collections.abc import Iterator, Sequence
+import warnings
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
 import attrs
 
 from mmcsplat.configuration.registry import Registry, default_registry
 from mmcsplat.outputs.markdown_sections import replace_section
-from mmcsplat.storage.atomic import write_text_atomic
+from mmcsplat.storage.atomic import signals_deferred, write_text_atomic
 from mmcsplat.studies.cells import COMPLETE, FAILED, CellOutcome, run_cell
 from mmcsplat.studies.results import Aggregate, Findings, Row, aggregate, build_rows, find, markdown, write_tables
 from mmcsplat.studies.spec import Cell, CellSpec, Study, StudyError, expand
@@ -104,10 +105,11 @@ def write_results(study: Study, out: Path, cells: Sequence[Cell], outcomes: dict
     rows = build_rows(cells, outcomes, registry)
     aggregates = aggregate(rows, len(study.sessions) > 1, len({cell.backend for cell in cells}) > 1)
     findings = find(aggregates)
-    write_tables(out, study, rows, aggregates, findings)
-    charts = write_charts(out / CHARTS_DIR, rows, aggregates, findings)
+    charts = write_charts(out / CHARTS_DIR, rows, aggregates, findings)  # the slow part, before the tables
     text = markdown(study, rows, aggregates, findings, [(title, f"{CHARTS_DIR}/{name}") for title, name in charts])
-    write_text_atomic(out / "results.md", text)
+    with signals_deferred():  # results.json, .csv and .md describe the same cells: a stop never leaves a mix
+        write_tables(out, study, rows, aggregates, findings)
+        write_text_atomic(out / "results.md", text)
     return StudyRun(study, out, rows, aggregates, findings, ran, reused, charts)
 
 
@@ -162,13 +164,15 @@ def _cpus() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
-def _start_worker(threads: int) -> None:
-    """Each pool worker gets its share of the cores (torch and numba would each take them all), and on
+def _start_worker(threads: int, format_warning: Callable[..., str]) -> None:
+    """Each pool worker gets its share of the cores (torch and numba would each take them all), prints
+    warnings as the study's process does (``format_warning``, its :func:`warnings.formatwarning`), and on
     Linux dies with the study's process: a study killed by SIGTERM would otherwise leave its workers
     running their cells, orphaned, and a restarted study would run the same cells beside them."""
     import numba
     import torch
 
+    warnings.formatwarning = format_warning
     torch.set_num_threads(threads)
     numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
     if sys.platform.startswith("linux"):
@@ -186,7 +190,7 @@ def _pool(jobs: list[Job], workers: int) -> Iterator[CellOutcome]:
     from concurrent.futures.process import BrokenProcessPool
 
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                               initializer=_start_worker, initargs=(max(1, _cpus() // workers),))
+                               initializer=_start_worker, initargs=(max(1, _cpus() // workers), warnings.formatwarning))
     try:
         futures = {pool.submit(run_cell, spec, cell_dir, fits_dir): spec for spec, cell_dir, fits_dir in jobs}
         for future in as_completed(futures):

@@ -80,7 +80,8 @@ def _captured(capture: dict, target: Path, segmenter: PluginChoice | None, progr
 
 
 def _synthesized(plan: SessionPlan, folder: Path, progress: bool) -> Path:
-    """FOLDER/capture (synthesized) ingested into FOLDER/ingested.zarr; both reused when complete."""
+    """FOLDER/capture (synthesized) ingested into FOLDER/ingested.zarr; both reused when complete (the ingest when it
+    holds out the cameras the session does)."""
     from mmcsplat.pipeline.ingest import ingest
     from mmcsplat.synthetic.synthesize import SynthConfig, synthesize
 
@@ -92,7 +93,8 @@ def _synthesized(plan: SessionPlan, folder: Path, progress: bool) -> Path:
     if not (capture / "calibration.toml").exists():
         synthesize(capture, SynthConfig(**plan.spec.synthetic), overwrite=True, progress=progress)
         write_json_atomic(recorded, dict(plan.spec.synthetic or {}))
-    if not _complete(ingested):
+    # Ingested again when the held-out cameras changed: a copy made from it holds out what it holds out.
+    if not _complete(ingested) or set(SessionReader(ingested).heldout) != set(plan.spec.heldout):
         ingest(capture, ingested, holdout=list(plan.spec.heldout), overwrite=True, progress=progress)
     return ingested
 
