@@ -8,10 +8,12 @@ import json
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 from fitting_scene import write_session
 
 import mmcsplat.pipeline.flow as flow_module
+from mmcsplat.storage.landmark_formats import write_trc
 from mmcsplat.storage.session import SessionReader
 from mmcsplat.studies.runner import run_study
 from mmcsplat.studies.sessions import prepare_session
@@ -100,7 +102,7 @@ def test_a_capture_session_finds_todays_pose2sim_keypoints_and_joints_as_run_doe
     capture = tmp_path / "capture"
     (capture / "pose" / "cam01_json").mkdir(parents=True)
     (capture / "pose-3d").mkdir()
-    (capture / "pose-3d" / "trial_0-100.trc").write_text("")
+    write_trc(capture / "pose-3d" / "trial_0-100.trc", ["Neck"], np.arange(2) / 60, np.zeros((2, 1, 3)), 60)
     study = load_study(write_study(tmp_path, iterative("flow", 'predict = "flow"'), 'capture = { path = "capture" }'))
     settings = study.sessions[0].capture
     assert settings["keypoints"] == str(capture / "pose") and settings["joints"] == str(capture / "pose-3d" / "trial_0-100.trc")
@@ -109,7 +111,7 @@ def test_a_capture_session_finds_todays_pose2sim_keypoints_and_joints_as_run_doe
 def test_a_capture_session_fills_in_what_run_would_and_refuses_what_does_not_apply(tmp_path, monkeypatch):
     capture = tmp_path / "capture"
     (capture / "pose_2d").mkdir(parents=True)
-    (capture / "joints.trc").write_text("")
+    write_trc(capture / "joints.trc", ["Neck"], np.arange(2) / 60, np.zeros((2, 1, 3)), 60)
     variants = iterative("flow", 'predict = "flow"')
     study = load_study(write_study(tmp_path, variants, 'capture = { path = "capture", frames = [0, 4], holdout = ["cam_04"] }'))
     settings = study.sessions[0].capture
@@ -196,6 +198,21 @@ def test_a_synthetic_session_whose_held_out_cameras_change_is_ingested_again(tmp
         cell = expand(study, tmp_path / "out")[0]
         prepare_session(cell.plan, progress=False)
         assert SessionReader(cell.plan.url).heldout == (heldout,)
+
+
+def test_a_capture_session_starts_where_a_trimmed_trcs_joints_start(tmp_path):
+    """As run does: a TRC of a trimmed trial (today's Pose2Sim, OrigDataStartFrame 3) starts the capture session's
+    frames there, so its cells' fitted frame has joints; frames given that start before it are refused."""
+    capture = tmp_path / "capture"
+    (capture / "pose_2d").mkdir(parents=True)
+    write_trc(capture / "trial_3-10.trc", ["Neck"], (3 + np.arange(7)) / 60, np.zeros((7, 1, 3)), 60, first_frame=3)
+    variants = iterative("flow", 'predict = "flow"')
+    assert load_study(write_study(tmp_path, variants, 'capture = { path = "capture" }')).sessions[0].capture["frames"] == [3, None]
+    assert load_study(write_study(tmp_path, variants, 'capture = { path = "capture", frames = [4, 9] }')).sessions[0].capture["frames"] == [4, 9]
+    with pytest.raises(StudyError, match=r"capture frames \[0, 9\]: the joints .* start at the capture's frame 3 .*: start the frames at 3"):
+        load_study(write_study(tmp_path, variants, 'capture = { path = "capture", frames = [0, 9] }'))
+    with pytest.raises(StudyError, match=r"frames must be \[start, stop\]"):  # one number was read as the stop
+        load_study(write_study(tmp_path, variants, 'capture = { path = "capture", frames = [4] }'))
 
 
 def test_a_stop_while_a_studys_results_are_written_leaves_them_all_new(tmp_path, monkeypatch):

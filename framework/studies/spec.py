@@ -331,6 +331,7 @@ def capture_settings(table: Mapping[str, Any], where: str, folder: Path | None) 
     from mmcsplat.pipeline.capture_session import DEFAULT_SCALE, joints_file, keypoint_folder
     from mmcsplat.pipeline.image_scale import AUTO_SCALE
     from mmcsplat.pipeline.ingest import capture_reader
+    from mmcsplat.storage.landmark_formats import read_trc
 
     _check_keys(table, CAPTURE_KEYS, where, "capture")
     if "path" not in table:
@@ -341,7 +342,7 @@ def capture_settings(table: Mapping[str, Any], where: str, folder: Path | None) 
     paths = {key: _resolve_path(table[key], folder, f"{where} capture {key}") if key in table else None
              for key in ("calibration", "keypoints", "joints")}
     frames = table.get("frames", [])
-    if not isinstance(frames, list) or len(frames) > 3 or not all(isinstance(value, int) and not isinstance(value, bool) for value in frames):
+    if not isinstance(frames, list) or len(frames) not in (0, 2, 3) or not all(isinstance(value, int) and not isinstance(value, bool) for value in frames):
         raise StudyError(f"{where} capture frames must be [start, stop] or [start, stop, step] (integers), got {frames!r}")
     scale = table.get("scale", DEFAULT_SCALE)
     if scale != AUTO_SCALE and (not isinstance(scale, (int, float)) or isinstance(scale, bool) or not 0 < scale <= 1):
@@ -352,8 +353,14 @@ def capture_settings(table: Mapping[str, Any], where: str, folder: Path | None) 
             capture_reader(capture, reader_options=reader)
         keypoints = keypoint_folder(capture, paths["keypoints"])
         joints = joints_file(capture, paths["joints"], reader.get("trial"))
+        first = read_trc(joints).first_frame if joints is not None and joints.suffix.lower() == ".trc" else 0
     except InputError as error:
         raise StudyError(f"{where} capture: {error}") from error
+    if first > (frames[0] if frames else 0):  # a trimmed trial's TRC (today's Pose2Sim): the fitted frame must have joints, as in run
+        if frames:
+            raise StudyError(f"{where} capture frames {frames}: the joints {joints} start at the capture's frame {first} (its "
+                             f"OrigDataStartFrame), so the fitted frame {frames[0]} has none: start the frames at {first}")
+        frames = [first, None]
     # Metres by default, not run's auto: the units are part of every cell's key, so a study made before auto keeps its cells.
     units = table.get("units", "m")
     if units not in UNIT_CHOICES:
