@@ -29,12 +29,18 @@ def test_sigterm_during_a_fit_exits_143_and_the_fit_resumes(tmp_path):
     stopped = json.loads((out / "run.json").read_text())
     assert stopped["status"] == "running" and stopped["iterations"] % 10 == 0 and stopped["iterations"] < 200
     assert not list(out.glob(".*.tmp")) and not (out / ".mmcsplat.lock").exists()
+    # What --allow-incomplete made of the stopped fit (a render carries no label) goes when the fit resumes.
+    (out / "renders").mkdir()
+    (out / "renders" / "novel.mp4").write_bytes(b"the fit at its stop")
 
     finish = command  # the same command resumes
     done = subprocess.run(finish, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr
     assert f"resumed from iteration {stopped['iterations']}" in done.stdout
     assert json.loads((out / "run.json").read_text())["resumed_from"] == stopped["iterations"]
+    assert not (out / "renders").exists()
+    (out / "metrics.json").write_text("{}")  # a complete fit run again changes nothing, and keeps what was made of it
+    assert subprocess.run(finish, capture_output=True, text=True, timeout=600).returncode == 0 and (out / "metrics.json").exists()
 
 
 def test_a_signal_waits_until_files_written_together_are_written():

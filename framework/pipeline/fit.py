@@ -29,6 +29,7 @@ from mmcsplat.plugin_api.render_contract import RenderCameras
 from mmcsplat.scene.camera import Camera
 from mmcsplat.scene.rig import rig_center, rig_scale
 from mmcsplat.storage.atomic import signals_deferred
+from mmcsplat.storage.completeness import remove_made_before
 from mmcsplat.storage.curves import TrainingCurve
 from mmcsplat.storage.locking import run_lock
 from mmcsplat.storage.run import CHECKPOINT
@@ -238,6 +239,10 @@ class FirstFrameFit:
             start, elapsed, record, curve.rows = self._resume(checkpoint, model, generator, schedule, densify_state)
             self.resumed_from = start
             logging.getLogger(__name__).info("resumed from the checkpoint at iteration %d", start)
+            # Made with --allow-incomplete of the fit stopped half way (a complete fit run again changes nothing).
+            removed = remove_made_before(self.out) if start < settings.iterations else []
+            if removed:
+                logging.getLogger(__name__).info("removed what was made of the fit before it resumed: %s", ", ".join(removed))
         cameras = self._render_cameras()
         loop = TrainingLoop(model, self.renderer, settings, terms=initializer_terms(self.initializers, self.scene),
                             prune=initializer_pruning(self.initializers, self.scene), densifier=self.densifier, densify_state=densify_state)

@@ -9,7 +9,6 @@ with, so tracking sees the same targets as the first frame did.
 
 from __future__ import annotations
 
-import shutil
 import time
 from collections.abc import Iterable, Mapping
 from pathlib import Path
@@ -22,8 +21,9 @@ from mmcsplat.configuration.registry import Registry, default_registry
 from mmcsplat.plugin_api.errors import InputError, OutputExistsError, PluginError
 from mmcsplat.plugin_api.interfaces import Dynamics, TrackingContext
 from mmcsplat.storage.atomic import write_json_atomic
+from mmcsplat.storage.completeness import remove_made_before
 from mmcsplat.storage.locking import run_lock
-from mmcsplat.storage.run import MADE_FROM_TRACKS, RUN_INFO, TRACK_INFO, TRACKING_UNFINISHED, TRACKS_DIR
+from mmcsplat.storage.run import RUN_INFO, TRACK_INFO, TRACKING_UNFINISHED, TRACKS_DIR
 from mmcsplat.storage.run_info import RunInfo
 from mmcsplat.storage.run_log import run_log
 from mmcsplat.storage.session import SessionReader
@@ -74,23 +74,6 @@ def require_cameras_per_frame(run: Path, session: SessionReader, cameras: Iterab
         raise InputError(f"{run}: dynamics {method!r} fits each frame from that frame's own images and needs {needed} training cameras "
                          f"at a frame, but session {session.url!r} images most frames with {int(np.median(counts))} (one moving camera?): "
                          "track it with --dynamics deformation, which trains over every (frame, camera) image of the sequence")
-
-
-def remove_made_before(run: Path) -> list[str]:
-    """Remove what was made of ``run`` before its new tracks (:data:`~mmcsplat.storage.run.MADE_FROM_TRACKS`:
-    scores, landmarks, renders, report — of the tracks replaced, or of the fit alone, one frame of a run that now
-    has many) once they are in; returns the names removed."""
-    removed = []
-    for name in MADE_FROM_TRACKS:
-        path = run / name
-        if path.is_dir() and not path.is_symlink():
-            shutil.rmtree(path)
-        elif path.exists() or path.is_symlink():
-            path.unlink()
-        else:
-            continue
-        removed.append(name)
-    return removed
 
 
 def track_run(

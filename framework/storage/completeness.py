@@ -10,8 +10,9 @@ from pathlib import Path
 import filelock
 
 from mmcsplat.plugin_api.errors import InputError
+from mmcsplat.storage.atomic import remove_local_tree
 from mmcsplat.storage.locking import RUN_LOCK, BusyError
-from mmcsplat.storage.run import TRACKING_UNFINISHED
+from mmcsplat.storage.run import MADE_OF_THE_MODEL, TRACKING_UNFINISHED
 from mmcsplat.storage.run_info import RunInfo
 
 #: The one spelling of the option that accepts unfinished work, labelled.
@@ -57,3 +58,17 @@ def require_finished(run: Path, info: RunInfo, allow_incomplete: bool) -> list[s
     if problems and not allow_incomplete:
         raise UnfinishedRunError(f"run {run} is unfinished: {'; '.join(problems)} (or pass {ALLOW_INCOMPLETE} to label the outputs incomplete)")
     return problems
+
+
+def remove_made_before(run: Path) -> list[str]:
+    """Remove what was made of ``run``'s Gaussians (:data:`~mmcsplat.storage.run.MADE_OF_THE_MODEL`: scores,
+    landmarks, renders, report) once they change — new tracks, a fit resumed — and return the names removed:
+    a report of the tracks replaced, of the fit alone (one frame of a run that now has many) or of a fit stopped
+    half way (renders carry no label) would otherwise read as the run's. Its writer holds the run's lock."""
+    removed = []
+    for name in MADE_OF_THE_MODEL:
+        path = Path(run) / name
+        if path.exists() or path.is_symlink():
+            remove_local_tree(path)
+            removed.append(name)
+    return removed

@@ -43,6 +43,6 @@ RENDERS_DIR = "renders"
 NOVEL_VIDEO = "novel.mp4"
 #: The HTML report.
 REPORT_FILE = "report.html"
-#: What is made from a run's tracks (or its fit alone, before it has any): new tracks remove them, so that none
-#: describes tracks gone or a run of one frame.
-MADE_FROM_TRACKS = (METRICS_FILE, LANDMARKS_CSV, LANDMARKS_INFO, MOVEMENT_JSON, MOVEMENT_CSV, LANDMARKS_TRC, RENDERS_DIR, REPORT_FILE)
+#: What is made of a run's Gaussians (its fit and tracks): new tracks, and a fit resumed, remove them, so that
+#: none describes tracks gone, a run of one frame, or a fit stopped half way.
+MADE_OF_THE_MODEL = (METRICS_FILE, LANDMARKS_CSV, LANDMARKS_INFO, MOVEMENT_JSON, MOVEMENT_CSV, LANDMARKS_TRC, RENDERS_DIR, REPORT_FILE)
