@@ -6,9 +6,9 @@ goes round. --trajectories: 2 % of the foreground Gaussians with trails over the
 the rendered image of --camera (default: the held-out camera), as mp4 and a PNG strip of 5 frames.
 --depth: expected depth in --camera, colour-mapped over one range for the whole sequence. --landmarks: the
 landmarks of `mmcsplat landmarks` with their trails on --camera's real images, cropped to the subject. A run without
-tracks renders its first-frame fit. Videos are H.264 (yuv420p) mp4, playable in browsers. An unfinished run (its fit or
-tracking stopped) is refused unless --allow-incomplete, and one another command is writing always; renders into the run's own folder hold its lock, so
-that no tracking replaces what they show while they are made.
+tracks renders its first-frame fit. Videos are H.264 (yuv420p) mp4, playable in browsers. An unfinished run (its fit
+or tracking stopped) is refused unless --allow-incomplete, and one another command is writing always; renders into the
+run's own folder hold its lock, so that no tracking replaces what they show while they are made.
 """
 
 from __future__ import annotations
