@@ -124,9 +124,10 @@ def missing_torso(source: LandmarkSource, session: SessionReader, frame: int) ->
 
 def keypoints_with(source: dict[str, Any], options: dict[str, Any], reader_options: dict[str, Any]) -> dict[str, Any]:
     """The keypoint source ``source`` (:func:`keypoint_source`) with the parameters ``options`` (``--keypoints-set``).
-    The reader's :data:`NAMING_OPTIONS` (``--reader-set``, a study's ``reader``) name the keypoint files too, where the source takes them and ``options`` gives none of its own: a rig's keypoint folders
-    and files are named after its videos (Pose2Sim's ``pose_2d/cam01`` beside ``videos/cam01.mp4``, anipose's
-    ``pose-2d/vid01-camA.h5`` beside ``videos-raw/vid01-camA.avi``)."""
+    The reader's :data:`NAMING_OPTIONS` (``--reader-set``, a study's ``reader``) name the keypoint files too, where
+    the source takes them and ``options`` gives none of its own: a rig's keypoint folders and files are named after
+    its videos (Pose2Sim's ``pose_2d/cam01`` beside ``videos/cam01.mp4``, anipose's ``pose-2d/vid01-camA.h5`` beside
+    ``videos-raw/vid01-camA.avi``)."""
     from mmcsplat.configuration.registry import default_registry
 
     taken = {info.name for info in describe_parameters(default_registry().get("landmarks", source["name"]).load()) or ()}

@@ -277,9 +277,6 @@ def ingest(
     try:
         selected = _select(recording.cameras, cameras, "--cameras")
         heldout = _select(recording.cameras, holdout, "--holdout")
-        outside = [c for c in heldout if c not in selected]
-        if outside:
-            raise InputError(f"--holdout: {', '.join(outside)} not among the selected cameras {', '.join(selected)}")
         heldout += [c for c in recording.heldout if c in selected and c not in heldout]
         if len(heldout) == len(selected):
             raise InputError(f"every selected camera ({', '.join(selected)}) is held out: nothing is left to train on")
