@@ -81,10 +81,14 @@ def body_model(people: Sequence[np.ndarray], min_confidence: float) -> str | Non
 
 
 @functools.lru_cache(maxsize=16)
-def folder_model(folder: Path, files: tuple[Path, ...], min_confidence: float) -> str:
-    """:func:`body_model` of the keypoint ``files`` (a sample of ``folder``'s), BODY_25B with a warning where
-    they cannot tell: the same answer for every frame range read, found (and said) once however often a run
-    reads the folder (masks, guidance, scoring)."""
+def folder_model(folder: Path, min_confidence: float) -> str:
+    """:func:`body_model` of up to :data:`MODEL_SAMPLE` files of each camera folder in ``folder``, spread over
+    its frames; BODY_25B with a warning where they cannot tell: the same answer for every frame range read, found
+    (and said) once however often a run reads the folder (masks, guidance, scoring)."""
+    files = []
+    for camera in sorted(path for path in folder.iterdir() if path.is_dir()):
+        found = sorted(camera.glob("*.json"), key=lambda path: natural_key(path.name))
+        files += [found[int(i)] for i in np.unique(np.linspace(0, len(found) - 1, MODEL_SAMPLE).round())] if found else []
     model = body_model([read_people(path, KEYPOINT_COUNT) for path in files], min_confidence)
     if model is None:
         warnings.warn(f"openpose keypoints {folder}: too few confident detections to tell BODY_25 from BODY_25B: read as BODY_25B "
@@ -187,13 +191,6 @@ class OpenPoseKeypoints(TriangulatedKeypoints):
     @property
     def resolved_model(self) -> str:
         """The model named, or the one the detections of the folder's camera folders show, whichever frames are
-        read (:func:`folder_model` over up to :data:`MODEL_SAMPLE` files of each, spread over it); BODY_25B,
-        with a warning, where they are too few to tell."""
+        read (:func:`folder_model`); BODY_25B, with a warning, where they are too few to tell."""
         folder = Path(self.folder)
-        if self.model != AUTO_MODEL or not folder.is_dir():
-            return self.model
-        sample = []
-        for camera in sorted(path for path in folder.iterdir() if path.is_dir()):
-            found = sorted(camera.glob("*.json"), key=lambda path: natural_key(path.name))
-            sample += [found[int(i)] for i in np.unique(np.linspace(0, len(found) - 1, MODEL_SAMPLE).round())] if found else []
-        return folder_model(folder, tuple(sample), self.min_confidence)
+        return folder_model(folder.resolve(), self.min_confidence) if self.model == AUTO_MODEL and folder.is_dir() else self.model
