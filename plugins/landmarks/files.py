@@ -2,11 +2,12 @@
 (``frame,time,name,x,y,z`` rows, or ``name,x,y,z`` for one frame), read by
 :mod:`mmcsplat.storage.landmark_formats`.
 
-A TRC file's rows are the capture's frames in order (row 1 = capture frame 0, as Pose2Sim writes them for
-a video's frames); session frames map to them through the session's capture frame numbers, so an
-ingest of ``--frames 10:50:2`` still meets the right rows; a file whose DataRate is not the session's frame
-rate (a marker system's own, 100 Hz beside 60 fps video) is said, since its rows are then not the frames. A CSV's ``frame`` column holds capture frame
-numbers the same way; the one-frame form applies to the run's fitted frame, whichever it is.
+A TRC file's rows are the capture's frames in order from its first row's (``TrcData.first_frame``: frame 0,
+or where a trimmed Pose2Sim trial starts); session frames map to them through the session's capture frame
+numbers, so an ingest of ``--frames 10:50:2`` still meets the right rows; a file whose DataRate is not the
+session's frame rate (a marker system's own, 100 Hz beside 60 fps video) is said, since its rows are then not
+the frames. A CSV's ``frame`` column holds capture frame numbers the same way; frames asked for that a file
+lacks are NaN, and said; the one-frame form applies to the run's fitted frame, whichever it is.
 """
 
 from __future__ import annotations
