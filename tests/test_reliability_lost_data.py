@@ -175,3 +175,11 @@ def test_report_out_replaces_only_a_report(tmp_path, capsys):
     assert notes.read_text() == "<html>the clinician's own page</html>\n"
     assert main(["report", str(run)]) == 0
     assert main(["report", str(run)]) == 0  # a report written again replaces its own page
+
+
+def test_a_synth_that_fails_while_it_starts_leaves_neither_its_folder_nor_its_lock(tmp_path, monkeypatch):
+    from mmcsplat.synthetic import writer
+
+    monkeypatch.setattr(writer, "VideoStream", lambda *args: (_ for _ in ()).throw(RuntimeError("no encoder")))
+    assert main(["synth", str(tmp_path / "capture"), *SYNTH]) != 0
+    assert list(tmp_path.iterdir()) == []

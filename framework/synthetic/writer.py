@@ -73,8 +73,6 @@ class CaptureWriter:
     temporary folder is removed; :meth:`commit` moves the finished capture to ``out_dir``."""
 
     def __init__(self, out_dir: Path, cameras: Sequence[Camera], num_frames: int, fps: float, overwrite: bool = False) -> None:
-        import zarr
-
         self.out_dir = Path(out_dir)
         self.overwrite = overwrite
         check_output(self.out_dir, overwrite)
@@ -85,9 +83,20 @@ class CaptureWriter:
                 remove_local_tree(leftover)
         self.cameras = list(cameras)
         self.num_frames = num_frames
-        self.temp = Path(tempfile.mkdtemp(prefix=f".{self.out_dir.name}.", suffix=".partial", dir=self.out_dir.parent))
-        self.temp.chmod(0o755)  # mkdtemp makes it private; the finished capture is an ordinary folder
         self.streams: list[VideoStream] = []
+        self.temp = Path(tempfile.mkdtemp(prefix=f".{self.out_dir.name}.", suffix=".partial", dir=self.out_dir.parent))
+        try:
+            self._open(fps)
+        except BaseException:  # no `with` will call abort: the folder and the lock go here
+            self.abort()
+            raise
+
+    def _open(self, fps: float) -> None:
+        """The encoders and the ground truth's arrays, in the temporary folder."""
+        import zarr
+
+        num_frames = self.num_frames
+        self.temp.chmod(0o755)  # mkdtemp makes it private; the finished capture is an ordinary folder
         (self.temp / VIDEOS).mkdir()
         for camera in self.cameras:
             self.streams.append(VideoStream(self.temp / VIDEOS / f"{camera.name}.mp4", camera.width, camera.height, fps))
