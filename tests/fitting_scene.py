@@ -64,7 +64,7 @@ def moved(gaussians: Gaussians, t: int, step: float = 0.005, bend: float = 0.04)
 def write_session(path: Path, cameras: int = 5, heldout: tuple[str, ...] = ("cam_0",), blank: tuple[str, ...] = (),
                   frames: int = 1, absent: tuple[tuple[str, int], ...] = (), zoom: int = 1, truth: Gaussians | None = None,
                   masks: bool = True, depth: bool = True, plates: bool = False, supersample: int = 1, taller: tuple[str, ...] = (),
-                  unmasked: tuple[str, ...] = ()) -> Path:
+                  unmasked: tuple[str, ...] = (), provenance: dict | None = None) -> Path:
     """Render ``truth`` (default ``subject()``), moving over ``frames``, into ``cameras`` ring cameras of ``zoom`` times the
     base resolution; cameras in ``blank`` get an empty image/mask; the (camera, frame) pairs in ``absent``
     are left out of the session; ``masks`` / ``depth`` false leave those fields out (a capture without them),
@@ -72,14 +72,15 @@ def write_session(path: Path, cameras: int = 5, heldout: tuple[str, ...] = ("cam
     with ``plates`` the subject is seen in front of each camera's :func:`plate` (else black), stored as its
     clean plate; ``supersample`` > 1 makes each pixel the mean of that many sub-pixels per side (a pixel
     integrating over its area); cameras in ``taller`` have two more rows (as a real rig's 1088-row cameras
-    beside 1080-row ones)."""
+    beside 1080-row ones); ``provenance`` is stored as the session's (``frames``: the capture frames ingest took)."""
     from mmcsplat.backends.torch_reference import TorchReferenceRenderer
     from mmcsplat.training.supersampling import supersampled
 
     renderer = supersampled(TorchReferenceRenderer(), supersample)
     rig = [ring_camera(f"cam_{i}", 2 * np.pi * i / cameras, zoom=zoom) for i in range(cameras)]
     rig = [attrs.evolve(c, height=c.height + 2, K=c.K + np.array([[0, 0, 0], [0, 0, 1], [0, 0, 0]])) if c.name in taller else c for c in rig]
-    with SessionWriter(path, cameras=rig, num_frames=frames, fps=30.0, heldout=heldout, source="fitting-scene") as writer:
+    with SessionWriter(path, cameras=rig, num_frames=frames, fps=30.0, heldout=heldout, source="fitting-scene",
+                       provenance=provenance) as writer:
         for t in range(frames):
             gaussians = moved(subject() if truth is None else truth, t)
             for camera in (camera for camera in rig if (camera.name, t) not in absent):

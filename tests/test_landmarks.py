@@ -34,11 +34,10 @@ def motion(t: int) -> tuple[Rotation, np.ndarray]:
     return Rotation.from_euler("z", 0.15 * t), np.array([0.01 * t, 0.0, 0.0])
 
 
-@pytest.fixture(scope="module")
-def scene(tmp_path_factory):
-    """(a run whose tracks move the subject rigidly, the landmarks file, the true landmarks [T, L, 3])."""
-    root = tmp_path_factory.mktemp("landmarks")
-    session = write_session(root / "session.zarr", frames=FRAMES)
+def tracked_scene(root, provenance: dict | None = None):
+    """(a run whose tracks move the subject rigidly, the landmarks file, the true landmarks [T, L, 3]) in
+    ``root``; the session's ``provenance`` says which capture frames it took (the file is numbered by them)."""
+    session = write_session(root / "session.zarr", frames=FRAMES, provenance=provenance)
     run = write_fitted_run(root / "run", session)
     params = FittedRun.load(run).params
     means, quats = params["means"].double().numpy(), params["quats"].double().numpy()
@@ -52,10 +51,15 @@ def scene(tmp_path_factory):
     start = np.array([[0.10, 0.03, 0.0], [-0.10, 0.02, 0.01], [0.05, -0.04, 0.02], [-0.06, -0.03, 0.0],
                       [0.0, -0.06, 0.0], [0.0, -0.01, 0.01], [2.0, 2.0, 2.0]])
     truth = np.stack([motion(t)[0].apply(start) + motion(t)[1] for t in range(FRAMES)])
-    times = SessionReader(session).frame_times
+    reader = SessionReader(session)
     path = root / "joints.csv"
-    write_landmark_csv(path, NAMES, np.arange(FRAMES), times, truth)
+    write_landmark_csv(path, NAMES, reader.capture_frames(np.arange(FRAMES)), reader.frame_times, truth)
     return run, path, truth
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    return tracked_scene(tmp_path_factory.mktemp("landmarks"))
 
 
 def test_landmarks_follow_the_tracks_and_are_scored(scene, capsys):
@@ -113,6 +117,33 @@ def test_exports_read_back(scene, tmp_path):
     np.testing.assert_allclose(positions[:, :CARRIED], truth[:, :CARRIED], atol=1e-5)  # float32 millimetres
     assert np.isnan(positions[:, CARRIED]).all()
     assert read_landmark_csv(files["csv"])[0] == NAMES
+
+
+def test_a_session_of_later_frames_numbers_its_landmarks_by_the_capture(tmp_path, capsys):
+    """A session ingested with ``--frames 10::2``: landmarks.csv and its exports number rows by the capture's
+    frames (as their times are), so the CSV reads back as itself through the ``csv`` source and the overlay
+    video finds its frames; a file of frames the session never took is refused naming the frame."""
+    import imageio.v3 as iio
+
+    run, path, truth = tracked_scene(tmp_path, provenance={"frames": [10, None, 2]})
+    with pytest.warns(UserWarning, match="landmarks far"):
+        assert main(["landmarks", str(run), "--source", "csv", "--set", f"path={path}"]) == 0
+    names, frames, _, carried, _ = read_landmark_csv(run / "landmarks.csv")
+    assert frames.tolist() == [10, 12, 14, 16, 18]
+    np.testing.assert_allclose(carried[:, :CARRIED], truth[:, :CARRIED], atol=2e-6)
+    session = SessionReader(FittedRun.load(run).info.session)
+    again = CsvLandmarks(path=str(run / "landmarks.csv")).read(session, range(FRAMES))
+    np.testing.assert_array_equal(again.positions, carried)
+    assert main(["export", str(run), f"--csv={tmp_path / 'out.csv'}", f"--trc={tmp_path / 'out.trc'}"]) == 0
+    assert read_landmark_csv(tmp_path / "out.csv")[1].tolist() == frames.tolist()
+    assert read_trc(tmp_path / "out.trc").first_frame == 10
+    assert main(["render", str(run), "--landmarks", "--no-progress"]) == 0
+    assert iio.imread(run / "renders" / "landmarks_cam_0.mp4").shape[0] == FRAMES
+    text = (run / "landmarks.csv").read_text().replace("\n10,", "\n11,")  # a frame this session never took
+    (run / "landmarks.csv").write_text(text)
+    capsys.readouterr()
+    assert main(["export", str(run), f"--csv={tmp_path / 'out.csv'}"]) == 2
+    assert "landmarks.csv: capture frame 11 is not one of session" in capsys.readouterr().err
 
 
 def test_a_trc_export_takes_the_axes_of_its_sessions_world(scene, tmp_path, monkeypatch):

@@ -45,7 +45,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--transforms", type=Path, metavar="DIR",
                         help="write the rig and the fitted frame's images as a nerfstudio dataset folder (transforms.json, images/, masks/)")
     parser.add_argument("--trc", type=Path, metavar="FILE", help="the run's landmarks as a TRC file (OpenSim, Pose2Sim)")
-    parser.add_argument("--csv", type=Path, metavar="FILE", help="the run's landmarks as CSV: frame, time, name, x, y, z, spread_mm, confidence")
+    parser.add_argument("--csv", type=Path, metavar="FILE", help="the run's landmarks as CSV: frame (the capture's number), time, name, x, y, z, spread_mm, confidence")
     parser.add_argument("--c3d", type=Path, metavar="FILE", help="the run's landmarks as a C3D file (millimetres)")
     parser.add_argument("--frame", type=int, metavar="K",
                         help="the run frame --inria writes (0 to frames − 1; default 0, the first)")

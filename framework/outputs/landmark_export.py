@@ -70,10 +70,11 @@ def export_landmarks(run: str | Path, trc: str | Path | None = None, csv: str | 
     if incomplete:
         extra = {**extra, CSV_INCOMPLETE_COLUMN: np.ones(positions.shape[:2])}
     session = RunStates(run).session
+    session.session_frames(frames, str(source))  # refuses rows of frames this run's session never took
     written = []
     if trc is not None:
         write_trc(trc, names, times, positions, session.fps, convention=trc_convention(session), incomplete=incomplete,
-                  first_frame=int(session.capture_frames(frames[:1])[0]) if len(frames) else 0)
+                  first_frame=int(frames[0]) if len(frames) else 0)
         written.append(Path(trc))
     if csv is not None:
         write_landmark_csv(csv, names, frames, times, positions, extra=extra)

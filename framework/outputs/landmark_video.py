@@ -47,7 +47,8 @@ def render_landmarks(run: str | Path, out: str | Path, camera: str | None = None
     path = Path(run) / LANDMARKS_CSV
     if not path.is_file():
         raise MissingFileError(f"{path} does not exist: `mmcsplat landmarks {run} --source …` carries landmarks first")
-    names, frames, _, positions, _ = read_landmark_csv(path)
+    names, capture, _, positions, _ = read_landmark_csv(path)
+    frames = states.session.session_frames(capture, str(path))
     view = states.camera(camera)
     present = states.session.present(view.name)
     projected = [project_visible(view, np.where(np.isfinite(points), points, 0.0)) for points in positions]

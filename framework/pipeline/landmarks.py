@@ -160,7 +160,7 @@ def track_landmarks(run: str | Path, source: str, params: dict[str, Any] | None 
                                                reference, carried, slice(bind_frames if len(frames) > bind_frames else 0, None), body)
         movement = movement_summary(reference.names, times, carried) | {"incomplete": bool(unfinished), "unfinished": unfinished}
         with signals_deferred():  # each file atomic, and a stop never leaves new ones beside old ones
-            write_landmark_csv(run / LANDMARKS_CSV, reference.names, frames, times, carried,
+            write_landmark_csv(run / LANDMARKS_CSV, reference.names, session.capture_frames(frames), times, carried,
                                extra={"spread_mm": spread * 1000, "confidence": confidence(spread), **labels})
             write_json_atomic(run / LANDMARKS_INFO, info)
             write_movement(run, movement)

@@ -132,6 +132,19 @@ class SessionReader(SessionBase):
         start, _, step = self.provenance.get("frames", [0, None, 1])
         return (start or 0) + np.asarray(frames, dtype=np.int64) * (step or 1)
 
+    def session_frames(self, capture: Sequence[int] | np.ndarray, what: str) -> np.ndarray:
+        """The session frames of the capture frame numbers ``capture`` (the inverse of :meth:`capture_frames`);
+        raises :class:`InputError` naming ``what`` (the file they came from) for one the session did not take."""
+        start, _, step = self.provenance.get("frames", [0, None, 1])
+        offset = np.asarray(capture, dtype=np.int64) - (start or 0)
+        frames = offset // (step or 1)
+        outside = (offset % (step or 1) != 0) | (frames < 0) | (frames >= self.num_frames)
+        if outside.any():
+            taken = self.capture_frames([0, self.num_frames - 1])
+            raise InputError(f"{what}: capture frame {int(np.asarray(capture)[outside][0])} is not one of session {self.url}'s "
+                             f"(it took frames {taken[0]}–{taken[1]}" + (f" every {step}" if (step or 1) > 1 else "") + ")")
+        return frames
+
     def source_frames(self, camera: str, frames: Sequence[int] | np.ndarray) -> np.ndarray:
         """The frame numbers in ``camera``'s own source — its video's frames, which 2D keypoints detected in it
         follow — of session ``frames``, −1 where the camera lacks the frame: the capture frame numbers
