@@ -209,7 +209,7 @@ def test_a_capture_session_starts_where_a_trimmed_trcs_joints_start(tmp_path):
     variants = iterative("flow", 'predict = "flow"')
     assert load_study(write_study(tmp_path, variants, 'capture = { path = "capture" }')).sessions[0].capture["frames"] == [3, None]
     assert load_study(write_study(tmp_path, variants, 'capture = { path = "capture", frames = [4, 9] }')).sessions[0].capture["frames"] == [4, 9]
-    with pytest.raises(StudyError, match=r"capture frames \[0, 9\]: the joints .* start at the capture's frame 3 .*: start the frames at 3"):
+    with pytest.raises(StudyError, match=r"capture: frames \[0, 9\]: the joints .* start at the capture's frame 3 .*: start the frames at 3"):
         load_study(write_study(tmp_path, variants, 'capture = { path = "capture", frames = [0, 9] }'))
     with pytest.raises(StudyError, match=r"frames must be \[start, stop\]"):  # one number was read as the stop
         load_study(write_study(tmp_path, variants, 'capture = { path = "capture", frames = [4] }'))

@@ -56,6 +56,7 @@ from mmcsplat.pipeline.capture_session import (
     keypoints_with,
     missing_torso,
     prepare_capture_session,
+    start_with_joints,
 )
 from mmcsplat.pipeline.image_scale import AUTO_SCALE, resolve_scale
 from mmcsplat.pipeline.ingest import units_chosen, units_read
@@ -63,7 +64,6 @@ from mmcsplat.pipeline.steps import BEFORE_FIELD, SettingsRecord, Step, StepTime
 from mmcsplat.plugin_api.errors import InputError, SubjectMaskError
 from mmcsplat.storage.atomic import write_json_atomic
 from mmcsplat.storage.calibration import AUTO_UNITS, format_units
-from mmcsplat.storage.landmark_formats import read_trc
 from mmcsplat.storage.run import LANDMARKS_CSV, LANDMARKS_INFO, METRICS_FILE, MOVEMENT_JSON, RENDERS_DIR, REPORT_FILE, RUN_INFO, TRACK_INFO, TRACKS_DIR
 from mmcsplat.training.frame_steps import AUTO_STEPS, FEWEST_STEPS, STEPS_PER_SECOND, steps_per_frame
 
@@ -132,16 +132,13 @@ def quoted_override(key: str, value: Any) -> str:
 
 
 def frames_with_joints(settings: CaptureSettings, trc: Path, log: Callable[[str], None]) -> CaptureSettings:
-    """``settings`` whose frames start where the joints of ``trc`` do (:attr:`~mmcsplat.storage.landmark_formats.TrcData.first_frame`:
-    today's Pose2Sim trims a trial to where the subject is seen): the fitted frame binds them. Without ``--frames``
-    the run starts there, said; a ``--frames`` start before it is an error naming it."""
-    first = read_trc(trc).first_frame
+    """``settings`` whose frames start where the joints of ``trc`` do
+    (:func:`~mmcsplat.pipeline.capture_session.start_with_joints`): without ``--frames`` the run starts there, said."""
     start, stop, step = settings.frames
-    if first <= (start or 0):
+    until = stop if stop is not None else ""
+    first = start_with_joints(trc, start, f"--frames {start}:{until}", lambda first: f"give --frames {first}:{until}")
+    if first is None:
         return settings
-    if start is not None:
-        raise InputError(f"--frames {start}:{stop if stop is not None else ''}: the joints {trc} start at the capture's frame {first} (its "
-                         f"OrigDataStartFrame), so the fitted frame {start} has none: give --frames {first}:{stop if stop is not None else ''}")
     log(f"run: frames from {first} on, where the joints of {trc} start (its OrigDataStartFrame)")
     return attrs.evolve(settings, frames=(first, stop, step))
 

@@ -10,7 +10,7 @@ the plates are estimated around them.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -105,6 +105,23 @@ def joints_source(capture: Path, given: str | None, trial: str | None = None) ->
         return {"name": "trc", "path": str(trc)}
     truth = capture / GROUND_TRUTH
     return {"name": "synthetic", "path": str(truth.resolve())} if truth.is_dir() and GroundTruthReader(truth).has("joints") else None
+
+
+def start_with_joints(joints: Path | None, start: int | None, frames: str, fix: Callable[[int], str]) -> int | None:
+    """The capture frame a run's frames must start at so its fitted frame binds the joints of ``joints``: None
+    when ``start`` (None: the capture's first frame) has them already, else the frame a TRC's rows start at
+    (:attr:`~mmcsplat.storage.landmark_formats.TrcData.first_frame`: today's Pose2Sim trims a trial to where the
+    subject is seen). A ``start`` given before it is an :class:`InputError` naming ``frames`` (the caller's
+    own words for them) and ``fix(first)``, how the caller's user gives that start."""
+    from mmcsplat.storage.landmark_formats import read_trc
+
+    first = read_trc(joints).first_frame if joints is not None and joints.suffix.lower() == ".trc" else 0
+    if first <= (start or 0):
+        return None
+    if start is not None:
+        raise InputError(f"{frames}: the joints {joints} start at the capture's frame {first} (its OrigDataStartFrame), so the "
+                         f"fitted frame {start} has none: {fix(first)}")
+    return first
 
 
 def missing_torso(source: LandmarkSource, session: SessionReader, frame: int) -> str | None:

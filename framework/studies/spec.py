@@ -328,10 +328,9 @@ def capture_settings(table: Mapping[str, Any], where: str, folder: Path | None) 
     filled in as ``mmcsplat run`` fills it — the scale it ingests at, the capture's folder of 2D keypoints and its
     TRC of joints when it has them (:func:`~mmcsplat.pipeline.capture_session.keypoint_folder`,
     :func:`~mmcsplat.pipeline.capture_session.joints_file`) — so equal captures get equal identities."""
-    from mmcsplat.pipeline.capture_session import DEFAULT_SCALE, joints_file, keypoint_folder
+    from mmcsplat.pipeline.capture_session import DEFAULT_SCALE, joints_file, keypoint_folder, start_with_joints
     from mmcsplat.pipeline.image_scale import AUTO_SCALE
     from mmcsplat.pipeline.ingest import capture_reader
-    from mmcsplat.storage.landmark_formats import read_trc
 
     _check_keys(table, CAPTURE_KEYS, where, "capture")
     if "path" not in table:
@@ -353,13 +352,10 @@ def capture_settings(table: Mapping[str, Any], where: str, folder: Path | None) 
             capture_reader(capture, reader_options=reader)
         keypoints = keypoint_folder(capture, paths["keypoints"])
         joints = joints_file(capture, paths["joints"], reader.get("trial"))
-        first = read_trc(joints).first_frame if joints is not None and joints.suffix.lower() == ".trc" else 0
+        first = start_with_joints(joints, frames[0] if frames else None, f"frames {frames}", lambda first: f"start the frames at {first}")
     except InputError as error:
         raise StudyError(f"{where} capture: {error}") from error
-    if first > (frames[0] if frames else 0):  # a trimmed trial's TRC (today's Pose2Sim): the fitted frame must have joints, as in run
-        if frames:
-            raise StudyError(f"{where} capture frames {frames}: the joints {joints} start at the capture's frame {first} (its "
-                             f"OrigDataStartFrame), so the fitted frame {frames[0]} has none: start the frames at {first}")
+    if first is not None:
         frames = [first, None]
     # Metres by default, not run's auto: the units are part of every cell's key, so a study made before auto keeps its cells.
     units = table.get("units", "m")
