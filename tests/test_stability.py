@@ -193,13 +193,13 @@ def test_classification_of_single_cells():
 
 
 @pytest.mark.parametrize("table, message", [
-    ('cameras = ["cam_0", "cam_9"]', "no camera 'cam_9'"),
-    ('perturb = { camera = "cam_4", degrees = 5 }\ncameras = ["cam_0", "cam_1", "cam_2"]', "which its 'cameras' drop"),
+    ('cameras = ["cam_0", "cam_9"]', r"\[sessions.s\] cameras: no camera 'cam_9' in the session"),
+    ('perturb = { camera = "cam_4", degrees = 5 }\ncameras = ["cam_0", "cam_1", "cam_2"]',
+     r"\[sessions.s\] perturb: no camera 'cam_4' in the session as its 'cameras' keep it"),
 ])
 def test_session_modifications_name_what_is_wrong(scene, tmp_path, table, message):
-    study = load_study(write_study(scene, "bad", f'[sessions.s]\npath = "scene.zarr"\n{table}\n', variant("a", "short.toml")))
-    with pytest.raises(StudyError, match=message):
-        run_stability(study, tmp_path / "out", seeds=1, workers=0, progress=False)
+    with pytest.raises(StudyError, match=message):  # when the study loads: before, after its other sessions were made
+        load_study(write_study(scene, "bad", f'[sessions.s]\npath = "scene.zarr"\n{table}\n', variant("a", "short.toml")))
 
 
 def test_a_malformed_perturbation_is_refused(scene):

@@ -4,6 +4,7 @@ Ray), resuming an interrupted study, and the tables and charts it writes."""
 from __future__ import annotations
 
 import json
+import re
 import sys
 
 import attrs
@@ -127,11 +128,18 @@ def test_missing_and_unknown_studies(tmp_path, capsys):
     assert "built-in ones are dynamics, paper-ablation" in capsys.readouterr().err
 
 
-def test_unknown_fold_camera_fails_before_any_cell_runs(scene, tmp_path):
-    study = load_study(write_study(scene, 'folds = ["cam_9"]\n' + variant("a"), "fold.toml"))
-    with pytest.raises(StudyError, match="has no camera 'cam_9' to hold out"):
-        run_study(study, tmp_path / "out", progress=False)
-    assert not (tmp_path / "out" / "cells").exists()
+def test_unknown_fold_camera_fails_before_any_cell_runs(scene, tmp_path, capsys):
+    with pytest.raises(StudyError, match=r"\[sessions.\w+\] folds: no camera 'cam_9' in the session; its cameras: \['cam_0'"):
+        load_study(write_study(scene, 'folds = ["cam_9"]\n' + variant("a"), "fold.toml"))
+    # A synthetic session's cameras are known before it is made: --dry-run listed such a cell as "to run".
+    synthetic = tmp_path / "synthetic.toml"
+    for table, message in (('folds = ["cam_4"]', r"folds: no camera 'cam_4' in the session; its cameras: \['cam_0', 'cam_1', 'cam_2', 'cam_3'\]"),
+                           ('heldout = ["cam_4"]', "heldout: no camera 'cam_4'"),
+                           ('cameras = ["cam_0", "cam_1"]\nfolds = ["cam_2"]', "folds: no camera 'cam_2' in the session as its 'cameras' keep it")):
+        synthetic.write_text(f'[sessions.s]\nsynthetic = {{ cameras = 4 }}\n{table}\n[[variant]]\nname = "a"\nconfig = "paper-masked"\n')
+        assert main(["compare", str(synthetic), "--out", str(tmp_path / "out"), "--dry-run"]) == 2
+        assert re.search(message, capsys.readouterr().err)
+    assert not (tmp_path / "out").exists()
 
 
 def test_builtin_paper_ablation_has_the_studys_five_rows_then_its_own(tmp_path):

@@ -463,6 +463,34 @@ def _validate(study: Study, registry: Registry) -> None:
     for spec in study.sessions:  # before anything runs, not as cells' failures kept after the session appears
         if spec.path is not None and "://" not in spec.path and not Path(spec.path).is_dir():
             raise StudyError(f"{study.source}: [sessions.{spec.name}] path: no session at {spec.path} (`mmcsplat ingest` makes one)")
+        _check_camera_names(study, spec)
+
+
+def _check_camera_names(study: Study, spec: SessionSpec) -> None:
+    """The cameras a synthetic or stored session is told to keep, perturb, hold out or fold over are among its
+    own, checked when the study loads, so ``--dry-run`` lists no cell the run would refuse. A capture's cameras
+    are known only once it is ingested (the runner checks its folds then)."""
+    from mmcsplat.storage.session import SessionReader
+    from mmcsplat.synthetic.cameras import camera_names
+
+    if spec.synthetic is not None:
+        names = camera_names(int(spec.synthetic["cameras"]))
+    elif spec.path is not None and "://" not in spec.path:
+        try:
+            names = SessionReader(spec.path).camera_names
+        except (OSError, InputError) as error:
+            raise StudyError(f"{study.source}: [sessions.{spec.name}] path: {error}") from error
+    else:
+        return
+    kept = spec.cameras if spec.cameras is not None else names
+    named = [("cameras", kept), ("heldout", spec.heldout), ("perturb", [spec.perturb.camera] if spec.perturb else [])]
+    named.append(("folds", spec.folds if spec.folds is not None else study.folds))
+    for key, cameras in named:
+        among = names if key in ("cameras", "heldout") else kept
+        unknown = [camera for camera in cameras if camera not in among]
+        if unknown:
+            raise StudyError(f"{study.source}: [sessions.{spec.name}] {key}: no camera {unknown[0]!r} in the session"
+                             + (" as its 'cameras' keep it" if among is not names else "") + f"; its cameras: {list(among)}")
 
 
 # ----------------------------------------------------------------------------------------- expansion

@@ -14,13 +14,18 @@ RING_RADIUS = 1.2  # metres from the mat centre
 RING_HEIGHT = 1.0  # metres above the mat
 
 
+def camera_names(count: int) -> tuple[str, ...]:
+    """The names of a synthetic rig of ``count`` cameras, in ring order."""
+    return tuple(f"cam_{i}" for i in range(count))
+
+
 def ring_cameras(count: int, width: int, height: int, rng: np.random.Generator) -> list[Camera]:
     """``count`` cameras ``cam_0``… evenly around the mat, each varied slightly (position ±3 cm, azimuth
     ±3°, aim ±2 cm, roll ±1°, focal length ±1 %, principal point ±1 % of the width, k1 in −0.12…−0.08,
     k2 in 0.005…0.02), with intrinsics scaled from the reference rig to ``width`` (square pixels)."""
     cameras = []
     focal = REFERENCE_FOCAL * width / REFERENCE_WIDTH
-    for i in range(count):
+    for i, name in enumerate(camera_names(count)):
         azimuth = 2 * np.pi * i / count + np.radians(rng.uniform(-3, 3))
         radius = RING_RADIUS + rng.uniform(-0.03, 0.03)
         centre = np.array([radius * np.cos(azimuth), radius * np.sin(azimuth), RING_HEIGHT + rng.uniform(-0.03, 0.03)])
@@ -30,7 +35,7 @@ def ring_cameras(count: int, width: int, height: int, rng: np.random.Generator) 
         cx, cy = (width - 1) / 2 + rng.uniform(-0.01, 0.01) * width, (height - 1) / 2 + rng.uniform(-0.01, 0.01) * width
         K = np.array([[f, 0, cx], [0, f, cy], [0, 0, 1]])
         distortion = [rng.uniform(-0.12, -0.08), rng.uniform(0.005, 0.02), 0.0, 0.0, 0.0]
-        cameras.append(Camera(f"cam_{i}", width, height, K, R, -R @ centre, distortion))
+        cameras.append(Camera(name, width, height, K, R, -R @ centre, distortion))
     return cameras
 
 
