@@ -105,3 +105,27 @@ def test_sigterm_during_flow_leaves_no_flow_and_the_rerun_keeps_what_was_compute
     assert not list(tmp_path.glob(".*.lock"))
     assert main(["flow", str(session), "--no-progress"]) == 0
     assert "kept from an interrupted run" in capsys.readouterr().out and flow_complete(session)
+
+
+def test_a_partial_store_is_removed_after_the_writes_still_in_flight(tmp_path):
+    """Ctrl-C stops a wait for zarr's write, not the write, which goes on on zarr's IO thread: removing the
+    partial store at once raced its last chunk (ingest ended with "Directory not empty" instead of the
+    interrupt, or a chunk landed in a folder just removed). The removal now waits for those writes."""
+    import asyncio
+
+    from zarr.core.sync import _get_loop
+
+    from mmcsplat.storage.atomic import remove_local_tree
+
+    partial = tmp_path / ".session.zarr.partial-1"
+    (partial / "cameras").mkdir(parents=True)
+
+    async def last_chunk():  # what an interrupted write still does
+        await asyncio.sleep(0.3)
+        (partial / "cameras" / "c").mkdir(parents=True, exist_ok=True)
+        (partial / "cameras" / "c" / "0").write_bytes(b"chunk")
+
+    in_flight = asyncio.run_coroutine_threadsafe(last_chunk(), _get_loop())
+    remove_local_tree(partial)
+    in_flight.result(timeout=5)
+    assert not partial.exists()

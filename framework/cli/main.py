@@ -202,6 +202,9 @@ def _stdout_closed() -> int:
 
 
 def _interrupted(interrupt: KeyboardInterrupt) -> int:
+    from mmcsplat.storage.chunks import settle_writes
+
+    settle_writes()  # what zarr still writes lands before the exit, not as "Task was destroyed but it is pending!"
     terminated = isinstance(interrupt, Terminated)
     print(f"mmcsplat: {'terminated (SIGTERM)' if terminated else 'interrupted'}; what was complete is kept, run the command again to resume",
           file=sys.stderr)
