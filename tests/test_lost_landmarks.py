@@ -22,7 +22,6 @@ from mmcsplat.storage.session import SessionWriter
 from mmcsplat.storage.tracks import TrackWriter
 
 FRAMES, KICK = 7, 3
-FIRST = 20  # the capture's frame the session starts at (ingest --frames 20:27): lost frames are named by the capture's numbers
 SIGMA = 0.02  # metres: each Gaussian's scale
 HIP = np.array([0.06, 0.0, 0.0])  # the limb turns about the y axis through it
 NAMES = ("RAnkle", "LHip", "Neck")
@@ -73,8 +72,7 @@ def capture(tmp_path_factory):
     root = tmp_path_factory.mktemp("lost")
     gaussians, limb = body()
     rig = [ring_camera(f"cam_{i}", 2 * np.pi * i / 5 + 0.3, zoom=2) for i in range(5)]
-    with SessionWriter(root / "session.zarr", cameras=rig, num_frames=FRAMES, fps=30.0, heldout=("cam_0",), source="kick",
-                       provenance={"frames": [FIRST, FIRST + FRAMES, 1]}) as writer:
+    with SessionWriter(root / "session.zarr", cameras=rig, num_frames=FRAMES, fps=30.0, heldout=("cam_0",), source="kick") as writer:
         for t in range(FRAMES):
             means = posed(gaussians.means.numpy(), gaussians.quats.numpy(), limb, kick(t))[0]
             for camera in rig:
@@ -82,7 +80,7 @@ def capture(tmp_path_factory):
                 writer.write_frame(camera.name, t, np.repeat(mask[..., None] * np.uint8(200), 3, axis=2), mask=mask)
     landmarks = root / "joints.csv"
     truth = np.stack([posed(START, np.tile([1.0, 0, 0, 0], (len(START), 1)), np.array([True, False, False]), kick(t))[0] for t in range(FRAMES)])
-    write_landmark_csv(landmarks, NAMES, FIRST + np.arange(FRAMES), np.arange(FRAMES) / 30.0, truth)
+    write_landmark_csv(landmarks, NAMES, np.arange(FRAMES), np.arange(FRAMES) / 30.0, truth)
     return root / "session.zarr", landmarks, gaussians, limb
 
 
@@ -114,16 +112,16 @@ def test_true_tracks_lose_no_landmark(capture, tmp_path, capsys):
 def test_a_frozen_limb_loses_its_landmark_from_the_kick(capture, tmp_path, capsys):
     run = tracked(capture, tmp_path / "run", frozen=True)
     assert main(["landmarks", str(run), "--source", "csv", "--set", f"path={capture[1]}"]) == 0
-    assert f"lost (off the subject masks or slipped from the optical flow in most cameras): RAnkle from frame {FIRST + KICK} ({FRAMES - KICK} frames; masks)" in capsys.readouterr().out
+    assert f"lost (off the subject masks or slipped from the optical flow in most cameras): RAnkle from frame {KICK} ({FRAMES - KICK} frames; masks)" in capsys.readouterr().out
     lost = json.loads((run / "landmarks.json").read_text())["lost"]["landmarks"]
-    assert lost["RAnkle"] == {"first_lost_frame": FIRST + KICK, "lost_frames": list(range(FIRST + KICK, FIRST + FRAMES)), "found_by": ["masks"]}
+    assert lost["RAnkle"] == {"first_lost_frame": KICK, "lost_frames": list(range(KICK, FRAMES)), "found_by": ["masks"]}
     assert lost["LHip"]["first_lost_frame"] is None and lost["Neck"]["first_lost_frame"] is None
     assert main(["evaluate", str(run)]) == 0
-    assert f"lost_landmarks         lost (off the subject masks or slipped from the optical flow in most cameras): RAnkle from frame {FIRST + KICK}" in capsys.readouterr().out
+    assert f"lost_landmarks         lost (off the subject masks or slipped from the optical flow in most cameras): RAnkle from frame {KICK}" in capsys.readouterr().out
     metrics = json.loads((run / "metrics.json").read_text())
-    assert metrics["lost_landmarks"]["landmarks"]["RAnkle"]["first_lost_frame"] == FIRST + KICK
+    assert metrics["lost_landmarks"]["landmarks"]["RAnkle"]["first_lost_frame"] == KICK
     page = landmarks_section(run, [])
-    assert "<h3>Lost landmarks</h3>" in page and '<td>RAnkle</td><td class="number">23</td><td class="number">4</td><td>masks</td>' in page
+    assert "<h3>Lost landmarks</h3>" in page and '<td>RAnkle</td><td class="number">3</td><td class="number">4</td><td>masks</td>' in page
 
 
 def test_a_short_excursion_is_not_lost():

@@ -172,9 +172,9 @@ def lost_record(names: Sequence[str], bound: np.ndarray, frames: np.ndarray, off
                 rule: LostRule, tolerances: dict[str, float], slips: np.ndarray | None = None) -> dict[str, object]:
     """landmarks.json's ``lost`` entry: the rule, each camera's tolerance (px), how many frames had a mask
     to judge by, whether the optical flow judged too (``slips`` [T, L], ``None`` without flow), and per bound
-    landmark its ``first_lost_frame`` (None when never lost), ``lost_frames`` (numbered as ``frames``) and
+    landmark its ``first_lost_frame`` (None when never lost), ``lost_frames`` (session frame numbers) and
     ``found_by`` (``masks``, ``flow``: which signals held it off in those frames), from ``off`` [T, L] (off the
-    masks) at ``frames`` [T] (the capture's frame numbers, as landmarks.csv's)."""
+    masks) at session ``frames`` [T]."""
     flow_judged = slips is not None
     slips = np.zeros_like(off) if slips is None else slips
     lost = lost_frames(off | slips, rule.consecutive)

@@ -147,7 +147,7 @@ def track_landmarks(run: str | Path, source: str, params: dict[str, Any] | None 
             "spread_median_mm": float(np.nanmedian(spread) * 1000) if np.isfinite(spread).any() else None,
             "incomplete": bool(unfinished), "unfinished": unfinished,
         }
-        info["lost"] = lost_record(reference.names, binding.bound, session.capture_frames(frames), off, judged, rule,
+        info["lost"] = lost_record(reference.names, binding.bound, frames, off, judged, rule,
                                    {camera.name: rule.tolerance_px(camera) for camera in states.train_cameras}, slips)
         body = None
         if len(frames) > bind_frames and np.isfinite(reference.positions[bind_frames:]).any():
