@@ -130,15 +130,23 @@ def test_a_session_of_later_frames_numbers_its_landmarks_by_the_capture(tmp_path
         assert main(["landmarks", str(run), "--source", "csv", "--set", f"path={path}"]) == 0
     names, frames, _, carried, _ = read_landmark_csv(run / "landmarks.csv")
     assert frames.tolist() == [10, 12, 14, 16, 18]
+    record = json.loads((run / "landmarks.json").read_text())
+    assert record["frames"] == [0, FRAMES] and record["capture_frames"] == [10, 19, 2]  # the run's own records: session frames
     np.testing.assert_allclose(carried[:, :CARRIED], truth[:, :CARRIED], atol=2e-6)
     session = SessionReader(FittedRun.load(run).info.session)
     again = CsvLandmarks(path=str(run / "landmarks.csv")).read(session, range(FRAMES))
     np.testing.assert_array_equal(again.positions, carried)
     assert main(["export", str(run), f"--csv={tmp_path / 'out.csv'}", f"--trc={tmp_path / 'out.trc'}"]) == 0
     assert read_landmark_csv(tmp_path / "out.csv")[1].tolist() == frames.tolist()
-    assert read_trc(tmp_path / "out.trc").first_frame == 10
+    exported = read_trc(tmp_path / "out.trc")
+    assert exported.first_frame == 10 and exported.rate == session.fps == session.capture_fps / 2
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # half the capture's rate: every other frame, not a rate to warn of
+        np.testing.assert_allclose(TrcLandmarks(path=str(tmp_path / "out.trc")).read(session, range(FRAMES)).positions, carried, atol=1e-5)
     assert main(["render", str(run), "--landmarks", "--no-progress"]) == 0
     assert iio.imread(run / "renders" / "landmarks_cam_0.mp4").shape[0] == FRAMES
+    assert main(["report", str(run)]) == 0
+    assert "session frame k is the capture&#x27;s frame 10 + 2·k" in (run / "report.html").read_text()
     text = (run / "landmarks.csv").read_text().replace("\n10,", "\n11,")  # a frame this session never took
     (run / "landmarks.csv").write_text(text)
     capsys.readouterr()

@@ -130,12 +130,18 @@ def read_metrics(run: Path) -> dict[str, Any] | None:
 
 
 def run_summary(states: RunStates) -> str:
-    """What was fitted: session, configuration, renderer, cameras, frames."""
+    """What was fitted: session, configuration, renderer, cameras, frames, and how the session's frame numbers
+    map to the capture's."""
     info = states.info
     tracked = f"{states.num_frames} frames from session frame {states.first_frame}" if states.tracks is not None else "no (first-frame fit only)"
+    start, following = (int(frame) for frame in states.session.capture_frames([0, 1]))
+    step = following - start
+    numbering = ("the capture's own" if (start, step) == (0, 1) else
+                 f"session frame k is the capture's frame {start} + {step}·k" if step > 1 else f"session frame k is the capture's frame {start} + k")
     rows = [("session", info.session), ("configuration", info.config), ("renderer", info.renderer),
             ("fitted frame", info.frame), ("training cameras", ", ".join(info.train_cameras)),
-            ("held-out cameras", ", ".join(info.heldout_cameras) or "none"), ("tracked", tracked)]
+            ("held-out cameras", ", ".join(info.heldout_cameras) or "none"), ("tracked", tracked),
+            ("frame numbers", f"{numbering} (landmarks.csv and its exports number the capture's frames; the rest of this page the session's)")]
     return "<h2>Run</h2>" + table(None, rows)
 
 

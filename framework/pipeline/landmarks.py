@@ -142,6 +142,7 @@ def track_landmarks(run: str | Path, source: str, params: dict[str, Any] | None 
         info: dict[str, Any] = {
             "source": source, "params": {key: str(value) if isinstance(value, Path) else value for key, value in (params or {}).items()},
             "described": reference.source, "names": list(reference.names), "frames": [int(frames[0]), int(frames[-1]) + 1],
+            "capture_frames": _capture_range(session, frames),
             "anchors": anchors, "max_distance_m": max_distance, "bind_frames": bind_frames, "unbound": binding.unbound,
             "nearest_gaussian_mm": {name: None if not np.isfinite(d) else round(float(d) * 1000, 2) for name, d in zip(binding.names, binding.distances, strict=True)},
             "spread_median_mm": float(np.nanmedian(spread) * 1000) if np.isfinite(spread).any() else None,
@@ -169,6 +170,12 @@ def track_landmarks(run: str | Path, source: str, params: dict[str, Any] | None 
             warnings.warn(f"landmarks {', '.join(binding.unbound)}: no subject Gaussian within {max_distance * 100:.0f} cm at frame "
                           f"{states.first_frame} — left out (NaN), not invented", stacklevel=2)
     return LandmarkRun(Landmarks(reference.names, frames, carried, source=f"carried by {run}"), spread, info, movement)
+
+
+def _capture_range(session: SessionReader, frames: np.ndarray) -> list[int]:
+    """[start, stop, step] of the capture's frame numbers of session ``frames`` (a range): landmarks.csv's rows."""
+    first, following = (int(frame) for frame in session.capture_frames([frames[0], frames[0] + 1]))
+    return [first, int(session.capture_frames(frames[-1:])[0]) + 1, following - first]
 
 
 def _state(params: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:

@@ -4,9 +4,10 @@
 
 A TRC file's rows are the capture's frames in order from its first row's (``TrcData.first_frame``: frame 0,
 or where a trimmed Pose2Sim trial starts); session frames map to them through the session's capture frame
-numbers, so an ingest of ``--frames 10:50:2`` still meets the right rows; a file whose DataRate is not the
-session's frame rate (a marker system's own, 100 Hz beside 60 fps video) is said, since its rows are then not
-the frames. A CSV's ``frame`` column holds capture frame numbers the same way; frames asked for that a file
+numbers, so an ingest of ``--frames 10:50:2`` still meets the right rows. A DataRate that is the capture's
+divided by a whole number k holds every k-th frame (``export --trc`` of a session that took every other frame
+writes half the capture's rate); any other (a marker system's own, 100 Hz beside 60 fps video) is said, since its
+rows are then not the frames. A CSV's ``frame`` column holds capture frame numbers the same way; frames asked for that a file
 lacks are NaN, and said; the one-frame form applies to the run's fitted frame, whichever it is.
 """
 
@@ -63,12 +64,14 @@ class TrcLandmarks(LandmarkSource):
 
     def read(self, session: SessionReader, frames: Sequence[int]) -> Landmarks:
         data = read_trc(self.path, self.resolved_convention(session))
-        if abs(data.rate - session.capture_fps) > RATE_TOLERANCE * session.capture_fps:
+        ratio = session.capture_fps / data.rate
+        step = max(1, round(ratio))  # the file holds every step-th frame of the capture
+        if abs(ratio - step) > RATE_TOLERANCE * ratio:
             warnings.warn(f"TRC {self.path}: DataRate {data.rate:g} Hz, but the capture of session {session.url} is at {session.capture_fps:g} "
-                          "fps; its row k is taken as the capture's frame k, so if its rows are not the video's frames (a marker system's own "
-                          "rate), resample it to them", stacklevel=2)
+                          f"fps; its row k is taken as the capture's frame {'k' if step == 1 else f'{step}·k'}, so if its rows are not the "
+                          "video's frames (a marker system's own rate), resample it to them", stacklevel=2)
         wanted = session.capture_frames(frames)
-        held = data.first_frame + np.arange(len(data.times))  # the capture's frame of each row
+        held = data.first_frame + step * np.arange(len(data.times))  # the capture's frame of each row
         _say_uncovered(f"TRC {self.path}", held, wanted, " (its OrigDataStartFrame)" if data.first_frame else "")
         return Landmarks(data.names, frames, _rows_at(held, data.positions, wanted), source=f"TRC {Path(self.path)}")
 
