@@ -134,3 +134,24 @@ def test_a_short_excursion_is_not_lost():
                                    "b": {"first_lost_frame": 14, "lost_frames": [14, 15, 16], "found_by": ["masks"]}}
     assert lost_line(record).startswith("lost (off the subject masks or slipped from the optical flow in most cameras): b from frame 14 (3 frames; masks)")
     assert lost_line(lost_record(("a",), np.array([True]), np.arange(8), off[:, :1], np.zeros(8, bool), LostRule(), {})).startswith("lost landmarks not judged")
+
+
+def test_landmarks_carried_out_of_every_image_are_lost(capture, tmp_path, capsys):
+    """Tracks that fly off: the landmarks' neighbourhoods project beyond every camera's image edge from the kick
+    on. Such a point is at least as far from the mask as from the edge; before, it was not judged at all and
+    the run said "no landmark lost" with the joints metres away."""
+    from mmcsplat.training.fitted_run import FittedRun
+
+    session, landmarks, gaussians, limb = capture
+    run = tmp_path / "run"
+    write_fitted_run(run, session, truth=gaussians)
+    params = FittedRun.load(run).params
+    with TrackWriter(run, num_frames=FRAMES, static={k: params[k] for k in ("log_scales", "opacity_logits", "color_logits", "seg_logits")},
+                     method="test", attrs={"first_frame": 0}) as writer:
+        for t in range(FRAMES):
+            means, quats = posed(params["means"].double().numpy(), params["quats"].double().numpy(), limb, kick(t))
+            flown = means + (np.array([0.0, 0.0, -3.0]) if t >= KICK else 0.0)  # 3 m down: below every camera's image
+            writer.write_frame(t, means=torch.as_tensor(flown, dtype=torch.float32), quats=torch.as_tensor(quats, dtype=torch.float32))
+    assert main(["landmarks", str(run), "--source", "csv", "--set", f"path={landmarks}"]) == 0
+    lost = json.loads((run / "landmarks.json").read_text())["lost"]["landmarks"]
+    assert all(lost[name]["lost_frames"] == list(range(KICK, FRAMES)) for name in NAMES)

@@ -88,17 +88,23 @@ def neighbourhoods(carried: np.ndarray, anchors: np.ndarray, weights: np.ndarray
 
 def view_distances(points: np.ndarray, views: Sequence[DistanceView]) -> np.ndarray:
     """[V, L] px: per view, each neighbourhood's (``points`` [L, P, 3], NaN unused) median distance to the
-    mask over the points the view images (in front of it, inside its image); NaN where it images fewer
-    than half of them."""
+    mask over the points in front of the view; NaN where fewer than half of them are. A point beyond the
+    image's edge is at least as far from the mask (which lies inside the image) as from the edge, and at
+    least its edge pixel's distance less that: the larger bound counts, so a landmark carried out of every
+    image is judged, not left unjudged."""
     known = np.all(np.isfinite(points), axis=-1)
     flat = np.where(known[..., None], points, 0.0).reshape(-1, 3)
     result = np.full((len(views), len(points)), np.nan)
     for v, (camera, distance) in enumerate(views):
         depth = (flat @ camera.R.T + camera.t)[:, 2]
-        pixels = np.round(camera.project(flat)).astype(int)
-        seen = known.ravel() & (depth > 0) & np.all((pixels >= 0) & (pixels < [camera.width, camera.height]), axis=1)
+        seen = known.ravel() & (depth > 0)
+        pixels = np.zeros((len(flat), 2))
+        pixels[seen] = camera.project(flat[seen])
+        edge = np.clip(np.round(pixels), 0, [camera.width - 1, camera.height - 1]).astype(int)
+        beyond = np.hypot(*(pixels - np.clip(pixels, -0.5, [camera.width - 0.5, camera.height - 0.5])).T)
         values = np.full(len(flat), np.nan)
-        values[seen] = distance[pixels[seen, 1], pixels[seen, 0]]
+        at_edge = distance[edge[seen, 1], edge[seen, 0]]
+        values[seen] = np.where(beyond[seen] > 0, np.maximum(beyond[seen], at_edge - beyond[seen]), at_edge)
         values = values.reshape(known.shape)
         imaged = np.isfinite(values).sum(axis=1)
         enough = (imaged > 0) & (2 * imaged >= known.sum(axis=1))
