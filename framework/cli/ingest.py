@@ -22,7 +22,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "Qualisys's .qca.txt, EasyMocap's intri.yml or extri.yml (the other beside it) or their folder, or "
                         "an OpenCap camera's cameraIntrinsicsExtrinsics.pickle (the rig: every camera folder beside it)")
     add_units(parser)
-    add_frames(parser, "the frame indices to ingest (default: all)")
+    add_frames(parser, "the capture's frames to ingest, by its own numbers (default: all); the session numbers them from 0")
     parser.add_argument("--scale", type=scale_value, default=1.0, help="resize factor in (0, 1] for the stored images, or auto: their longer side "
                         f"at most {AUTO_LONGEST_SIDE} px, never enlarged; K is scaled to match (default: 1)")
     add_names(parser, "--cameras", "ingest only these cameras, in this order")

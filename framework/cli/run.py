@@ -31,7 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_units(parser)
     parser.add_argument("--scale", type=scale_value, default=DEFAULT_SCALE, help="resize factor in (0, 1] of the stored images, or auto (the "
                         f"default): their longer side at most {AUTO_LONGEST_SIDE} px, never enlarged (0.25 for 1080 × 1920 video)")
-    add_frames(parser, "the frame indices to use (default: all)")
+    add_frames(parser, "the capture's frames to use, by its own numbers (default: all, or from where a trimmed TRC starts)")
     add_names(parser, "--cameras", "use only these cameras (default: all): leaves out a broken one, which is then never read or checked")
     add_names(parser, "--holdout", "cameras kept for evaluation (default: the capture format's, else none)")
     parser.add_argument("--keypoints", help="2D keypoints: a folder of OpenPose JSON folders per camera, or of SLEAP (.slp, .analysis.h5) or "
