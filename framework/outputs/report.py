@@ -109,7 +109,7 @@ def run_report(run: Path, backend: str | None = None, registry: Registry | None 
         unfinished += carried_unfinished(run)
 
     videos = [(path.read_bytes(), path.name) for path in sorted((Path(run) / RENDERS_DIR).glob("landmarks_*.mp4"))]
-    sections = [run_summary(states), views_section(renderer, backend or states.info.renderer), metrics_section(run, metrics),
+    sections = [run_summary(states), views_section(renderer, backend or states.info.renderer), metrics_section(run, metrics, states.first_frame),
                 landmarks_section(run, videos), curves_section(run), plates_section(states.session), renders_section(run, states)]
     banner = [f'<p class="warning"><strong>Incomplete run</strong>: {esc("; ".join(unfinished))}</p>'] if unfinished else []
     return page(f"Run {Path(run).resolve()}", banner + sections)
@@ -219,8 +219,9 @@ def _frame_image(rgb: np.ndarray, alt: str) -> str:
     return image(encode_png(np.ascontiguousarray(rgb)), alt)
 
 
-def metrics_section(run: Path, metrics: dict[str, Any] | None) -> str:
-    """The metrics of ``mmcsplat evaluate``: overall, per camera, tracking, and the per-frame chart."""
+def metrics_section(run: Path, metrics: dict[str, Any] | None, first_frame: int = 0) -> str:
+    """The metrics of ``mmcsplat evaluate``: overall, per camera, tracking, and the per-frame chart (its frames
+    the session's, the run's first being ``first_frame``)."""
     if metrics is None:
         return f"<h2>Metrics</h2><p class=\"note\">No {METRICS_FILE} yet: {command('mmcsplat', 'evaluate', run)} scores the run.</p>"
     parts = ["<h2>Metrics</h2>", table(["metric", "value"], [(label, metrics[key]) for key, label in RUN_METRICS if key in metrics])]
@@ -237,13 +238,14 @@ def metrics_section(run: Path, metrics: dict[str, Any] | None) -> str:
         elif metrics.get("tracking_median_mm") is None:
             parts.append('<p class="note">No ground truth was found for the tracking errors (<code>mmcsplat evaluate --ground-truth</code>).</p>')
     if metrics.get("per_frame_val_masked_psnr"):
-        parts.append(image(per_frame_chart(metrics), "per-frame chart", "Held-out masked PSNR"
+        parts.append(image(per_frame_chart(metrics, first_frame), "per-frame chart", "Held-out masked PSNR"
                            + (" and 3D tracking error" if metrics.get("tracking_per_frame_median_mm") else "") + " at every tracked frame"))
     return "\n".join(parts)
 
 
-def per_frame_chart(metrics: dict[str, Any]) -> bytes:
-    """PNG: the held-out masked PSNR per tracked frame, and the median 3D tracking error when measured."""
+def per_frame_chart(metrics: dict[str, Any], first_frame: int = 0) -> bytes:
+    """PNG: the held-out masked PSNR per tracked frame, and the median 3D tracking error when measured, over
+    the session's frames from the run's ``first_frame``."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
     from matplotlib.ticker import MaxNLocator
@@ -255,10 +257,10 @@ def per_frame_chart(metrics: dict[str, Any]) -> bytes:
     FigureCanvasAgg(figure_)
     all_axes = figure_.subplots(len(series), 1, sharex=True, squeeze=False)[:, 0]
     for index, ((label, values), axes) in enumerate(zip(series, all_axes, strict=True)):
-        axes.plot([np.nan if v is None else v for v in values], marker=".", color=f"C{index}")
+        axes.plot(first_frame + np.arange(len(values)), [np.nan if v is None else v for v in values], marker=".", color=f"C{index}")
         axes.set_ylabel(label, fontsize=8)
         axes.grid(alpha=0.3)
-    axes.set_xlabel("tracked frame")
+    axes.set_xlabel("session frame")
     axes.xaxis.set_major_locator(MaxNLocator(integer=True))
     buffer = io.BytesIO()
     figure_.savefig(buffer, format="png", bbox_inches="tight")
