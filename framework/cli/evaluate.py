@@ -9,7 +9,9 @@ tracking errors against ground truth, the held-out scores of every frame (the ta
 beside the fitted frame's) and a drift report saying how many Gaussians left the subject and since which
 frame; when no ground-truth point has a Gaussian nearby at the first tracked frame, the tracking errors
 are null, `tracking_error` says why and evaluate warns. A run with landmarks (`mmcsplat landmarks`) gets
-their lost landmarks (`lost_landmarks`: which, from which frame)."""
+their lost landmarks (`lost_landmarks`: which, from which frame). Metric plugins beyond PSNR and SSIM —
+the run's configuration's `[[metric]]` tables and each `--metric NAME` — score every camera on the whole
+image and inside its mask (`val_NAME`, `val_masked_NAME`, `train_…`; per camera `NAME`, `masked_NAME`)."""
 
 from __future__ import annotations
 
@@ -34,6 +36,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ground-truth", type=Path, metavar="PATH",
                         help="ground truth of a tracked run (a zarr group with surface_points [T, P, 3]; default: "
                              "ground_truth.zarr beside the session's source capture, as `mmcsplat synth` writes)")
+    parser.add_argument("--metric", action="append", default=[], metavar="NAME",
+                        help="also score with this metric plugin (`mmcsplat plugins metric`), at its defaults; repeatable "
+                             "(a configuration's [[metric]] tables choose them with parameters)")
     parser.add_argument("--json", action="store_true", help="print the metrics as JSON")
     add_allow_incomplete(parser)
 
@@ -44,10 +49,11 @@ def _cell(value: Any) -> str:
 
 def table(metrics: dict[str, Any]) -> list[str]:
     """The console table of ``metrics``: one row per :data:`ROWS` key present; with tracks, a column of
-    the tracked frames' means beside the fitted frame's."""
+    the tracked frames' means beside the fitted frame's; then the metric plugins' rows."""
     tracked = any(f"tracked_{key}" in metrics for key in ROWS)
     lines = [f"{'':<22} {'fitted frame':<14} tracked frames (mean)"] if tracked else []
-    for key in ROWS:
+    chosen = [f"{split}_{masked}{name}" for name in metrics.get("metrics", []) for split in ("val", "train") for masked in ("masked_", "")]
+    for key in (*ROWS, *chosen):
         if key not in metrics:
             continue
         cells = [_cell(metrics[key])]
@@ -62,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
     from mmcsplat.pipeline.evaluate import evaluate
 
     metrics = evaluate(args.run, backend=args.backend, ground_truth=args.ground_truth, allow_incomplete=args.allow_incomplete,
-                       progress=not args.no_progress)
+                       progress=not args.no_progress, metrics=args.metric)
     if metrics.get("incomplete"):
         print(f"mmcsplat evaluate: warning: {args.run} is unfinished: its metrics are labelled incomplete", file=sys.stderr)
     for warning in metrics.get("warnings", []):

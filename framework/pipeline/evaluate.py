@@ -3,6 +3,7 @@ the metric plugins, the way the reference study did (PSNR inside the subject mas
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -13,9 +14,11 @@ from mmcsplat.analysis.drift import detect_drift
 from mmcsplat.analysis.rendered_views import SESSION_MASK, ScoringMask, heldout_mask, render_over, tracked_heldout_scores, training_masks
 from mmcsplat.analysis.trajectory_error import evaluate_tracks
 from mmcsplat.analysis.visual_hull import FLOATER_MARGIN_PX, dilated, eroded, floater_share, mask_agreement
+from mmcsplat.configuration.config import Config, PluginChoice
 from mmcsplat.configuration.registry import Registry, default_registry
 from mmcsplat.pipeline.landmarks import recorded_lost
 from mmcsplat.plugin_api.errors import MissingFileError
+from mmcsplat.plugin_api.interfaces import Metric
 from mmcsplat.plugin_api.render_contract import gaussians_from_params
 from mmcsplat.scene.camera import Camera
 from mmcsplat.storage.atomic import write_json_atomic
@@ -26,6 +29,7 @@ from mmcsplat.storage.run import METRICS_FILE, RUN_INFO, TRACKS_DIR
 from mmcsplat.storage.run_info import RunInfo
 from mmcsplat.storage.tracks import TrackReader
 from mmcsplat.training.fitted_run import FittedRun
+from mmcsplat.training.plugin_hooks import plugin_hook
 from mmcsplat.training.supersampling import run_renderer
 
 #: Above this share of the opacity outside the masks' visual hull, a fit is mostly floaters (the reference
@@ -93,7 +97,7 @@ def fit_signals(run: Path) -> list[str]:
 
 
 def evaluate_run(run: Path, registry: Registry | None = None, backend: str | None = None, ground_truth: Path | None = None,
-                 allow_incomplete: bool = False, progress: bool = False) -> dict[str, Any]:
+                 allow_incomplete: bool = False, progress: bool = False, metrics: Sequence[str] = ()) -> dict[str, Any]:
     """Score one run directory and write its metrics.json; returns the metrics. A run with tracks
     (``mmcsplat track``) also gets the tracking metrics of :mod:`mmcsplat.analysis.trajectory_error` (against
     ``ground_truth``, or the one found beside the session's source) and the drift report of
@@ -107,16 +111,33 @@ def evaluate_run(run: Path, registry: Registry | None = None, backend: str | Non
     mask on the hull of the other cameras' masks (:mod:`mmcsplat.analysis.visual_hull`; low for a camera
     with wrong extrinsics). An unfinished run is refused, or with ``allow_incomplete`` scored with
     ``incomplete`` true; the run's lock is held while it is scored and written, so a fit, track or second
-    evaluate at work on it is refused. ``progress`` shows a bar over the tracked frames."""
+    evaluate at work on it is refused. ``progress`` shows a bar over the tracked frames.
+
+    Metric plugins beyond the built-in PSNR and SSIM, chosen by name — the run's configuration's ``[[metric]]``
+    tables, then ``metrics`` — score every camera on the whole image (``NAME``) and inside its scoring mask
+    (``masked_NAME``), averaged as ``val_NAME``, ``train_NAME``, ``val_masked_NAME`` and ``train_masked_NAME``."""
     registry = registry or default_registry()
     fitted = FittedRun.load(run)
     unfinished = require_finished(run, fitted.info, allow_incomplete)
+    chosen = chosen_metrics(fitted, registry, metrics)
     with run_lock(run):  # no fit, track or second evaluate writes the run while it is scored
-        return _score_run(fitted, registry, backend, ground_truth, unfinished, progress)
+        return _score_run(fitted, registry, backend, ground_truth, unfinished, progress, chosen)
+
+
+#: The metrics every evaluation computes, under these names.
+BUILT_IN_METRICS = ("psnr", "ssim")
+
+
+def chosen_metrics(fitted: FittedRun, registry: Registry, names: Sequence[str]) -> dict[str, Metric]:
+    """The metric plugins of the run's configuration (``[[metric]]`` tables, with parameters) and of ``names``
+    (at their defaults), by name, built; the built-in ones left out (every evaluation has them)."""
+    choices = Config(f"run {fitted.path}", fitted.info.config_values).plugins("metric")
+    choices += [PluginChoice("metric", name, {}) for name in names if name not in {choice.name for choice in choices}]
+    return {choice.name: registry.create("metric", choice.name, **choice.params) for choice in choices if choice.name not in BUILT_IN_METRICS}
 
 
 def _score_run(fitted: FittedRun, registry: Registry, backend: str | None, ground_truth: Path | None, unfinished: list[str],
-               progress: bool) -> dict[str, Any]:
+               progress: bool, chosen: dict[str, Metric]) -> dict[str, Any]:
     """:func:`evaluate_run` of the loaded run ``fitted`` (whose lock the caller holds), its ``unfinished`` work labelled."""
     run, info, params = fitted.path, fitted.info, fitted.params
     session = fitted.session
@@ -145,6 +166,11 @@ def _score_run(fitted: FittedRun, registry: Registry, backend: str | None, groun
         camera_scores = {"psnr": psnr(prediction, target), "ssim": ssim(prediction, target)}
         scoring = (heldout_mask(data.mask, session.camera(name), frame, train_views, center, info.scene_scale) if split == "val"
                    else ScoringMask(data.mask, SESSION_MASK if data.mask is not None else None))
+        for metric_name, metric in chosen.items():
+            with plugin_hook("metric", metric_name, "__call__"):
+                camera_scores[metric_name] = float(metric(prediction, target))
+                if scoring.mask is not None and scoring.mask.any():
+                    camera_scores[f"masked_{metric_name}"] = float(metric(prediction, target, scoring.mask))
         if scoring.mask is not None and scoring.mask.any():
             camera_scores["masked_psnr"] = psnr(prediction, target, scoring.mask)
             interior = eroded(scoring.mask, 1)
@@ -177,6 +203,9 @@ def _score_run(fitted: FittedRun, registry: Registry, backend: str | None, groun
         "unfinished": unfinished,
         "heldout_cameras": list(info.heldout_cameras),
         "per_camera": per_camera,
+        "metrics": list(chosen),
+        **{f"{split}_{key}": _mean(scores[split].get(key, [])) for key in (*chosen, *(f"masked_{name}" for name in chosen))
+           for split in ("val", "train")},
     }
     if (Path(run) / TRACKS_DIR).exists():
         fitted.require_own_tracks(TrackReader(run))
@@ -222,17 +251,18 @@ def missing_folds(run: Path) -> list[str]:
 
 
 def evaluate(run: Path, registry: Registry | None = None, backend: str | None = None, ground_truth: Path | None = None,
-             allow_incomplete: bool = False, progress: bool = False) -> dict[str, Any]:
+             allow_incomplete: bool = False, progress: bool = False, metrics: Sequence[str] = ()) -> dict[str, Any]:
     """Evaluate a run or every fold of a leave-one-camera-out run; folds are averaged into RUN/metrics.json.
     A planned fold without a fit is refused like an unfinished fold, or with ``allow_incomplete`` left out
-    and named in ``unfinished``. ``progress`` shows a bar over each run's tracked frames."""
+    and named in ``unfinished``. ``progress`` shows a bar over each run's tracked frames; ``metrics`` as
+    :func:`evaluate_run` takes them."""
     runs = fold_runs(run)
     if runs == [Path(run)]:
-        return evaluate_run(Path(run), registry, backend, ground_truth, allow_incomplete, progress)
+        return evaluate_run(Path(run), registry, backend, ground_truth, allow_incomplete, progress, metrics)
     missing = missing_folds(run)
     if missing and not allow_incomplete:
         raise UnfinishedRunError(f"run {run} is unfinished: {'; '.join(missing)} (or pass {ALLOW_INCOMPLETE} to label the outputs incomplete)")
-    folds = {path.name: evaluate_run(path, registry, backend, ground_truth, allow_incomplete, progress) for path in runs}
+    folds = {path.name: evaluate_run(path, registry, backend, ground_truth, allow_incomplete, progress, metrics) for path in runs}
     summary: dict[str, Any] = {}
     for key in ("val_masked_psnr", "val_psnr", "val_ssim", "train_masked_psnr", "val_interior_masked_psnr", "train_interior_masked_psnr", "train_psnr", "num_gaussians", "floater_share", "iterations", "wall_s"):
         values = [m[key] for m in folds.values() if m[key] is not None]
