@@ -204,3 +204,37 @@ def test_a_missing_module_names_the_extra_that_installs_it():
     assert needs_modules("json")() is None
     assert needs_modules("mmcsplat_no_such_module", extra="jax")() == "needs mmcsplat_no_such_module (not installed): pip install 'mmcsplat[jax]'"
     assert needs_modules("mmcsplat_no_such_module")() == "needs mmcsplat_no_such_module (not installed)"
+
+
+def test_an_unexpected_error_inside_a_plugin_names_the_plugin(tmp_path):
+    """A third party's initializer that raises a plain Python error (here torch's, deep inside its call): the
+    command's one line names the plugin and its distribution, not only "a defect of mmcsplat or of a plugin"."""
+    from fitting_scene import write_session
+
+    session = write_session(tmp_path / "s.zarr")
+    config = tmp_path / "grid.toml"
+    config.write_text('[fit]\niterations = 5\n[renderer]\nname = "torch-reference"\n'
+                      '[[initializer]]\nname = "example-grid"\npoints_per_axis = -1\n')
+    result = run_cli("fit", str(session), "--config", str(config), "--out", str(tmp_path / "run"), "--no-progress",
+                     plugin_dirs=(THIRDPARTY / "good",))
+    assert result.returncode == 1, result.stderr
+    assert ("unexpected RuntimeError in initializer plugin 'example-grid' (entry point 'example' of distribution "
+            "'mmcsplat-example-plugin'): ") in result.stderr
+    assert "(a defect of the plugin, or an input it does not handle;" in result.stderr
+
+
+def test_the_plugin_in_a_traceback_is_its_innermost_plugin_frame():
+    from mmcsplat.training.plugin_hooks import plugin_in_traceback
+
+    module = _module_registering(mmcsplat_metrics=[Registration("exploding", f"{__name__}:Exploding")])
+    registry = Registry(plugin_modules=[("extra", "my-dist", module)])
+    try:
+        Exploding()()
+    except ZeroDivisionError as error:
+        assert plugin_in_traceback(error, registry.entries) == "metric plugin 'exploding' (entry point 'extra' of distribution 'my-dist')"
+        assert plugin_in_traceback(error, Registry(plugin_modules=[]).entries) is None  # no frame of a plugin's
+
+
+class Exploding:
+    def __call__(self):
+        return [1][0] / 0

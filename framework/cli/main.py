@@ -168,8 +168,11 @@ def main(argv: list[str] | None = None) -> int:
             return _interrupted(interrupt)
         if os.environ.get(TRACEBACK_VARIABLE):
             raise
-        print(f"mmcsplat {args.command}: unexpected {type(error).__name__}: {error} "
-              f"(a defect of mmcsplat or of a plugin; set {TRACEBACK_VARIABLE}=1 for the traceback)", file=sys.stderr)
+        culprit = _plugin_at_fault(error)
+        where = f" in {culprit}" if culprit else ""
+        blame = "a defect of the plugin, or an input it does not handle" if culprit else "a defect of mmcsplat or of a plugin"
+        print(f"mmcsplat {args.command}: unexpected {type(error).__name__}{where}: {error} ({blame}; set {TRACEBACK_VARIABLE}=1 for "
+              "the traceback)", file=sys.stderr)
         return 1
     finally:
         warnings.formatwarning = previous_format
@@ -178,6 +181,17 @@ def main(argv: list[str] | None = None) -> int:
         for handler in handlers:
             logging.getLogger("mmcsplat").removeHandler(handler)
             handler.close()
+
+
+def _plugin_at_fault(error: BaseException) -> str | None:
+    """The registered plugin whose code raised ``error``, named (:func:`~mmcsplat.training.plugin_hooks.plugin_in_traceback`)."""
+    from mmcsplat.configuration.registry import default_registry
+    from mmcsplat.training.plugin_hooks import plugin_in_traceback
+
+    try:
+        return plugin_in_traceback(error, default_registry().entries)
+    except Exception:  # naming the culprit must never hide the error itself
+        return None
 
 
 def _reader_gone(stream: object) -> bool:
