@@ -530,3 +530,21 @@ def test_replaced_tracks_take_what_they_made_with_them(fitted, tmp_path, capsys)
     assert json.loads((run / "track.json").read_text())["removed"] == ["metrics.json", "landmarks.csv", "landmarks.json", "movement.json",
                                                                       "movement.csv", "renders"]
     assert main(["export", str(run), f"--trc={tmp_path / 'j.trc'}"]) == 2  # no landmarks to export until carried again
+
+
+def test_backend_says_the_configurations_renderer_parameters_it_drops_and_records_what_rendered(tmp_path, capsys):
+    """`fit --backend B` builds B at its defaults: the configuration's [renderer] parameters, another renderer's,
+    were dropped without a word and run.json recorded that table beside `renderer: B`. Now they are said, run.json
+    records B's table, and a backend that is the table's own renderer keeps its parameters."""
+    session = write_session(tmp_path / "s.zarr")
+    config = write_config(tmp_path / "fit.toml", iterations=2, checkpoint_every=1)
+    config.write_text(config.read_text().replace('name = "torch-reference"\n', 'name = "torch-reference"\ntiles = 3\n', 1))
+    run = tmp_path / "run"
+    with pytest.warns(UserWarning, match=r"--backend torch-cpu: the configuration's \[renderer\] parameters \(tiles\) are 'torch-reference''s "
+                                          "and are not used"):
+        assert main(["fit", str(session), "--config", str(config), "--out", str(run), "--no-progress", "--backend", "torch-cpu"]) == 0
+    record = json.loads((run / "run.json").read_text())
+    assert record["renderer"] == "torch-cpu" and record["config_values"]["renderer"] == {"name": "torch-cpu"}
+    assert main(["fit", str(session), "--config", str(config), "--out", str(tmp_path / "own"), "--no-progress", "--backend",
+                 "torch-reference"]) == 2
+    assert "rejected its parameters ['tiles']" in capsys.readouterr().err  # kept: the backend is the table's own renderer

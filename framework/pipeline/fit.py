@@ -91,8 +91,23 @@ def select_cameras(session: SessionReader, holdout: Sequence[str] | None) -> tup
 
 
 def renderer_choice(config: Config, backend: str | None = None) -> PluginChoice:
-    """The renderer a fit of ``config`` uses: ``backend`` at its defaults when named, else the configuration's ``[renderer]``."""
-    return PluginChoice("renderer", backend) if backend else config.plugin("renderer")
+    """The renderer a fit of ``config`` uses: the configuration's ``[renderer]``, or ``backend`` when named — with
+    that table's parameters when it names the same renderer, else at its defaults (the table's parameters are
+    another renderer's: said, not used)."""
+    if not backend:
+        return config.plugin("renderer")
+    configured = config.plugins("renderer")
+    if configured and configured[0].name == backend:
+        return configured[0]
+    if configured and configured[0].params:
+        warnings.warn(f"--backend {backend}: the configuration's [renderer] parameters ({', '.join(sorted(configured[0].params))}) are "
+                      f"{configured[0].name!r}'s and are not used", stacklevel=2)
+    return PluginChoice("renderer", backend)
+
+
+def with_renderer(config: Config, renderer: PluginChoice) -> Config:
+    """``config`` with ``renderer`` as its ``[renderer]`` table: what a run records is what rendered it."""
+    return Config(config.source, {**config.values, "renderer": {"name": renderer.name, **renderer.params}})
 
 
 class FirstFrameFit:
@@ -126,6 +141,7 @@ class FirstFrameFit:
         self.progress = progress
         self.resumed_from: int | None = None
         renderer = renderer_choice(config, backend)
+        self.renderer_choice = renderer
         self.renderer_name = renderer.name
         plugin = CheckedRenderer(renderer.build(self.registry), self.renderer_name)
         self.renderer: Renderer = supersampled(plugin, self.settings.supersample)
@@ -313,7 +329,7 @@ class FirstFrameFit:
             warnings=self.warnings,
             session=self.session.url if "://" in self.session.url else str(Path(self.session.url).resolve()),
             config=self.config.source,
-            config_values=self.config.values,
+            config_values=with_renderer(self.config, self.renderer_choice).values,  # the renderer --backend chose, not the table's
             renderer=self.renderer_name,
             frame=self.settings.frame,
             train_cameras=[c.name for c in self.train_cameras],
