@@ -143,3 +143,20 @@ def test_only_errors_of_the_masks_carry_advice_on_motion_masks(made, tmp_path, m
             assert main(["run", str(capture), "--out", str(tmp_path / "out"), *ARGUMENTS]) == 2
         said = capsys.readouterr().err
         assert str(error) in said and ("the masks come from the subject's motion" in said) == advised
+
+
+def test_run_tracks_with_the_dynamics_method_its_configuration_names(made, tmp_path, capsys):
+    """A configuration naming another dynamics method (a third party's, or deformation) is tracked with it, as
+    configured: before, run forced `iterative` over the table, which then refused the table's parameters."""
+    capture, _, _ = made
+    out = tmp_path / "deformed"
+    settings = ["--set", "fit.iterations=20", "--set", "dynamics.name=deformation", "--set", "dynamics.iterations=8",
+                "--set", "dynamics.width=16", "--no-progress"]
+    with redirect_stdout(StringIO()) as printed:
+        assert main(["run", str(capture), "--out", str(out), *settings]) == 0
+    assert "run: tracking with 'deformation', as the configuration's [dynamics] table sets it" in printed.getvalue()
+    assert "[run] track (deformation) done" in printed.getvalue()
+    track = json.loads((out / "run" / "track.json").read_text())
+    assert track["method"] == "deformation" and track["params"]["iterations"] == 8
+    assert main(["run", str(capture), "--out", str(tmp_path / "guided"), *settings, "--track-keypoints", "1"]) == 2
+    assert "--track-keypoints guides the iterative tracker; visual-hull-plate tracks with 'deformation'" in capsys.readouterr().err

@@ -23,7 +23,8 @@ flow → flow-guided track → landmarks → evaluate → renders → report.
   (:data:`TRACK_LAMBDA_PARTS`). Keypoint guidance (``--track-keypoints WEIGHT``) pulls the tracks towards the
   training cameras' keypoints; it is off by default, since infants are where detectors fail. The fit's
   configuration carries these settings as its ``[dynamics]`` table, so RUN/run.json holds them and
-  ``mmcsplat track DIR/run`` re-tracks as ``run`` did.
+  ``mmcsplat track DIR/run`` re-tracks as ``run`` did. A configuration whose ``[dynamics]`` table names another
+  method (``deformation``, a third party's) is tracked with it as configured, none of these settings applied.
 - Landmarks: a TRC of joints (``--joints FILE``, default the single ``CAPTURE/*.trc``, else ``CAPTURE/pose-3d/*.trc``), else a synthetic
   capture's true joints (its ``ground_truth.zarr``), else the 2D keypoints' own triangulation (what a capture
   with detections and no 3D joints has), bound at the fitted frame, scored against their later frames and
@@ -68,6 +69,8 @@ from mmcsplat.storage.run import LANDMARKS_CSV, LANDMARKS_INFO, METRICS_FILE, MO
 from mmcsplat.training.frame_steps import AUTO_STEPS, FEWEST_STEPS, STEPS_PER_SECOND, steps_per_frame
 
 SETTINGS_FILE = "capture.json"
+#: The dynamics method run tracks with unless its configuration names another, and whose settings run sets.
+ITERATIVE = "iterative"
 #: Which masks the run used (see :func:`mmcsplat.pipeline.capture_session.mask_choice`), written with the session.
 MASKS_FILE = "masks.json"
 DEFAULT_CONFIG = "visual-hull-plate"
@@ -211,12 +214,21 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
             "against it and the keypoints")
     if joints is not None and joints["name"] == "trc":
         settings = frames_with_joints(settings, Path(joints["path"]), log)
+    # A configuration may name another dynamics method (a third party's): run tracks with it as configured.
+    method = dynamics_choice(load_config(settings.config, settings.overrides)).name
+    iterative = method == ITERATIVE
+    if not iterative:
+        if settings.track_keypoints:
+            raise InputError(f"--track-keypoints guides the {ITERATIVE} tracker; {settings.config} tracks with {method!r}: leave it at 0, "
+                             f"or track with {ITERATIVE}")
+        log(f"run: tracking with {method!r}, as the configuration's [dynamics] table sets it (run's steps a frame, flow start and "
+            f"body parts are the {ITERATIVE} tracker's settings: not applied)")
     tracking = [f"dynamics.means_lr={settings.track_means_lr}", f"dynamics.flow_gain={settings.track_flow_gain}"]
     if settings.track_keypoints:  # a negative weight is refused by the dynamics' own check below
         tracking += guidance_overrides(settings.track_keypoints, source, capture)
 
     def tracked_with(iterations: int) -> list[str]:
-        return ["dynamics.name=iterative", f"dynamics.iterations={iterations}", *tracking]
+        return [f"dynamics.name={ITERATIVE}", f"dynamics.iterations={iterations}", *tracking] if iterative else []
     start, stop, step = settings.frames
     count = None if stop is None else len(range(start or 0, stop, step or 1))  # without STOP it depends on the capture's length
     if count is not None and count < 2:
@@ -238,7 +250,7 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     except ValueError as error:
         raise InputError(f"track_iterations: {error}") from error
     fit_config = load_config(settings.config, [*settings.overrides, *tracked_with(provisional)])
-    dynamics_choice(fit_config, "iterative").build()
+    dynamics_choice(fit_config, method).build()
     renderer_choice(fit_config, settings.backend).build()  # one that cannot run here (no GPU, no gsplat): named before minutes of ingest
     if settings.track_keypoints:
         log(f"run: keypoint guidance from the training cameras' {source['name']} keypoints, weight {settings.track_keypoints:g}: their 2D "
@@ -248,7 +260,7 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     @functools.cache
     def session_steps() -> list[str]:
         """The tracking overrides with the iterations this session's frame rate gives (said once)."""
-        if settings.track_iterations != AUTO_STEPS:
+        if settings.track_iterations != AUTO_STEPS or not iterative:
             return tracked_with(provisional)
         fps = SessionReader(session).fps
         iterations = steps_per_frame(AUTO_STEPS, fps)
@@ -260,7 +272,7 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     def session_tracking() -> list[str]:
         """The tracking overrides for this session: its steps a frame, and the body's parts where the joints
         name a torso at the fitted frame (said once when they do not)."""
-        if joints is None or settings.track_lambda_parts == 0:
+        if joints is None or settings.track_lambda_parts == 0 or not iterative:
             return session_steps()
         frame = FitSettings.from_config(fit_config).frame
         missing = missing_torso(default_registry().create("landmarks", joints["name"], **joint_params), SessionReader(session), frame)
@@ -318,8 +330,8 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
         Step("ingest + masks + plates", session.exists, lambda: made_in_place(session, prepare)),
         Step("first-frame fit", lambda: fit_complete(run), fit),
         Step("optical flow", lambda: flow_complete(session), lambda: compute_flow(session, progress=progress)),
-        Step("track (iterative)", lambda: fresh([run / TRACKS_DIR, run / TRACK_INFO], [run / RUN_INFO]),
-             lambda: track_run(run, dynamics="iterative", overrides=session_tracking(), progress=progress,
+        Step(f"track ({method})", lambda: fresh([run / TRACKS_DIR, run / TRACK_INFO], [run / RUN_INFO]),
+             lambda: track_run(run, dynamics=method, overrides=session_tracking(), progress=progress,
                                overwrite=True)),
     ]
     if joints is not None:
