@@ -128,3 +128,14 @@ def test_every_step_keeps_the_thread_count_to_the_free_cores(scene, model, monke
     monkeypatch.setattr(threads, "_policy", Policy())
     loop_of(model).run(range(0, 4), sampler(scene, model), progress=False)
     assert asked == [0, 1, 2, 3]
+
+
+def test_gaussians_without_a_segmentation_colour_start_undecided():
+    """An initializer's Gaussians without feature columns (a third party's grid) start at segmentation colour
+    0.5, as the built-in initializers start theirs; they started at 0, as background."""
+    from mmcsplat.plugin_api.render_contract import Gaussians
+
+    bare = subject(count=5)
+    bare = Gaussians(bare.means, bare.quats, bare.log_scales, bare.opacity_logits, bare.colors, bare.means.new_zeros((5, 0)))
+    model = GaussianModel(bare, ("a",), LearningRates(), 1.0)
+    assert torch.allclose(torch.sigmoid(model.params["seg_logits"]), torch.full((5, 1), 0.5, dtype=model.params["seg_logits"].dtype))

@@ -34,7 +34,8 @@ class GaussianModel:
     """
 
     def __init__(self, gaussians: Gaussians, camera_names: tuple[str, ...], lrs: LearningRates, scene_scale: float) -> None:
-        seg = gaussians.features[:, :1] if gaussians.features.shape[1] else torch.zeros_like(gaussians.means[:, :1])
+        # features[:, 0] is the segmentation colour to start from; without one, 0.5: undecided, as initializers start it.
+        seg = gaussians.features[:, :1] if gaussians.features.shape[1] else torch.full_like(gaussians.means[:, :1], 0.5)
         self.params: dict[str, torch.Tensor] = {
             "means": gaussians.means,
             "quats": gaussians.quats,
