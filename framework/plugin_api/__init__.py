@@ -27,6 +27,8 @@ _LAZY = {
     "DuplicatePluginError": "errors",
     "BrokenPluginError": "errors",
     "PluginUnavailableError": "errors",
+    "InputError": "errors",
+    "MissingFileError": "errors",
     "Reader": "interfaces",
     "Recording": "interfaces",
     "RecordedFrame": "interfaces",
