@@ -266,3 +266,14 @@ def test_a_stop_while_the_landmarks_are_written_leaves_all_four_new(scene, tmp_p
     with pytest.raises(KeyboardInterrupt):
         landmarks_step.track_landmarks(run, "csv", {"path": str(path)})
     assert all((run / name).read_text() != "old" for name in names)
+
+
+def test_a_run_without_an_opaque_subject_gaussian_says_so(scene, capsys, monkeypatch):
+    """A fit that failed leaves no Gaussian opaque enough to carry a landmark: said as such, not as landmarks
+    "not within 10 cm (none is known there)", which sent the user to the file's units."""
+    import mmcsplat.scene.landmark_anchors as anchors
+
+    run, path, _ = scene
+    monkeypatch.setattr(anchors, "SUBJECT_OPACITY", 1.1)  # every Gaussian too faint
+    assert main(["landmarks", str(run), "--source", "csv", "--set", f"path={path}"]) == 2
+    assert "no subject Gaussian can carry a landmark: none at frame 0 is at least 0.1 opaque" in capsys.readouterr().err

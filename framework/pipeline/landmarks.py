@@ -35,7 +35,7 @@ from mmcsplat.pipeline.run_frames import RunStates
 from mmcsplat.plugin_api.errors import InputError
 from mmcsplat.plugin_api.interfaces import KeypointObservations, Landmarks, LandmarkSource
 from mmcsplat.scene.camera import Camera
-from mmcsplat.scene.landmark_anchors import ANCHORS, BIND_FRAMES, MAX_DISTANCE, bind_over_frames, carry, subject_gaussians
+from mmcsplat.scene.landmark_anchors import ANCHORS, BIND_FRAMES, MAX_DISTANCE, SUBJECT_OPACITY, bind_over_frames, carry, subject_gaussians
 from mmcsplat.storage.atomic import signals_deferred, write_json_atomic, write_text_atomic
 from mmcsplat.storage.completeness import require_finished
 from mmcsplat.storage.landmark_formats import CSV_INCOMPLETE_COLUMN, write_landmark_csv
@@ -117,6 +117,9 @@ def track_landmarks(run: str | Path, source: str, params: dict[str, Any] | None 
         raise InputError(f"landmarks: bind_frames must be ≥ 1, got {bind_frames}")
     bind_frames = max(1, min(bind_frames, len(frames) - 1))
     candidates = subject_gaussians(states.params(0), states.foreground())
+    if not len(candidates):
+        raise InputError(f"{run}: no subject Gaussian can carry a landmark: none at frame {states.first_frame} is at least "
+                         f"{SUBJECT_OPACITY:g} opaque among the subject's (a fit that failed or barely ran: check its PSNR and masks)")
     binding = bind_over_frames(reference.names, reference.positions[:bind_frames], [_state(states.params(k)) for k in range(bind_frames)],
                                candidates, anchors, max_distance)
     if not binding.bound.any():
