@@ -94,9 +94,14 @@ def test_ground_truth_location_and_frame_mapping(tmp_path):
     assert ground_truth_beside(SimpleNamespace(source=str(tmp_path))) is None
     assert ground_truth_beside(SimpleNamespace(source="")) is None
     # ingest --frames 2:10:2 made session frame k capture frame 2 + 2k.
+    def ingested(provenance: dict) -> SimpleNamespace:
+        session = SimpleNamespace(provenance=provenance)
+        session.capture_start_step = SessionReader.capture_start_step.fget(session)
+        return session
+
     capture_frames = SessionReader.capture_frames
-    assert capture_frames(SimpleNamespace(provenance={"frames": [2, 10, 2]}), range(1, 4)).tolist() == [4, 6, 8]
-    assert capture_frames(SimpleNamespace(provenance={}), range(3)).tolist() == [0, 1, 2]
+    assert capture_frames(ingested({"frames": [2, 10, 2]}), range(1, 4)).tolist() == [4, 6, 8]
+    assert capture_frames(ingested({}), range(3)).tolist() == [0, 1, 2]
 
 
 def test_read_surface_points(tmp_path):

@@ -134,8 +134,7 @@ def run_summary(states: RunStates) -> str:
     map to the capture's."""
     info = states.info
     tracked = f"{states.num_frames} frames from session frame {states.first_frame}" if states.tracks is not None else "no (first-frame fit only)"
-    start, following = (int(frame) for frame in states.session.capture_frames([0, 1]))
-    step = following - start
+    start, step = states.session.capture_start_step
     numbering = ("the capture's own" if (start, step) == (0, 1) else
                  f"session frame k is the capture's frame {start} + {step}·k" if step > 1 else f"session frame k is the capture's frame {start} + k")
     rows = [("session", info.session), ("configuration", info.config), ("renderer", info.renderer),

@@ -177,8 +177,8 @@ def track_landmarks(run: str | Path, source: str, params: dict[str, Any] | None 
 
 def _capture_range(session: SessionReader, frames: np.ndarray) -> list[int]:
     """[start, stop, step] of the capture's frame numbers of session ``frames`` (a range): landmarks.csv's rows."""
-    first, following = (int(frame) for frame in session.capture_frames([frames[0], frames[0] + 1]))
-    return [first, int(session.capture_frames(frames[-1:])[0]) + 1, following - first]
+    first, last = (int(frame) for frame in session.capture_frames([frames[0], frames[-1]]))
+    return [first, last + 1, session.capture_start_step[1]]
 
 
 def _state(params: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:

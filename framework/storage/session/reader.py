@@ -124,25 +124,32 @@ class SessionReader(SessionBase):
     @property
     def capture_fps(self) -> float:
         """The source capture's frame rate: the session's times the ``--frames`` step ingest took."""
-        return self.fps * (self.provenance.get("frames", [0, None, 1])[2] or 1)
+        return self.fps * self.capture_start_step[1]
+
+    @property
+    def capture_start_step(self) -> tuple[int, int]:
+        """(the capture's frame number of session frame 0, capture frames per session frame): what ingest's
+        ``--frames START:STOP:STEP`` took."""
+        start, _, step = self.provenance.get("frames", [0, None, 1])
+        return int(start or 0), int(step or 1)
 
     def capture_frames(self, frames: Sequence[int] | np.ndarray) -> np.ndarray:
         """The frame numbers in the source capture of session ``frames`` (ingest may have taken
         ``--frames START:STOP:STEP``)."""
-        start, _, step = self.provenance.get("frames", [0, None, 1])
-        return (start or 0) + np.asarray(frames, dtype=np.int64) * (step or 1)
+        start, step = self.capture_start_step
+        return start + np.asarray(frames, dtype=np.int64) * step
 
     def session_frames(self, capture: Sequence[int] | np.ndarray, what: str) -> np.ndarray:
         """The session frames of the capture frame numbers ``capture`` (the inverse of :meth:`capture_frames`);
         raises :class:`InputError` naming ``what`` (the file they came from) for one the session did not take."""
-        start, _, step = self.provenance.get("frames", [0, None, 1])
-        offset = np.asarray(capture, dtype=np.int64) - (start or 0)
-        frames = offset // (step or 1)
-        outside = (offset % (step or 1) != 0) | (frames < 0) | (frames >= self.num_frames)
+        start, step = self.capture_start_step
+        offset = np.asarray(capture, dtype=np.int64) - start
+        frames = offset // step
+        outside = (offset % step != 0) | (frames < 0) | (frames >= self.num_frames)
         if outside.any():
             taken = self.capture_frames([0, self.num_frames - 1])
             raise InputError(f"{what}: capture frame {int(np.asarray(capture)[outside][0])} is not one of session {self.url}'s "
-                             f"(it took frames {taken[0]}–{taken[1]}" + (f" every {step}" if (step or 1) > 1 else "") + ")")
+                             f"(it took frames {taken[0]}–{taken[1]}" + (f" every {step}" if step > 1 else "") + ")")
         return frames
 
     def source_frames(self, camera: str, frames: Sequence[int] | np.ndarray) -> np.ndarray:
