@@ -69,8 +69,6 @@ from mmcsplat.storage.run import LANDMARKS_CSV, LANDMARKS_INFO, METRICS_FILE, MO
 from mmcsplat.training.frame_steps import AUTO_STEPS, FEWEST_STEPS, STEPS_PER_SECOND, steps_per_frame
 
 SETTINGS_FILE = "capture.json"
-#: The dynamics method run tracks with unless its configuration names another, and whose settings run sets.
-ITERATIVE = "iterative"
 #: Which masks the run used (see :func:`mmcsplat.pipeline.capture_session.mask_choice`), written with the session.
 MASKS_FILE = "masks.json"
 DEFAULT_CONFIG = "visual-hull-plate"
@@ -181,7 +179,7 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
     from mmcsplat.pipeline.landmarks import track_landmarks
     from mmcsplat.pipeline.run_frames import RunStates
     from mmcsplat.pipeline.segment import BuiltSegmenter
-    from mmcsplat.pipeline.track import dynamics_choice, track_run
+    from mmcsplat.pipeline.track import DEFAULT_DYNAMICS, dynamics_choice, track_run
     from mmcsplat.storage.session import SessionReader
     from mmcsplat.training.settings import FitSettings
 
@@ -216,19 +214,19 @@ def run_capture(capture: str | Path, out: str | Path, settings: CaptureSettings 
         settings = frames_with_joints(settings, Path(joints["path"]), log)
     # A configuration may name another dynamics method (a third party's): run tracks with it as configured.
     method = dynamics_choice(load_config(settings.config, settings.overrides)).name
-    iterative = method == ITERATIVE
+    iterative = method == DEFAULT_DYNAMICS  # the tracker run's own settings are for
     if not iterative:
         if settings.track_keypoints:
-            raise InputError(f"--track-keypoints guides the {ITERATIVE} tracker; {settings.config} tracks with {method!r}: leave it at 0, "
-                             f"or track with {ITERATIVE}")
+            raise InputError(f"--track-keypoints guides the {DEFAULT_DYNAMICS} tracker; {settings.config} tracks with {method!r}: leave it at 0, "
+                             f"or track with {DEFAULT_DYNAMICS}")
         log(f"run: tracking with {method!r}, as the configuration's [dynamics] table sets it (run's steps a frame, flow start and "
-            f"body parts are the {ITERATIVE} tracker's settings: not applied)")
+            f"body parts are the {DEFAULT_DYNAMICS} tracker's settings: not applied)")
     tracking = [f"dynamics.means_lr={settings.track_means_lr}", f"dynamics.flow_gain={settings.track_flow_gain}"]
     if settings.track_keypoints:  # a negative weight is refused by the dynamics' own check below
         tracking += guidance_overrides(settings.track_keypoints, source, capture)
 
     def tracked_with(iterations: int) -> list[str]:
-        return [f"dynamics.name={ITERATIVE}", f"dynamics.iterations={iterations}", *tracking] if iterative else []
+        return [f"dynamics.name={DEFAULT_DYNAMICS}", f"dynamics.iterations={iterations}", *tracking] if iterative else []
     start, stop, step = settings.frames
     count = None if stop is None else len(range(start or 0, stop, step or 1))  # without STOP it depends on the capture's length
     if count is not None and count < 2:

@@ -166,14 +166,15 @@ def _score_run(fitted: FittedRun, registry: Registry, backend: str | None, groun
         camera_scores = {"psnr": psnr(prediction, target), "ssim": ssim(prediction, target)}
         scoring = (heldout_mask(data.mask, session.camera(name), frame, train_views, center, info.scene_scale) if split == "val"
                    else ScoringMask(data.mask, SESSION_MASK if data.mask is not None else None))
+        masked = scoring.mask if scoring.mask is not None and scoring.mask.any() else None
         for metric_name, metric in chosen.items():
             with plugin_hook("metric", metric_name, "__call__"):
                 camera_scores[metric_name] = float(metric(prediction, target))
-                if scoring.mask is not None and scoring.mask.any():
-                    camera_scores[f"masked_{metric_name}"] = float(metric(prediction, target, scoring.mask))
-        if scoring.mask is not None and scoring.mask.any():
-            camera_scores["masked_psnr"] = psnr(prediction, target, scoring.mask)
-            interior = eroded(scoring.mask, 1)
+                if masked is not None:
+                    camera_scores[f"masked_{metric_name}"] = float(metric(prediction, target, masked))
+        if masked is not None:
+            camera_scores["masked_psnr"] = psnr(prediction, target, masked)
+            interior = eroded(masked, 1)
             if interior.any():
                 camera_scores["interior_masked_psnr"] = psnr(prediction, target, interior)
         elif split == "val":

@@ -142,8 +142,7 @@ class FirstFrameFit:
         self.resumed_from: int | None = None
         renderer = renderer_choice(config, backend)
         self.renderer_choice = renderer
-        self.renderer_name = renderer.name
-        plugin = CheckedRenderer(renderer.build(self.registry), self.renderer_name)
+        plugin = CheckedRenderer(renderer.build(self.registry), renderer.name)
         self.renderer: Renderer = supersampled(plugin, self.settings.supersample)
         self.initializers: list[Initializer] = [choice.build(self.registry) for choice in config.plugins("initializer")]
         densifiers = config.plugins("densifier")
@@ -225,7 +224,7 @@ class FirstFrameFit:
         self.out.mkdir(parents=True, exist_ok=True)
         with run_lock(self.out), run_log(self.out) as log:
             log.info("fit of session %s with %s into %s: %d iterations, renderer %s, training cameras %s, held out %s",
-                     self.session.url, self.config.source, self.out, self.settings.iterations, self.renderer_name,
+                     self.session.url, self.config.source, self.out, self.settings.iterations, self.renderer_choice.name,
                      ", ".join(c.name for c in self.train_cameras), ", ".join(c.name for c in self.heldout_cameras) or "none")
             if len(self.image_frames) > 1:
                 log.info("a moving camera: the first fit trains on %d images of frames %d–%d", len(self.images), self.image_frames[0],
@@ -330,7 +329,7 @@ class FirstFrameFit:
             session=self.session.url if "://" in self.session.url else str(Path(self.session.url).resolve()),
             config=self.config.source,
             config_values=with_renderer(self.config, self.renderer_choice).values,  # the renderer --backend chose, not the table's
-            renderer=self.renderer_name,
+            renderer=self.renderer_choice.name,
             frame=self.settings.frame,
             train_cameras=[c.name for c in self.train_cameras],
             heldout_cameras=[c.name for c in self.heldout_cameras],
