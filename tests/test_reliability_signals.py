@@ -129,3 +129,24 @@ def test_a_partial_store_is_removed_after_the_writes_still_in_flight(tmp_path):
     remove_local_tree(partial)
     in_flight.result(timeout=5)
     assert not partial.exists()
+
+
+def test_a_commands_exit_waits_for_zarrs_work_in_flight(tmp_path):
+    """A command that ends while zarr still reads or writes (a viewer stopped by Ctrl-C mid-read returns normally)
+    lets that work finish before it exits: else the interpreter's shutdown printed a traceback and "Task was
+    destroyed but it is pending!"."""
+    import asyncio
+
+    from zarr.core.sync import _get_loop
+
+    from mmcsplat.cli.main import main
+
+    done = []
+
+    async def last_read():  # what a stopped command's read still does
+        await asyncio.sleep(0.3)
+        done.append(True)
+
+    in_flight = asyncio.run_coroutine_threadsafe(last_read(), _get_loop())
+    assert main(["plugins"]) == 0
+    assert done == [True] and in_flight.done()

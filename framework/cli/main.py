@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import logging
 import os
@@ -175,12 +176,23 @@ def main(argv: list[str] | None = None) -> int:
               "the traceback)", file=sys.stderr)
         return 1
     finally:
+        _settle_zarr_io()
         warnings.formatwarning = previous_format
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
         for handler in handlers:
             logging.getLogger("mmcsplat").removeHandler(handler)
             handler.close()
+
+
+def _settle_zarr_io() -> None:
+    """Let what zarr still reads or writes finish before the command exits (an interrupt stops the command's
+    wait, not that work; a viewer stopped by Ctrl-C returns normally): else the exit prints a traceback and
+    "Task was destroyed but it is pending!". A second Ctrl-C, or a wait past its bound, exits at once."""
+    from mmcsplat.storage.chunks import settle_zarr_io
+
+    with contextlib.suppress(KeyboardInterrupt, TimeoutError):
+        settle_zarr_io()
 
 
 def _plugin_at_fault(error: BaseException) -> str | None:
@@ -216,9 +228,6 @@ def _stdout_closed() -> int:
 
 
 def _interrupted(interrupt: KeyboardInterrupt) -> int:
-    from mmcsplat.storage.chunks import settle_writes
-
-    settle_writes()  # what zarr still writes lands before the exit, not as "Task was destroyed but it is pending!"
     terminated = isinstance(interrupt, Terminated)
     print(f"mmcsplat: {'terminated (SIGTERM)' if terminated else 'interrupted'}; what was complete is kept, run the command again to resume",
           file=sys.stderr)

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from mmcsplat.plugin_api.errors import MissingFileError, MmcsplatError, OutputExistsError
-from mmcsplat.storage.chunks import settle_writes
+from mmcsplat.storage.chunks import settle_zarr_io
 
 #: The errors of a file system that has no room left (a full disk, an exhausted quota).
 NO_SPACE = (errno.ENOSPC, errno.EDQUOT)
@@ -165,9 +165,9 @@ def remove_leftovers(folder: Path, prefix: str) -> None:
 
 def remove_local_tree(path: Path) -> None:
     """Delete ``path``, a folder or a file; a folder once the writes in flight into it are done
-    (:func:`~mmcsplat.storage.chunks.settle_writes`: an interrupted zarr store is still being written)."""
+    (:func:`~mmcsplat.storage.chunks.settle_zarr_io`: an interrupted zarr store is still being written)."""
     if path.is_dir() and not path.is_symlink():
-        settle_writes()
+        settle_zarr_io()
         shutil.rmtree(path)
     elif path.exists() or path.is_symlink():
         path.unlink()

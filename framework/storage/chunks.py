@@ -18,15 +18,16 @@ import numpy as np
 
 from mmcsplat.plugin_api.errors import InputError
 
-#: How long a store's removal waits for zarr's writes still in flight.
+#: How long a store's removal, or a command's exit, waits for zarr's reads and writes still in flight.
 SETTLE_SECONDS = 30.0
 
 
-def settle_writes(timeout: float = SETTLE_SECONDS) -> None:
-    """Wait until zarr's writes still in flight are done. zarr runs each write on its own IO thread's event
-    loop; Ctrl-C stops the caller's wait, not the write, so a partial store removed at once races its last
+def settle_zarr_io(timeout: float = SETTLE_SECONDS) -> None:
+    """Wait until zarr's reads and writes still in flight are done. zarr runs each on its own IO thread's event
+    loop; Ctrl-C stops the caller's wait, not the work, so a partial store removed at once races its last
     chunks (an error "directory not empty" instead of the interrupt, a chunk written into a folder just
-    removed, "Task was destroyed but it is pending!" at exit). Nothing to wait for unless zarr was used."""
+    removed), and an exit beside a read or write in flight prints "Task was destroyed but it is pending!" and a
+    traceback. Nothing to wait for unless zarr was used."""
     sync = sys.modules.get("zarr.core.sync")
     io_loop = sync.loop[0] if sync is not None else None  # zarr's IO loop, once any store was written or read
     if io_loop is None or io_loop.is_closed() or not io_loop.is_running():
